@@ -1,0 +1,46 @@
+# threedcal — `make all` runs the default study, `make test` the test suite.
+# Both create .venv and install the pinned dependencies first (once; again when pyproject.toml changes).
+
+SHELL  := /bin/bash
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+CORES  ?= 2
+# The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
+FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
+
+.PHONY: all setup test lint bench report clean
+
+all: $(STAMP)
+	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e ".[dev]"
+	touch $(STAMP)
+
+test: $(STAMP)
+	set -o pipefail; $(BIN)/python -m pytest 2>&1 | tee .pytest-last.log
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests scripts benchmarks
+	$(BIN)/ruff format --check src tests scripts benchmarks
+	$(BIN)/snakefmt --check Snakefile rules
+	$(BIN)/snakemake --lint --cores 1
+
+# Benchmarks print figures and ratios against a baseline measured in the same run; they are not tests.
+bench: $(STAMP)
+	@set -e; for b in benchmarks/bench_*.py; do \
+	  [ -e "$$b" ] || { echo "no benchmarks yet"; break; }; \
+	  echo "== $$b"; $(BIN)/python "$$b"; \
+	done
+
+report: $(STAMP)
+	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all
+	$(BIN)/snakemake --profile workflow/profiles/default --report report.html
+
+clean:
+	rm -rf .snakemake results report.html

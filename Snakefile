@@ -1,0 +1,40 @@
+# threedcal study workflow: `snakemake --cores 2 all` builds every scene's results (see README.md).
+import re
+from pathlib import Path
+
+from snakemake.utils import min_version, validate
+
+from threedcal.config import SCHEMA_PATH, validate_config
+from threedcal.provenance import source_digest
+from threedcal.scenes import study_targets
+
+min_version("9.0")
+
+
+# config.yaml is the default study; `--configfile other.yaml` replaces it (never merges scenes into it).
+if not workflow.overwrite_configfiles:
+
+    configfile: "config.yaml"
+
+
+# Our validation first (messages name the key and the allowed values), then Snakemake's own.
+CONFIG_SOURCE = ", ".join(map(str, workflow.overwrite_configfiles)) or "config.yaml"
+config.update(validate_config(config, source=CONFIG_SOURCE))
+validate(config, "workflow/schemas/config.schema.yaml")
+
+SCENES = list(config["scenes"])
+# One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
+CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
+
+
+wildcard_constraints:
+    scene="|".join(map(re.escape, SCENES)),
+
+
+include: "rules/scene.smk"
+
+
+rule all:
+    default_target: True
+    input:
+        study_targets(config),

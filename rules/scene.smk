@@ -1,0 +1,15 @@
+# Stage `scene`: the resolved scene (config, full profiles, software versions) every later stage reads.
+
+
+rule scene:
+    output:
+        "results/{scene}/scene.json",
+    log:
+        "results/{scene}/logs/scene.log",
+    conda:
+        CONDA_ENV
+    params:
+        scene=lambda wildcards: config["scenes"][wildcards.scene],
+        code=source_digest("scenes"),
+    script:
+        "../scripts/scene.py"

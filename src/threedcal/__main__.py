@@ -1,0 +1,3 @@
+from threedcal.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,89 @@
+"""The `threedcal` command line.
+
+Each module in this package contributes subcommands through a module-level ``COMMANDS`` list of
+:class:`Command`; they are discovered at start-up, so adding a command never touches this file.
+Modules keep heavy imports (torch, cv2, xarray) inside their ``run`` functions so that ``--help``
+stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from threedcal import __version__
+from threedcal.errors import ThreedcalError
+
+
+@dataclass(frozen=True)
+class Command:
+    """One leaf of the command tree, e.g. ``path=("sim", "soak")`` for ``threedcal sim soak``."""
+
+    path: tuple[str, ...]
+    help: str
+    run: Callable[[argparse.Namespace], int | None]
+    configure: Callable[[argparse.ArgumentParser], None] = field(default=lambda parser: None)
+
+
+# One-line descriptions of command groups (groups without an entry get a generic one).
+GROUP_HELP = {
+    "config": "check study configs",
+    "profiles": "built-in sensor and printer profiles",
+    "printer": "talk to a Marlin 3D printer",
+    "sim": "the simulated bench: fake firmware, optical simulator",
+}
+
+
+def discover_commands() -> list[Command]:
+    commands: list[Command] = []
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        commands.extend(getattr(module, "COMMANDS", []))
+    return commands
+
+
+def build_parser(commands: Sequence[Command] | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="threedcal",
+        description="Calibrate vision-based tactile sensors with a 3D printer (3D Cal).",
+    )
+    parser.add_argument("--version", action="version", version=f"threedcal {__version__}")
+    groups: dict[tuple[str, ...], argparse._SubParsersAction] = {}
+    groups[()] = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for command in commands if commands is not None else discover_commands():
+        for depth in range(1, len(command.path)):
+            prefix = command.path[:depth]
+            if prefix not in groups:
+                group = groups[prefix[:-1]].add_parser(
+                    prefix[-1], help=GROUP_HELP.get(prefix[-1], f"{prefix[-1]} commands")
+                )
+                groups[prefix] = group.add_subparsers(
+                    dest=f"command_{depth}", metavar="COMMAND", required=True
+                )
+        leaf = groups[command.path[:-1]].add_parser(
+            command.path[-1], help=command.help, description=command.help
+        )
+        command.configure(leaf)
+        leaf.set_defaults(_run=command.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    run = getattr(args, "_run", None)
+    if run is None:  # bare `threedcal`
+        parser.print_help()
+        return 0
+    try:
+        return int(run(args) or 0)
+    except ThreedcalError as exc:
+        print(f"threedcal: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("threedcal: interrupted", file=sys.stderr)
+        return 130

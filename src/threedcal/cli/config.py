@@ -1,0 +1,44 @@
+"""`threedcal config check` and `threedcal profiles list`."""
+
+from __future__ import annotations
+
+import argparse
+
+from threedcal.cli import Command
+
+
+def _check(args: argparse.Namespace) -> int:
+    from threedcal.config import load_config
+    from threedcal.scenes import scene_targets
+
+    config = load_config(args.config)
+    print(f"{args.config}: valid, {len(config['scenes'])} scene(s)")
+    for name, scene in config["scenes"].items():
+        print(
+            f"  {name}: sensor={scene['sensor']} printer={scene.get('printer')} seed={scene['seed']}"
+        )
+        for target in scene_targets(name, scene):
+            print(f"    {target}")
+    return 0
+
+
+def _list_profiles(args: argparse.Namespace) -> int:
+    from threedcal.profiles import KINDS, builtin_names, load_profile
+
+    for kind in KINDS:
+        print(f"{kind}s:")
+        for name in builtin_names(kind):
+            profile = load_profile(kind, name)
+            print(f"  {name:16s} {profile.get('description', '')}")
+    return 0
+
+
+COMMANDS = [
+    Command(
+        ("config", "check"),
+        "validate a study config and list each scene's result files",
+        _check,
+        lambda p: p.add_argument("config", help="config YAML (e.g. config.yaml)"),
+    ),
+    Command(("profiles", "list"), "list the built-in sensor and printer profiles", _list_profiles),
+]

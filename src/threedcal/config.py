@@ -1,0 +1,161 @@
+"""Load and validate a study config: schema check with messages that name the key, defaults, scene rules.
+
+The same function serves the Snakefile and the CLI, so a config that the CLI accepts is one the
+workflow accepts, and vice versa.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Iterator, Mapping
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+from threedcal.errors import ConfigError
+
+SCHEMA_PATH = Path(str(files("threedcal") / "schemas" / "config.schema.yaml"))
+
+# The one fraction trained when a scene asks for no ablation: all training coordinates (80 % of all).
+FULL_TRAINING_P = 80
+# Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
+IMPORT_IRRELEVANT = ("printer", "port", "camera", "probe", "plan")
+
+
+def load_yaml(path: str | Path) -> Any:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+
+
+def load_schema(path: Path = SCHEMA_PATH) -> dict:
+    return load_yaml(path)
+
+
+def key_path(parts) -> str:
+    """Render a jsonschema error path as `scenes.digit.model.preset` (list items as `[i]`)."""
+    out = ""
+    for part in parts:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _describe(error: jsonschema.ValidationError) -> str:
+    where = key_path(error.absolute_path)
+    if error.validator == "additionalProperties":
+        allowed = sorted(error.schema.get("properties", {}))
+        extra = sorted(set(error.instance) - set(allowed))
+        return f"{where}: unknown key {', '.join(map(repr, extra))} (allowed: {', '.join(allowed)})"
+    if error.validator == "enum":
+        return f"{where}: {error.instance!r} is not allowed (allowed: {', '.join(map(str, error.validator_value))})"
+    if error.validator == "required":
+        return f"{where}: {error.message}"
+    if "propertyNames" in error.schema_path:
+        return f"{where}: name {error.instance!r} must match {error.validator_value}"
+    return f"{where}: {error.message}"
+
+
+def _iter_errors(instance: Any, schema: Mapping) -> Iterator[jsonschema.ValidationError]:
+    validator = jsonschema.Draft202012Validator(schema)
+    # Report the deepest error of each failing branch: it is the one that names the exact key.
+    for error in sorted(validator.iter_errors(instance), key=lambda e: list(e.absolute_path)):
+        leaves = list(error.context) if error.context else []
+        yield min(leaves, key=lambda e: -len(e.absolute_path)) if leaves else error
+
+
+def schema_errors(instance: Any, schema: Mapping) -> list[str]:
+    return [_describe(e) for e in _iter_errors(instance, schema)]
+
+
+def _fill_defaults(instance: Any, schema: Mapping, root: Mapping) -> None:
+    """Fill `default` values of the schema into `instance`, in place (validated input only)."""
+    if "$ref" in schema:
+        schema = root["$defs"][schema["$ref"].rsplit("/", 1)[-1]]
+    if not isinstance(instance, dict):
+        return
+    for key, sub in schema.get("properties", {}).items():
+        if key not in instance and "default" in sub:
+            instance[key] = copy.deepcopy(sub["default"])
+        if key in instance:
+            _fill_defaults(instance[key], sub, root)
+    extra = schema.get("additionalProperties")
+    if isinstance(extra, dict):
+        for key, value in instance.items():
+            if key not in schema.get("properties", {}):
+                _fill_defaults(value, extra, root)
+
+
+def validate_config(config: Mapping, source: str = "config") -> dict:
+    """Return a validated copy of `config` with defaults filled; raise ConfigError naming every bad key."""
+    schema = load_schema()
+    problems = schema_errors(config, schema)
+    if problems:
+        raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
+    problems = [
+        f"scenes.{name}.{msg}"
+        for name, scene in config["scenes"].items()
+        for msg in _scene_problems(scene)
+    ]
+    if problems:
+        raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
+    config = copy.deepcopy(dict(config))
+    _fill_defaults(config, schema, schema)
+    for scene in config["scenes"].values():
+        scene.setdefault("seed", config["seed"])
+        scene.setdefault("torch_threads", config["torch_threads"])
+        if is_imported(scene):  # no printer, probe or plan: the data exists already
+            for key in IMPORT_IRRELEVANT:
+                scene.pop(key, None)
+    return config
+
+
+def _scene_problems(scene: Mapping) -> list[str]:
+    from threedcal.profiles import ProfileNotFound, resolve_profile
+
+    problems = []
+    imported = "import" in scene
+    if imported and scene.get("printer") is not None:
+        problems.append("printer: an imported scene has no printer (remove `printer` or `import`)")
+    if not imported and scene.get("printer") is None:
+        problems.append("printer: required unless the scene has `import` (e.g. printer: ender3)")
+    if imported and "plan" in scene:
+        problems.append("plan: an imported scene has no probe plan (remove `plan` or `import`)")
+    for kind in ("sensor", "printer"):
+        ref = scene.get(kind)
+        if ref is None:
+            continue
+        try:
+            resolve_profile(kind, ref)
+        except ProfileNotFound as exc:
+            problems.append(f"{kind}: {exc}")
+    return problems
+
+
+def load_config(path: str | Path) -> dict:
+    return validate_config(load_yaml(path) or {}, source=str(path))
+
+
+def scene_config(config: Mapping, scene: str) -> dict:
+    try:
+        return config["scenes"][scene]
+    except KeyError:
+        names = ", ".join(config.get("scenes", {}))
+        raise ConfigError(f"no scene {scene!r} in the config (scenes: {names})") from None
+
+
+def training_fractions(scene: Mapping) -> list[int]:
+    """The fractions P (percent) for which a scene trains one model each, ascending."""
+    return sorted(scene.get("ablation") or [FULL_TRAINING_P])
+
+
+def is_imported(scene: Mapping) -> bool:
+    return "import" in scene

@@ -1,0 +1,9 @@
+"""Exceptions shared across threedcal: one base class so the CLI can turn any of them into one line."""
+
+
+class ThreedcalError(Exception):
+    """Base of every error threedcal raises on purpose (bad input, hardware faults, ...)."""
+
+
+class ConfigError(ThreedcalError, ValueError):
+    """A configuration, profile, plan or data file is invalid; the message names the file and key."""

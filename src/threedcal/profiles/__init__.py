@@ -1,0 +1,63 @@
+"""Profiles: every constant of a sensor or printer lives in a validated YAML file, never in code.
+
+Built-in profiles sit in ``profiles/<kind>s/<name>.yaml`` inside the package; a config may also
+name a YAML file by path. Each kind has a JSON schema in ``threedcal/schemas/<kind>.schema.yaml``.
+"""
+
+from __future__ import annotations
+
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+from threedcal.config import load_yaml, schema_errors
+from threedcal.errors import ConfigError
+
+KINDS = ("sensor", "printer")
+_ROOT = Path(str(files("threedcal")))
+
+
+class ProfileNotFound(ConfigError):
+    pass
+
+
+def builtin_dir(kind: str) -> Path:
+    if kind not in KINDS:
+        raise ValueError(f"unknown profile kind {kind!r} (kinds: {', '.join(KINDS)})")
+    return _ROOT / "profiles" / f"{kind}s"
+
+
+def builtin_names(kind: str) -> list[str]:
+    return sorted(p.stem for p in builtin_dir(kind).glob("*.yaml"))
+
+
+def resolve_profile(kind: str, ref: str | Path) -> Path:
+    """A built-in name (`digit`) or a path to a YAML file → the file's path."""
+    ref = str(ref)
+    if ref.endswith((".yaml", ".yml")) or "/" in ref:
+        path = Path(ref)
+        if not path.is_file():
+            raise ProfileNotFound(f"{kind} profile file {ref!r} does not exist")
+        return path
+    path = builtin_dir(kind) / f"{ref}.yaml"
+    if not path.is_file():
+        names = ", ".join(builtin_names(kind)) or "none"
+        raise ProfileNotFound(
+            f"no built-in {kind} profile {ref!r} (built-in: {names}; or give a path to a YAML file)"
+        )
+    return path
+
+
+def load_profile(kind: str, ref: str | Path) -> dict[str, Any]:
+    """Load and validate a profile; the result carries its `name` and the `source` file."""
+    path = resolve_profile(kind, ref)
+    data = load_yaml(path)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a {kind} profile must be a mapping of keys to values")
+    schema = load_yaml(_ROOT / "schemas" / f"{kind}.schema.yaml")
+    problems = schema_errors(data, schema)
+    if problems:
+        raise ConfigError(f"{path}: invalid {kind} profile\n  " + "\n  ".join(problems))
+    data.setdefault("name", path.stem)
+    data["source"] = str(path)
+    return data

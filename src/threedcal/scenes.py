@@ -1,0 +1,76 @@
+"""What each scene asks of the workflow: its result files, derived from its config alone.
+
+`rule all` requests exactly these, so a scene builds only what it needs (an imported scene has no
+collection, a scene without an ablation trains one model, ...). Each stage adds its targets here.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+from collections.abc import Mapping
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from threedcal.profiles import load_profile
+
+RESULTS = "results"
+# Versions recorded with every scene: the packages whose behaviour changes numbers.
+RECORDED_PACKAGES = (
+    "threedcal",
+    "numpy",
+    "scipy",
+    "torch",
+    "opencv-contrib-python-headless",
+    "xarray",
+    "zarr",
+    "snakemake",
+)
+
+
+def scene_targets(name: str, scene: Mapping) -> list[str]:
+    root = f"{RESULTS}/{name}"
+    targets = [f"{root}/scene.json"]
+    return targets
+
+
+def study_targets(config: Mapping) -> list[str]:
+    """Every file `rule all` asks for: each scene's targets, then the study-wide ones."""
+    targets: list[str] = []
+    for name, scene in config["scenes"].items():
+        targets += scene_targets(name, scene)
+    return targets
+
+
+def package_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for package in RECORDED_PACKAGES:
+        try:
+            versions[package] = version(package)
+        except PackageNotFoundError:
+            versions[package] = "not installed"
+    return versions
+
+
+def scene_record(name: str, scene: Mapping) -> dict[str, Any]:
+    """The resolved scene: its config, the full profiles it names, and the software it ran with."""
+    profiles = {
+        kind: load_profile(kind, scene[kind])
+        for kind in ("sensor", "printer")
+        if scene.get(kind) is not None
+    }
+    for profile in profiles.values():
+        profile.pop("source", None)  # a machine-specific path; the content is what matters
+    return {
+        "scene": name,
+        "config": dict(scene),
+        "profiles": profiles,
+        "software": package_versions(),
+    }
+
+
+def write_scene_record(name: str, scene: Mapping, path: str | Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(scene_record(name, scene), indent=2, sort_keys=True) + "\n")

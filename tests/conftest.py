@@ -1,0 +1,83 @@
+"""Shared fixtures: paths, the shared real data, and a Snakemake runner for workflow tests."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+SNAKEMAKE = Path(sys.executable).with_name("snakemake")
+
+
+@pytest.fixture
+def repo() -> Path:
+    return REPO
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.fail(
+            f"{SHARED_DATA} is missing: the real data must sit in ../shared/data beside the repo"
+        )
+    return SHARED_DATA
+
+
+def write_config(directory: Path, config: dict, name: str = "config.yaml") -> Path:
+    path = directory / name
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def tiny_study_config(tmp_path: Path) -> dict:
+    """tests/config/test.yaml with its relative data paths made absolute (it runs in a temp dir)."""
+    config = yaml.safe_load((REPO / "tests/config/test.yaml").read_text())
+    for scene in config["scenes"].values():
+        if "import" in scene:
+            scene["import"]["path"] = str((REPO / scene["import"]["path"]).resolve())
+    return config
+
+
+def snakemake(
+    workdir: Path, configfile: Path, *args: str, check: bool = True
+) -> subprocess.CompletedProcess:
+    cmd = [
+        str(SNAKEMAKE),
+        "-s",
+        str(REPO / "Snakefile"),
+        "-d",
+        str(workdir),
+        "--configfile",
+        str(configfile),
+        "--cores",
+        "2",
+        *args,
+    ]
+    result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir)
+    if check and result.returncode != 0:
+        raise AssertionError(
+            f"snakemake failed ({' '.join(cmd)}):\n{result.stdout}\n{result.stderr}"
+        )
+    return result
+
+
+def scheduled_jobs(workdir: Path, configfile: Path, *args: str) -> list[tuple[str, dict[str, str]]]:
+    """The (rule, wildcards) of every job a dry run would execute."""
+    result = snakemake(workdir, configfile, "--dry-run", *args)
+    jobs: list[tuple[str, dict[str, str]]] = []
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", result.stdout + result.stderr):
+        match = re.match(r"(?:local)?rule (\w+):", block.strip())
+        if not match:
+            continue
+        wildcards = re.search(r"^\s+wildcards: (.*)$", block, re.MULTILINE)
+        values = (
+            dict(kv.split("=", 1) for kv in wildcards.group(1).split(", ")) if wildcards else {}
+        )
+        jobs.append((match.group(1), values))
+    return jobs

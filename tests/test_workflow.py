@@ -1,0 +1,89 @@
+"""The Snakemake DAG: per-scene targets, config errors at parse time, caching, and one end-to-end run."""
+
+import json
+
+import pytest
+import yaml
+from conftest import scheduled_jobs, snakemake, tiny_study_config, write_config
+
+from threedcal.config import validate_config
+from threedcal.scenes import scene_targets, study_targets
+
+
+def test_dry_run_schedules_exactly_each_scenes_own_targets(tmp_path):
+    config = tiny_study_config(tmp_path)
+    path = write_config(tmp_path, config)
+    jobs = scheduled_jobs(tmp_path, path)
+    scenes = {wc["scene"] for rule, wc in jobs if "scene" in wc}
+    assert scenes == set(config["scenes"])
+    assert ("all", {}) in jobs
+
+
+def test_two_configs_schedule_only_their_scenes(tmp_path):
+    one = {"scenes": {"only_a": {"sensor": "digit", "printer": "ender3"}}}
+    two = {"scenes": {"only_b": {"sensor": "gelsight_mini", "printer": "ender3"}}}
+    jobs_one = scheduled_jobs(tmp_path, write_config(tmp_path, one, "one.yaml"))
+    jobs_two = scheduled_jobs(tmp_path, write_config(tmp_path, two, "two.yaml"))
+    assert {wc.get("scene") for _, wc in jobs_one} - {None} == {"only_a"}
+    assert {wc.get("scene") for _, wc in jobs_two} - {None} == {"only_b"}
+
+
+def test_study_targets_follow_scene_config():
+    config = validate_config(targets_config())
+    targets = study_targets(config)
+    for name, scene in config["scenes"].items():
+        assert set(scene_targets(name, scene)) <= set(targets)
+        assert all(t.startswith(f"results/{name}/") for t in scene_targets(name, scene))
+
+
+def test_config_cli_override_keeps_default_scenes(repo, tmp_path):
+    # `--config seed=3` modifies the default study; only `--configfile` replaces it.
+    result = snakemake(repo, repo / "config.yaml", "--dry-run", "--config", "seed=3")
+    assert "digit_sim" in result.stdout
+
+
+def test_bad_config_fails_at_parse_time_naming_the_key(tmp_path):
+    bad = {"scenes": {"s": {"sensor": "digit", "printer": "ender3", "model": {"preset": "big"}}}}
+    result = snakemake(tmp_path, write_config(tmp_path, bad), "--dry-run", check=False)
+    assert result.returncode != 0
+    output = result.stdout + result.stderr
+    assert (
+        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, lookup)" in output
+    )
+    assert not (tmp_path / "results").exists()
+
+
+def test_config_without_scenes_is_refused(tmp_path):
+    result = snakemake(tmp_path, write_config(tmp_path, {"seed": 1}), "--dry-run", check=False)
+    assert result.returncode != 0
+    assert "'scenes' is a required property" in result.stdout + result.stderr
+
+
+@pytest.mark.slow
+def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
+    config = tiny_study_config(tmp_path)
+    path = write_config(tmp_path, config)
+    snakemake(tmp_path, path)
+    for name in config["scenes"]:
+        record = json.loads((tmp_path / f"results/{name}/scene.json").read_text())
+        assert record["scene"] == name and record["software"]["threedcal"]
+    # Nothing changed: nothing to do.
+    assert scheduled_jobs(tmp_path, path) == []
+    # Change one setting of one scene: only that scene's dependent jobs rerun.
+    first, second = list(config["scenes"])
+    config["scenes"][first]["seed"] = 99
+    path = write_config(tmp_path, config)
+    jobs = scheduled_jobs(tmp_path, path)
+    rerun_scenes = {wc["scene"] for _, wc in jobs if "scene" in wc}
+    assert rerun_scenes == {first}
+    assert ("scene", {"scene": first}) in jobs
+
+
+def targets_config():
+    return yaml.safe_load(
+        """
+scenes:
+  sim: {sensor: digit, printer: ender3, ablation: [5, 80]}
+  imported: {sensor: gelsight_mini, import: {format: ball_folder, path: x}}
+"""
+    )
