@@ -1,0 +1,1 @@
+"""Probe plans, the labelled Zarr store, and the resumable collection run."""

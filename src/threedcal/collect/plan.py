@@ -1,0 +1,186 @@
+"""Probe plans: where to press, how deep, how many frames — read, generated, ordered and validated.
+
+A plan is a table in *plan-relative* millimetres (origin at the sensor's plan origin, printer axes):
+``x_mm, y_mm, depth_mm, frames``. ``depth_mm`` is how far below the first-touch height of the gel's
+apex the probe is commanded; on a domed gel the surface away from the apex sits lower, so a grid
+with dome compensation commands ``depth + sag(x, y)`` to keep the penetration even — the rule the
+authors' DIGIT plan follows. py3DCal plan CSVs (``x, y, depth, frames`` with a ``#`` header) load as is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from threedcal.errors import ConfigError
+
+PLAN_COLUMNS = ("x_mm", "y_mm", "depth_mm", "frames")
+
+
+def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
+    """How far the gel surface at plan (x, y) lies below its apex: a·(x−x0)² + b·(y−y0)² (0 if flat)."""
+    dome = sensor.get("dome") or {}
+    x = np.asarray(x_mm, dtype=float)
+    y = np.asarray(y_mm, dtype=float)
+    if not dome:
+        return np.zeros(np.broadcast(x, y).shape)
+    x0, y0 = dome["apex_mm"]
+    return dome["curvature_x_per_mm"] * (x - x0) ** 2 + dome["curvature_y_per_mm"] * (y - y0) ** 2
+
+
+def read_plan_csv(path: str | Path) -> pd.DataFrame:
+    """A plan CSV: four numeric columns x, y, depth, frames; a header line (with or without '#')."""
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read plan ({exc.strerror})") from exc
+    rows = []
+    for number, line in enumerate(lines, start=1):
+        text = line.strip().lstrip("\ufeff")
+        if not text:
+            continue
+        fields = [f.strip() for f in text.lstrip("#").split(",")]
+        if text.startswith("#") or (number == 1 and not _is_number(fields[0])):
+            continue  # header or comment
+        if len(fields) != 4:
+            raise ConfigError(
+                f"{path}, line {number}: expected 4 values (x, y, depth, frames), got {len(fields)}"
+            )
+        values = []
+        for name, field in zip(PLAN_COLUMNS, fields, strict=True):
+            if not _is_number(field):
+                raise ConfigError(f"{path}, line {number}: {name}={field!r} is not a number")
+            values.append(float(field))
+        if values[3] != int(values[3]) or values[3] < 1:
+            raise ConfigError(
+                f"{path}, line {number}: frames={fields[3]!r} must be a whole number >= 1"
+            )
+        rows.append(values + [number])
+    if not rows:
+        raise ConfigError(f"{path}: the plan has no probe point")
+    plan = pd.DataFrame(rows, columns=[*PLAN_COLUMNS, "line"])
+    plan["frames"] = plan["frames"].astype(int)
+    plan["depth_mm"] = plan["depth_mm"].abs()  # py3DCal plans may write depth as negative Z
+    return plan
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def grid_plan(
+    sensor: Mapping,
+    spacing_mm: float,
+    depth_mm: float,
+    frames: int,
+    dome_compensation: bool = True,
+) -> pd.DataFrame:
+    """A regular grid over the sensor's probe area (profile `plan_area_mm`), serpentine ordered."""
+    if spacing_mm <= 0 or not np.isfinite(spacing_mm):
+        raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
+    width, height = sensor["plan_area_mm"]
+    xs = np.arange(0.0, width + 1e-9, spacing_mm)
+    ys = np.arange(0.0, height + 1e-9, spacing_mm)
+    gx, gy = np.meshgrid(xs, ys)
+    x, y = gx.ravel(), gy.ravel()
+    depth = np.full(x.shape, float(depth_mm))
+    if dome_compensation:
+        depth = depth + dome_sag_mm(sensor, x, y)
+    plan = pd.DataFrame(
+        {"x_mm": x, "y_mm": y, "depth_mm": np.round(depth, 4), "frames": int(frames)}
+    )
+    return serpentine(plan)
+
+
+def serpentine(plan: pd.DataFrame, row_tolerance_mm: float = 1e-6) -> pd.DataFrame:
+    """Order by rows of equal y; alternate the x direction each row, so travel between points is short."""
+    plan = plan.copy()
+    row = np.round(plan["y_mm"].to_numpy() / max(row_tolerance_mm, 1e-12)).astype(np.int64)
+    rank = pd.Series(row).rank(method="dense").astype(int).to_numpy() - 1
+    key = np.where(rank % 2 == 0, plan["x_mm"], -plan["x_mm"])
+    order = np.lexsort((key, rank))
+    return plan.iloc[order].reset_index(drop=True)
+
+
+def _describe_row(plan: pd.DataFrame, i: int, source: str) -> str:
+    if "line" in plan:
+        return f"{source}, line {int(plan['line'].iloc[i])}"
+    return f"{source}, point {i}"
+
+
+def validate_plan(
+    plan: pd.DataFrame,
+    sensor: Mapping,
+    printer: Mapping | None = None,
+    source: str = "plan",
+) -> None:
+    """Every check that must pass before the printer moves; the first failure names its row."""
+    max_depth = float(sensor["max_penetration_mm"])
+    width, height = sensor["plan_area_mm"]
+    margin = 1e-9
+    for i in range(len(plan)):
+        x, y, depth, frames = (plan[c].iloc[i] for c in PLAN_COLUMNS)
+        where = _describe_row(plan, i, source)
+        if not all(np.isfinite([x, y, depth, frames])):
+            raise ConfigError(
+                f"{where}: x, y, depth and frames must be finite numbers (got {x}, {y}, {depth}, {frames})"
+            )
+        penetration = depth - float(dome_sag_mm(sensor, x, y))
+        if depth < 0 or penetration > max_depth + margin:
+            raise ConfigError(
+                f"{where}: depth {depth:g} mm gives {penetration:g} mm penetration, beyond the "
+                f"sensor's maximum of {max_depth:g} mm"
+            )
+        if not (-margin <= x <= width + margin and -margin <= y <= height + margin):
+            raise ConfigError(
+                f"{where}: point ({x:g}, {y:g}) mm lies outside the gel's probe area "
+                f"(0..{width:g} x 0..{height:g} mm)"
+            )
+        if frames < 1:
+            raise ConfigError(f"{where}: frames must be >= 1, got {frames}")
+        if printer is not None:
+            target = plan_to_printer(sensor, x, y, depth)
+            travel = printer["travel_mm"]
+            for axis, value in zip("xyz", target, strict=True):
+                if not 0 <= value <= travel[axis]:
+                    raise ConfigError(
+                        f"{where}: printer {axis.upper()}={value:g} mm lies outside the printer's "
+                        f"travel 0..{travel[axis]:g} mm (check the sensor's mount offsets)"
+                    )
+
+
+def plan_to_printer(
+    sensor: Mapping, x_mm: float, y_mm: float, depth_mm: float
+) -> tuple[float, float, float]:
+    """Plan-relative (x, y, depth) → absolute printer (X, Y, Z) from the sensor's mount offsets."""
+    mount = sensor["mount"]
+    return (
+        mount["x_offset_mm"] + float(x_mm),
+        mount["y_offset_mm"] + float(y_mm),
+        mount["z_touch_mm"] - float(depth_mm),
+    )
+
+
+def clearance_z(sensor: Mapping) -> float:
+    mount = sensor["mount"]
+    return mount["z_touch_mm"] + mount["z_clearance_mm"]
+
+
+def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
+    """The plan a scene's `plan:` section describes (CSV or grid)."""
+    if plan_config.get("csv"):
+        return read_plan_csv(plan_config["csv"])
+    return grid_plan(
+        sensor,
+        spacing_mm=plan_config["spacing_mm"],
+        depth_mm=plan_config["depth_mm"],
+        frames=plan_config["frames"],
+    )
