@@ -4,7 +4,7 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import SCHEMA_PATH, validate_config
+from threedcal.config import is_imported, validate_config
 from threedcal.provenance import source_digest
 from threedcal.scenes import study_targets
 
@@ -23,6 +23,9 @@ config.update(validate_config(config, source=CONFIG_SOURCE))
 validate(config, "workflow/schemas/config.schema.yaml")
 
 SCENES = list(config["scenes"])
+IMPORTED_SCENES = [
+    name for name, scene in config["scenes"].items() if is_imported(scene)
+]
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 
@@ -32,6 +35,7 @@ wildcard_constraints:
 
 
 include: "rules/scene.smk"
+include: "rules/dataset.smk"
 
 
 rule all:

@@ -13,6 +13,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from threedcal.config import is_imported
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -32,6 +33,8 @@ RECORDED_PACKAGES = (
 def scene_targets(name: str, scene: Mapping) -> list[str]:
     root = f"{RESULTS}/{name}"
     targets = [f"{root}/scene.json"]
+    if is_imported(scene):
+        targets += [f"{root}/dataset/splits.csv"]
     return targets
 
 

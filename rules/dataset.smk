@@ -1,0 +1,18 @@
+# Stage `dataset`: registration, exact labels, splits and the model-ready set (results/{scene}/dataset/).
+
+
+rule dataset_import:
+    output:
+        trainset=directory("results/{scene}/dataset/trainset"),
+        splits="results/{scene}/dataset/splits.csv",
+    log:
+        "results/{scene}/logs/dataset.log",
+    wildcard_constraints:
+        scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+    conda:
+        CONDA_ENV
+    params:
+        scene=lambda wildcards: config["scenes"][wildcards.scene],
+        code=source_digest("dataset"),
+    script:
+        "../scripts/dataset_import.py"

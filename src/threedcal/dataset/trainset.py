@@ -1,0 +1,236 @@
+"""The model-ready dataset: frames, blank and per-frame sphere parameters, laid out for fast reads.
+
+On disk (``results/{scene}/dataset/``)::
+
+    frames.npy    (N, H, W, 3) uint8, memory-mapped when read: no image decoding per epoch
+    blank.npy     (H, W, 3) float32, mean of the no-contact frames
+    samples.csv   one row per frame: frame, point, center_x_px, center_y_px, depth_mm,
+                  eval_radius_px, split (train/val), min_p — parsed once, into arrays
+    meta.json     px_per_mm, sphere_radius_mm, max_slope_deg, downscale, source
+
+Labels are not stored: they are the exact sphere gradients of (centre, depth, radius) computed on
+demand for any window (threedcal.dataset.labels), so a sub-pixel registration change never leaves
+stale label images behind. Inputs are (frame − blank)/255 as three channels plus two coordinate
+channels, x and y of each pixel normalised to [-1, 1] over the full image — the network learns
+position-dependent illumination from them, also when it trains on patches.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from threedcal.dataset.labels import DEFAULT_MAX_SLOPE_DEG, sphere_gradients
+from threedcal.errors import ConfigError
+
+SAMPLE_COLUMNS = (
+    "frame",
+    "point",
+    "center_x_px",
+    "center_y_px",
+    "depth_mm",
+    "eval_radius_px",
+    "split",
+    "min_p",
+)
+INPUT_CHANNELS = 5
+
+
+def coordinate_channels(
+    height: int, width: int, window: tuple[slice, slice] | None = None
+) -> np.ndarray:
+    """(2, h, w) float32: x and y of each pixel of `window`, normalised to [-1, 1] over the full image."""
+    ys = np.linspace(-1.0, 1.0, height, dtype=np.float32) if height > 1 else np.zeros(1, np.float32)
+    xs = np.linspace(-1.0, 1.0, width, dtype=np.float32) if width > 1 else np.zeros(1, np.float32)
+    if window is not None:
+        ys, xs = ys[window[0]], xs[window[1]]
+    grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
+    return np.stack([grid_x, grid_y])
+
+
+def model_inputs(
+    frame: np.ndarray, blank: np.ndarray, window: tuple[slice, slice] | None = None
+) -> np.ndarray:
+    """(5, h, w) float32 network input of one RGB uint8 frame (or a window of it)."""
+    height, width = frame.shape[:2]
+    region = (slice(None), slice(None)) if window is None else window
+    diff = (frame[region].astype(np.float32) - blank[region]) / 255.0
+    return np.concatenate([diff.transpose(2, 0, 1), coordinate_channels(height, width, window)])
+
+
+@dataclass
+class TrainingSet:
+    frames: np.ndarray  # (N, H, W, 3) uint8
+    blank: np.ndarray  # (H, W, 3) float32
+    samples: pd.DataFrame  # SAMPLE_COLUMNS
+    px_per_mm: float
+    sphere_radius_mm: float
+    max_slope_deg: float = DEFAULT_MAX_SLOPE_DEG
+    meta: dict | None = None
+
+    def __post_init__(self) -> None:
+        self.center_px = self.samples[["center_x_px", "center_y_px"]].to_numpy(float)
+        self.depth_mm = self.samples["depth_mm"].to_numpy(float)
+        self.eval_radius_px = self.samples["eval_radius_px"].to_numpy(float)
+        self.split = self.samples["split"].to_numpy(str)
+        self.min_p = self.samples["min_p"].to_numpy(int)
+        self.point = self.samples["point"].to_numpy(int)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return tuple(self.frames.shape[1:3])
+
+    def indices(self, split: str, percent: int | None = None) -> np.ndarray:
+        """Frames of a split; for 'train' with `percent`, only the P=percent subset's coordinates."""
+        chosen = self.split == split
+        if split == "train" and percent is not None:
+            chosen &= (self.min_p > 0) & (self.min_p <= percent)
+        return np.flatnonzero(chosen)
+
+    def inputs(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        return model_inputs(self.frames[i], self.blank, window)
+
+    def labels(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """(2, h, w) float32 gradient labels (∂z/∂x, ∂z/∂y) of frame i in `window`."""
+        height, width = self.image_shape
+        if window is None:
+            window = (slice(0, height), slice(0, width))
+        rows, cols = window
+        r0, r1, _ = rows.indices(height)
+        c0, c1, _ = cols.indices(width)
+        cx, cy = self.center_px[i]
+        g = sphere_gradients(
+            (r1 - r0, c1 - c0),
+            (cx - c0, cy - r0),
+            self.sphere_radius_mm,
+            float(self.depth_mm[i]),
+            self.px_per_mm,
+            self.max_slope_deg,
+        )
+        return g.transpose(2, 0, 1)
+
+    def eval_mask(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
+        """Pixels whose label is trusted for evaluation (inside eval_radius_px of the centre)."""
+        height, width = self.image_shape
+        rows = np.arange(height)[:, None]
+        cols = np.arange(width)[None, :]
+        cx, cy = self.center_px[i]
+        mask = (cols - cx) ** 2 + (rows - cy) ** 2 <= self.eval_radius_px[i] ** 2
+        return mask if window is None else mask[window]
+
+    def save(self, directory: str | Path) -> None:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        np.save(directory / "frames.npy", np.ascontiguousarray(self.frames, dtype=np.uint8))
+        np.save(directory / "blank.npy", self.blank.astype(np.float32))
+        self.samples.loc[:, list(SAMPLE_COLUMNS)].to_csv(directory / "samples.csv", index=False)
+        meta = {
+            **(self.meta or {}),
+            "px_per_mm": self.px_per_mm,
+            "sphere_radius_mm": self.sphere_radius_mm,
+            "max_slope_deg": self.max_slope_deg,
+        }
+        (directory / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+    @classmethod
+    def load(cls, directory: str | Path, mmap: bool = True) -> TrainingSet:
+        directory = Path(directory)
+        for name in ("frames.npy", "blank.npy", "samples.csv", "meta.json"):
+            if not (directory / name).is_file():
+                raise ConfigError(
+                    f"{directory / name}: missing (not a threedcal model-ready dataset)"
+                )
+        meta = json.loads((directory / "meta.json").read_text())
+        samples = pd.read_csv(directory / "samples.csv")
+        frames = np.load(directory / "frames.npy", mmap_mode="r" if mmap else None)
+        if len(samples) != len(frames):
+            raise ConfigError(
+                f"{directory}: samples.csv has {len(samples)} rows for {len(frames)} frames"
+            )
+        return cls(
+            frames=frames,
+            blank=np.load(directory / "blank.npy"),
+            samples=samples,
+            px_per_mm=float(meta["px_per_mm"]),
+            sphere_radius_mm=float(meta["sphere_radius_mm"]),
+            max_slope_deg=float(meta.get("max_slope_deg", DEFAULT_MAX_SLOPE_DEG)),
+            meta=meta,
+        )
+
+
+def downscale(trainset: TrainingSet, factor: int) -> TrainingSet:
+    """Average-pool frames by an integer factor; centres and px/mm follow (pixel-centre convention)."""
+    if factor == 1:
+        return trainset
+    if factor < 1:
+        raise ConfigError(f"downscale factor must be a whole number >= 1, got {factor}")
+    import cv2
+
+    n, height, width, _ = trainset.frames.shape
+    h, w = height // factor, width // factor
+    frames = np.stack(
+        [
+            cv2.resize(
+                np.asarray(f[: h * factor, : w * factor]), (w, h), interpolation=cv2.INTER_AREA
+            )
+            for f in trainset.frames
+        ]
+    )
+    blank = cv2.resize(
+        trainset.blank[: h * factor, : w * factor], (w, h), interpolation=cv2.INTER_AREA
+    )
+    samples = trainset.samples.copy()
+    # A pixel centre c in the full image maps to (c + 0.5) / f − 0.5 in the pooled one.
+    for column in ("center_x_px", "center_y_px"):
+        samples[column] = (samples[column] + 0.5) / factor - 0.5
+    samples["eval_radius_px"] = samples["eval_radius_px"] / factor
+    return TrainingSet(
+        frames=frames,
+        blank=blank.astype(np.float32),
+        samples=samples,
+        px_per_mm=trainset.px_per_mm / factor,
+        sphere_radius_mm=trainset.sphere_radius_mm,
+        max_slope_deg=trainset.max_slope_deg,
+        meta={
+            **(trainset.meta or {}),
+            "downscale": factor * (trainset.meta or {}).get("downscale", 1),
+        },
+    )
+
+
+def from_imported(data, seed: int, validation_fraction: float = 0.2) -> TrainingSet:
+    """An imported dataset → TrainingSet with a seeded split by probe coordinate (by image for ball folders)."""
+    from threedcal.dataset.splits import split_points
+
+    points = (
+        pd.DataFrame({"point": data.point, "x_mm": data.xy_mm[:, 0], "y_mm": data.xy_mm[:, 1]})
+        .drop_duplicates("point")
+        .fillna(0.0)
+    )
+    table = split_points(
+        points, [80], seed=seed, validation_fraction=validation_fraction
+    ).set_index("point")
+    samples = pd.DataFrame(
+        {
+            "frame": np.arange(len(data.names)),
+            "point": data.point,
+            "center_x_px": data.center_px[:, 0],
+            "center_y_px": data.center_px[:, 1],
+            "depth_mm": data.depth_mm,
+            "eval_radius_px": data.eval_radius_px,
+            "split": table.loc[data.point, "split"].to_numpy(),
+            "min_p": table.loc[data.point, "min_p"].to_numpy(),
+        }
+    )
+    return TrainingSet(
+        frames=data.frames,
+        blank=data.blank.astype(np.float32),
+        samples=samples,
+        px_per_mm=data.px_per_mm,
+        sphere_radius_mm=data.sphere_radius_mm,
+        meta={"source": "import", "names": list(data.names), **data.metadata},
+    )

@@ -1,0 +1,95 @@
+import numpy as np
+import pandas as pd
+import pytest
+
+from threedcal.dataset.build import build_imported
+from threedcal.dataset.trainset import TrainingSet, coordinate_channels, downscale, model_inputs
+from threedcal.errors import ConfigError
+
+
+def small_set(n=4, shape=(40, 30)):
+    rng = np.random.default_rng(0)
+    samples = pd.DataFrame(
+        {
+            "frame": np.arange(n),
+            "point": np.arange(n) // 2,
+            "center_x_px": [10.3, 11.0, 20.5, 15.0][:n],
+            "center_y_px": [12.0, 25.2, 20.0, 30.7][:n],
+            "depth_mm": [0.5, 0.8, 1.0, 1.2][:n],
+            "eval_radius_px": [10.0] * n,
+            "split": ["train", "train", "val", "val"][:n],
+            "min_p": [80, 80, 0, 0][:n],
+        }
+    )
+    return TrainingSet(
+        frames=rng.integers(0, 256, (n, *shape, 3), dtype=np.uint8),
+        blank=rng.uniform(0, 255, (*shape, 3)).astype(np.float32),
+        samples=samples,
+        px_per_mm=8.0,
+        sphere_radius_mm=2.0,
+    )
+
+
+def test_coordinate_channels_span_minus_one_to_one_and_follow_windows():
+    full = coordinate_channels(5, 4)
+    assert full[0, 0].tolist() == pytest.approx([-1, -1 / 3, 1 / 3, 1])
+    assert full[1, :, 0].tolist() == pytest.approx([-1, -0.5, 0, 0.5, 1])
+    window = (slice(1, 3), slice(2, 4))
+    np.testing.assert_array_equal(coordinate_channels(5, 4, window), full[:, 1:3, 2:4])
+
+
+def test_inputs_and_labels_of_a_window_equal_the_window_of_the_full_image():
+    ts = small_set()
+    window = (slice(5, 25), slice(3, 21))
+    np.testing.assert_allclose(ts.inputs(1, window), ts.inputs(1)[:, 5:25, 3:21], atol=1e-7)
+    np.testing.assert_allclose(ts.labels(1, window), ts.labels(1)[:, 5:25, 3:21], atol=1e-7)
+    frame = ts.frames[1].astype(np.float32)
+    np.testing.assert_allclose(ts.inputs(1)[0], (frame[..., 0] - ts.blank[..., 0]) / 255, atol=1e-6)
+    assert model_inputs(ts.frames[0], ts.blank).shape == (5, 40, 30)
+
+
+def test_split_and_subset_indices():
+    ts = small_set()
+    assert ts.indices("train").tolist() == [0, 1]
+    assert ts.indices("val").tolist() == [2, 3]
+    assert ts.indices("train", percent=5).tolist() == []
+
+
+def test_save_load_round_trip(tmp_path):
+    ts = small_set()
+    ts.save(tmp_path / "set")
+    back = TrainingSet.load(tmp_path / "set")
+    np.testing.assert_array_equal(np.asarray(back.frames), ts.frames)
+    np.testing.assert_array_equal(back.labels(2), ts.labels(2))
+    assert back.px_per_mm == 8.0 and back.sphere_radius_mm == 2.0
+    (tmp_path / "set/meta.json").unlink()
+    with pytest.raises(ConfigError, match="meta.json: missing"):
+        TrainingSet.load(tmp_path / "set")
+
+
+def test_downscale_keeps_the_sphere_where_it_was():
+    ts = small_set()
+    half = downscale(ts, 2)
+    assert half.frames.shape == (4, 20, 15, 3) and half.px_per_mm == 4.0
+    # Pooled labels ≈ labels of the pooled geometry: compare the depth-weighted centre of the contact.
+    full_mask = np.abs(ts.labels(3)).sum(0) > 0
+    half_mask = np.abs(half.labels(3)).sum(0) > 0
+    rows, cols = np.nonzero(full_mask)
+    rows_h, cols_h = np.nonzero(half_mask)
+    assert (cols_h.mean() + 0.5) * 2 - 0.5 == pytest.approx(cols.mean(), abs=0.6)
+    assert (rows_h.mean() + 0.5) * 2 - 0.5 == pytest.approx(rows.mean(), abs=0.6)
+
+
+def test_build_imported_real_folder(tmp_path, shared_data):
+    scene = {
+        "import": {"format": "ball_folder", "path": str(shared_data / "gelsight_ball_fots")},
+        "seed": 4,
+        "dataset": {"downscale": 2, "max_slope_deg": 70},
+    }
+    ts = build_imported(scene, tmp_path / "trainset", tmp_path / "splits.csv")
+    splits = pd.read_csv(tmp_path / "splits.csv")
+    assert len(splits) == 42 and (splits["split"] == "val").sum() == 8
+    back = TrainingSet.load(tmp_path / "trainset")
+    assert back.frames.shape == (42, 160, 120, 3) and back.max_slope_deg == 70
+    assert back.px_per_mm == pytest.approx(19.58 / 2)
+    assert ts.indices("val").size == 8
