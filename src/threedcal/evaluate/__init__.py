@@ -1,0 +1,1 @@
+"""Evaluation: ablation statistics, test objects, alignment and error metrics."""
