@@ -1,0 +1,1 @@
+"""Real hardware: the Marlin printer host, its motion-time model and printer profiles."""
