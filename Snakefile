@@ -32,6 +32,7 @@ wildcard_constraints:
 
 
 include: "rules/scene.smk"
+include: "rules/integrate.smk"
 
 
 rule all:
