@@ -36,6 +36,7 @@ wildcard_constraints:
 
 include: "rules/scene.smk"
 include: "rules/dataset.smk"
+include: "rules/integrate.smk"
 
 
 rule all:

@@ -17,6 +17,12 @@ from threedcal.config import is_imported
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
+# The study-wide integrator comparison (rules/integrate.smk), built when the config enables it.
+INTEGRATION_STUDY_TARGETS = [
+    f"{RESULTS}/integration/error_vs_time.csv",
+    f"{RESULTS}/integration/error_vs_time.png",
+    f"{RESULTS}/integration/reading.md",
+]
 # Versions recorded with every scene: the packages whose behaviour changes numbers.
 RECORDED_PACKAGES = (
     "threedcal",
@@ -43,6 +49,8 @@ def study_targets(config: Mapping) -> list[str]:
     targets: list[str] = []
     for name, scene in config["scenes"].items():
         targets += scene_targets(name, scene)
+    if config.get("integration_study", {}).get("enabled"):
+        targets += INTEGRATION_STUDY_TARGETS
     return targets
 
 

@@ -1,0 +1,164 @@
+"""Fast Poisson integrators: one transform pair each, eigenvalues cached per grid shape and dtype.
+
+poisson_dst: Dirichlet, the outermost ring of pixels is depth 0 (the paper's choice). The interior
+    5-point Laplacian is diagonalised by the DST-I with eigenvalues 2 cos(pi k / (n - 1)) - 2, k =
+    1..n-2 — transform and eigenvalues must belong to the same DST (the authors' code mixes DST-II
+    with these DST-I eigenvalues, see threedcal.depth.py3dcal).
+poisson_dct: Neumann, i.e. the plain least-squares fit over every edge of the grid (no assumption
+    about the border: right when contact reaches it). DCT-II, eigenvalues 2 cos(pi k / n) - 2.
+frankot_chellappa: the classic FFT projection onto integrable periodic fields (continuous
+    derivative model); exact for band-limited periodic fields, wraps around at the borders otherwise.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import scipy.fft as sfft
+
+from threedcal.depth.convention import apply_offset, divergence, edge_gradients
+from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, prepare
+from threedcal.errors import ConfigError
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+@lru_cache(maxsize=16)
+def _dst_denominator(h: int, w: int, dtype: str) -> np.ndarray:
+    """DST-I eigenvalues of the interior (h-2, w-2) Dirichlet Laplacian, summed over both axes."""
+    ky = np.arange(1, h - 1)
+    kx = np.arange(1, w - 1)
+    lam_y = 2.0 * np.cos(np.pi * ky / (h - 1)) - 2.0
+    lam_x = 2.0 * np.cos(np.pi * kx / (w - 1)) - 2.0
+    return _readonly((lam_y[:, None] + lam_x[None, :]).astype(dtype))
+
+
+@lru_cache(maxsize=16)
+def _dct_denominator(h: int, w: int, dtype: str) -> np.ndarray:
+    """DCT-II eigenvalues of the Neumann grid Laplacian; the constant mode gets inf (depth mean 0)."""
+    lam_y = 2.0 * np.cos(np.pi * np.arange(h) / h) - 2.0
+    lam_x = 2.0 * np.cos(np.pi * np.arange(w) / w) - 2.0
+    denom = lam_y[:, None] + lam_x[None, :]
+    denom[0, 0] = np.inf
+    return _readonly(denom.astype(dtype))
+
+
+@lru_cache(maxsize=16)
+def _fc_multipliers(h: int, w: int, dtype: str) -> tuple[np.ndarray, np.ndarray]:
+    """Z = Mx Gx + My Gy with M = -i omega / |omega|^2 (rfft layout); constant and Nyquist modes 0."""
+    wy = 2.0 * np.pi * np.fft.fftfreq(h)[:, None]
+    wx = 2.0 * np.pi * np.fft.rfftfreq(w)[None, :]
+    wy = np.broadcast_to(wy, (h, wx.shape[1])).copy()
+    wx = np.broadcast_to(wx, (h, wx.shape[1])).copy()
+    if h % 2 == 0:
+        wy[h // 2, :] = 0.0  # a Nyquist gradient has no unambiguous integral
+    if w % 2 == 0:
+        wx[:, -1] = 0.0
+    denom = wx**2 + wy**2
+    denom[denom == 0] = np.inf
+    ctype = np.complex64 if dtype == "float32" else np.complex128
+    mx = (-1j * wx / denom).astype(ctype)
+    my = (-1j * wy / denom).astype(ctype)
+    return _readonly(mx), _readonly(my)
+
+
+def dirichlet_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """Depth in pixel units, border ring 0, from clean pixel-centre gradients."""
+    h, w = gx.shape
+    if h < 3 or w < 3:
+        raise ConfigError(
+            f"poisson_dst needs at least 3x3 pixels (a zero border around one unknown), got {h}x{w}; "
+            "use poisson_dct or lstsq_sparse for thinner fields"
+        )
+    # Interior divergence of the edge means: central differences of the pixel-centre gradients.
+    rhs = gx[1:-1, 2:] - gx[1:-1, :-2]
+    rhs += gy[2:, 1:-1]
+    rhs -= gy[:-2, 1:-1]
+    rhs *= gx.dtype.type(0.5)
+    spec = sfft.dstn(rhs, type=1, overwrite_x=True, workers=workers)
+    spec /= _dst_denominator(h, w, str(gx.dtype))
+    z = np.zeros((h, w), dtype=gx.dtype)
+    z[1:-1, 1:-1] = sfft.idstn(spec, type=1, overwrite_x=True, workers=workers)
+    return z
+
+
+def dirichlet_edges_px(ex: np.ndarray, ey: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """The same Dirichlet solve from edge differences (ex: (H, W-1), ey: (H-1, W)); for tests."""
+    h, w = ey.shape[0] + 1, ex.shape[1] + 1
+    rhs = divergence(ex, ey)[1:-1, 1:-1]
+    spec = sfft.dstn(rhs, type=1, workers=workers) / _dst_denominator(h, w, str(rhs.dtype))
+    z = np.zeros((h, w), dtype=rhs.dtype)
+    z[1:-1, 1:-1] = sfft.idstn(spec, type=1, workers=workers)
+    return z
+
+
+def neumann_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> np.ndarray:
+    """Least-squares depth in pixel units (mean 0) from clean pixel-centre gradients."""
+    h, w = gx.shape
+    div = divergence(*edge_gradients(gx, gy))
+    spec = sfft.dctn(div, type=2, overwrite_x=True, workers=workers)
+    spec /= _dct_denominator(h, w, str(gx.dtype))
+    return sfft.idctn(spec, type=2, overwrite_x=True, workers=workers)
+
+
+def frankot_chellappa_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> np.ndarray:
+    h, w = gx.shape
+    mx, my = _fc_multipliers(h, w, str(gx.dtype))
+    spec = sfft.rfft2(gx, workers=workers)
+    spec *= mx
+    spec += sfft.rfft2(gy, workers=workers) * my
+    return sfft.irfft2(spec, s=(h, w), workers=workers, overwrite_x=True).astype(
+        gx.dtype, copy=False
+    )
+
+
+def _run(solver, name, gx, gy, px_per_mm, offset, max_angle_deg, workers) -> np.ndarray:
+    gx, gy, scale, _ = prepare(gx, gy, name, px_per_mm, offset, max_angle_deg)
+    z = solver(gx, gy, workers)
+    z /= z.dtype.type(scale)
+    return apply_offset(z, offset)
+
+
+def poisson_dst(
+    gx,
+    gy,
+    *,
+    px_per_mm: float = 1.0,
+    offset: str = "border",
+    max_angle_deg: float | None = DEFAULT_MAX_ANGLE_DEG,
+    workers: int | None = None,
+) -> np.ndarray:
+    """Depth (mm) with the outermost pixel ring held at 0: DST-I Poisson solve. Needs H, W >= 3."""
+    return _run(dirichlet_px, "poisson_dst", gx, gy, px_per_mm, offset, max_angle_deg, workers)
+
+
+def poisson_dct(
+    gx,
+    gy,
+    *,
+    px_per_mm: float = 1.0,
+    offset: str = "border",
+    max_angle_deg: float | None = DEFAULT_MAX_ANGLE_DEG,
+    workers: int | None = None,
+) -> np.ndarray:
+    """Depth (mm), least squares over all edges (Neumann): DCT-II Poisson solve. Any H, W >= 1."""
+    return _run(neumann_px, "poisson_dct", gx, gy, px_per_mm, offset, max_angle_deg, workers)
+
+
+def frankot_chellappa(
+    gx,
+    gy,
+    *,
+    px_per_mm: float = 1.0,
+    offset: str = "border",
+    max_angle_deg: float | None = DEFAULT_MAX_ANGLE_DEG,
+    workers: int | None = None,
+) -> np.ndarray:
+    """Depth (mm) by Frankot-Chellappa (periodic FFT projection). Any H, W >= 1."""
+    return _run(
+        frankot_chellappa_px, "frankot_chellappa", gx, gy, px_per_mm, offset, max_angle_deg, workers
+    )
