@@ -35,6 +35,7 @@ wildcard_constraints:
 
 
 include: "rules/scene.smk"
+include: "rules/collect.smk"
 include: "rules/dataset.smk"
 include: "rules/integrate.smk"
 

@@ -13,8 +13,8 @@ from threedcal.hardware.printer import MarlinHost
 from threedcal.sim.marlin import SimMarlin, forget, register
 
 SENSOR = {
-    "plan_area_mm": [2.0, 1.0],
-    "max_penetration_mm": 4.0,
+    "probing": {"plan_area_mm": [2.0, 1.0]},
+    "gel": {"max_penetration_mm": 4.0},
     "mount": {
         "x_offset_mm": 100.0,
         "y_offset_mm": 100.0,

@@ -13,9 +13,8 @@ from threedcal.collect.plan import (
 from threedcal.errors import ConfigError
 
 SENSOR = {
-    "plan_area_mm": [16.0, 18.0],
-    "max_penetration_mm": 4.0,
-    "dome": {"apex_mm": [8.0, 9.0], "curvature_x_per_mm": 0.013, "curvature_y_per_mm": 0.0043},
+    "probing": {"plan_area_mm": [16.0, 18.0]},
+    "gel": {"max_penetration_mm": 4.0, "dome": {"kx_per_mm": 0.013, "ky_per_mm": 0.0043}},
     "mount": {
         "x_offset_mm": 110.0,
         "y_offset_mm": 111.5,
@@ -71,11 +70,13 @@ def test_grid_reproduces_the_authors_digit_plan_shape_and_dome_rule():
     assert corner == pytest.approx(
         2.0 + 0.013 * 64 + 0.0043 * 81
     )  # 3.18 mm; the authors' file says 3.15
-    assert dome_sag_mm({}, 3.0, 4.0) == 0
+    assert dome_sag_mm({"gel": {}}, 3.0, 4.0) == 0
 
 
 def test_serpentine_alternates_direction_per_row():
-    plan = grid_plan({**SENSOR, "plan_area_mm": [2.0, 1.0]}, spacing_mm=1.0, depth_mm=1.0, frames=1)
+    plan = grid_plan(
+        {**SENSOR, "probing": {"plan_area_mm": [2.0, 1.0]}}, spacing_mm=1.0, depth_mm=1.0, frames=1
+    )
     assert list(zip(plan.x_mm, plan.y_mm, strict=True)) == [
         (0, 0),
         (1, 0),

@@ -41,6 +41,13 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     targets = [f"{root}/scene.json"]
     if is_imported(scene):
         targets += [f"{root}/dataset/splits.csv"]
+    else:
+        targets += [
+            f"{root}/raw.zarr",
+            f"{root}/collect/summary.json",
+            f"{root}/collect/coverage.png",
+            f"{root}/collect/frames.png",
+        ]
     return targets
 
 

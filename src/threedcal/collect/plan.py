@@ -21,14 +21,26 @@ PLAN_COLUMNS = ("x_mm", "y_mm", "depth_mm", "frames")
 
 
 def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
-    """How far the gel surface at plan (x, y) lies below its apex: a·(x−x0)² + b·(y−y0)² (0 if flat)."""
-    dome = sensor.get("dome") or {}
+    """How far the gel surface at plan (x, y) lies below its apex, from the profile's `gel.dome`.
+
+    The dome is described in image axes about the image centre (u right, v down, mm); the nominal
+    seating puts the plan-area centre there with printer +X along u and printer +Y along −v.
+    """
+    dome = sensor.get("gel", {}).get("dome")
     x = np.asarray(x_mm, dtype=float)
     y = np.asarray(y_mm, dtype=float)
     if not dome:
         return np.zeros(np.broadcast(x, y).shape)
-    x0, y0 = dome["apex_mm"]
-    return dome["curvature_x_per_mm"] * (x - x0) ** 2 + dome["curvature_y_per_mm"] * (y - y0) ** 2
+    width, height = plan_area_mm(sensor)
+    u = x - width / 2 - dome.get("apex_x_mm", 0.0)
+    v = -(y - height / 2) - dome.get("apex_y_mm", 0.0)
+    return dome["kx_per_mm"] * u**2 + dome["ky_per_mm"] * v**2
+
+
+def plan_area_mm(sensor: Mapping) -> tuple[float, float]:
+    """Width (printer X) and height (printer Y) of the area a plan may probe, from plan origin (0, 0)."""
+    width, height = sensor["probing"]["plan_area_mm"]
+    return float(width), float(height)
 
 
 def read_plan_csv(path: str | Path) -> pd.DataFrame:
@@ -83,10 +95,10 @@ def grid_plan(
     frames: int,
     dome_compensation: bool = True,
 ) -> pd.DataFrame:
-    """A regular grid over the sensor's probe area (profile `plan_area_mm`), serpentine ordered."""
+    """A regular grid over the sensor's probe area (profile `probing.plan_area_mm`), serpentine ordered."""
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
         raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
-    width, height = sensor["plan_area_mm"]
+    width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
     ys = np.arange(0.0, height + 1e-9, spacing_mm)
     gx, gy = np.meshgrid(xs, ys)
@@ -123,8 +135,8 @@ def validate_plan(
     source: str = "plan",
 ) -> None:
     """Every check that must pass before the printer moves; the first failure names its row."""
-    max_depth = float(sensor["max_penetration_mm"])
-    width, height = sensor["plan_area_mm"]
+    max_depth = float(sensor["gel"]["max_penetration_mm"])
+    width, height = plan_area_mm(sensor)
     margin = 1e-9
     for i in range(len(plan)):
         x, y, depth, frames = (plan[c].iloc[i] for c in PLAN_COLUMNS)

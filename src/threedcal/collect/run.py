@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from threedcal.collect.plan import clearance_z, plan_to_printer
+from threedcal.collect.plan import clearance_z, plan_area_mm, plan_to_printer
 from threedcal.collect.store import PointRecord, RawStore
 
 
@@ -96,8 +96,8 @@ def collect(
     printer.hold_motors()
     if attach_probe is not None:
         attach_probe()
-    if not store.group.attrs.get("blank_captured", False):
-        cx, cy = (float(v) / 2 for v in sensor["plan_area_mm"])
+    if not store.has_blank():
+        cx, cy = (v / 2 for v in plan_area_mm(sensor))
         x, y, _ = plan_to_printer(sensor, cx, cy, 0.0)
         printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
         printer.move_to(x=x, y=y, feed_mm_s=settings.travel_feed_mm_s)
@@ -106,7 +106,6 @@ def collect(
         camera.flush()
         blank, _ = camera.capture(settings.n_blank)
         store.write_blank(blank)
-        store.group.attrs["blank_captured"] = True
     frames_done = 0
     offsets = store.offsets
     bar = tqdm(

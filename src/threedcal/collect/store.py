@@ -158,8 +158,16 @@ class RawStore:
         missing = np.flatnonzero(~self.captured)
         return int(missing[0]) if missing.size else None
 
+    def has_blank(self) -> bool:
+        return bool(self.group.attrs.get("blank_captured", False))
+
     def write_blank(self, frames: np.ndarray) -> None:
         self.group["blank_frames"][: len(frames)] = frames
+        self.group.attrs["blank_captured"] = True
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.group.attrs.get("complete", False))
 
     def write_point(self, point: int, record: PointRecord) -> None:
         """Frames, then labels, then the `captured` flag: a crash in between redoes this point."""

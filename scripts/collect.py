@@ -1,0 +1,16 @@
+"""Rule `collect`: probe one scene into its store; summary and figures beside it."""
+
+from threedcal.collect.session import collect_stage
+from threedcal.logs import stage_log
+
+with stage_log(snakemake.log[0]):
+    collect_stage(
+        snakemake.wildcards.scene,
+        snakemake.params.scene,
+        store=snakemake.output.store,
+        staging=snakemake.params.staging,
+        summary=snakemake.output.summary,
+        coverage=snakemake.output.coverage,
+        mosaic=snakemake.output.mosaic,
+        truth=snakemake.output.truth,
+    )

@@ -1,0 +1,286 @@
+"""One scene's collection, end to end: profiles → plan → validation → bench or hardware → store.
+
+Used by the `collect` rule and by `threedcal collect`. Everything that can be wrong with the input is
+checked before the printer is opened. The store is filled in a staging path and moved into place
+only when complete, so a failed run never deletes what it captured: the next run resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from threedcal.collect.plan import plan_from_config, validate_plan
+from threedcal.collect.run import MotionSettings, RunResult, collect
+from threedcal.collect.store import RawStore, frame_offsets
+from threedcal.errors import ConfigError
+from threedcal.profiles import load_profile
+
+
+@dataclass
+class ScenePlan:
+    sensor: dict
+    printer: dict
+    plan: pd.DataFrame
+    settings: MotionSettings
+
+
+def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
+    """Load the profiles and the plan and validate all of it; nothing moves yet."""
+    sensor = load_profile("sensor", scene["sensor"])
+    printer = load_profile("printer", scene["printer"])
+    plan = plan_from_config(scene["plan"], sensor)
+    plan_source = scene["plan"].get("csv") or f"{source} grid plan"
+    validate_plan(plan, sensor, printer, source=str(plan_source))
+    return ScenePlan(sensor, printer, plan, MotionSettings.from_profile(sensor))
+
+
+class _BenchClock:
+    def __init__(self, firmware):
+        self.firmware = firmware
+
+    def now(self) -> float:
+        return self.firmware.clock.now()
+
+    def sleep(self, seconds: float) -> None:
+        self.firmware.clock.advance(seconds)
+
+
+def _store_attrs(name: str, scene: Mapping, prepared: ScenePlan) -> dict[str, Any]:
+    from threedcal.scenes import package_versions
+
+    return {
+        "scene": name,
+        "config": dict(scene),
+        "sensor_profile": prepared.sensor,
+        "printer_profile": prepared.printer,
+        "plan": prepared.plan[["x_mm", "y_mm", "depth_mm", "frames"]].to_dict("list"),
+        "seed": scene["seed"],
+        "software": package_versions(),
+    }
+
+
+def collect_scene(
+    name: str,
+    scene: Mapping,
+    store_path: str | Path,
+    *,
+    staging_path: str | Path | None = None,
+    truth_path: str | Path | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Collect (or resume) a scene into `store_path`; returns the summary."""
+    prepared = prepare(scene, source=f"scenes.{name}")
+    store_path = Path(store_path)
+    staging = Path(staging_path) if staging_path else store_path
+    if store_path.exists() and staging != store_path:
+        raise ConfigError(f"{store_path}: already exists; refusing to overwrite collected data")
+    shape = (prepared.sensor["image"]["height_px"], prepared.sensor["image"]["width_px"], 3)
+    if staging.exists():
+        store = RawStore.open_for_resume(staging, prepared.plan)
+    else:
+        staging.parent.mkdir(parents=True, exist_ok=True)
+        store = RawStore.create(
+            staging,
+            prepared.plan,
+            shape,
+            prepared.settings.n_blank,
+            _store_attrs(name, scene, prepared),
+        )
+    runs = list(store.group.attrs.get("runs", []))
+    if scene["port"] == "sim":
+        result, truth = _collect_simulated(scene, prepared, store, progress)
+        if truth_path is not None:
+            truth.write(truth_path)
+    else:
+        result = _collect_hardware(scene, prepared, store, progress)
+    runs.append(
+        {
+            "points": result.points,
+            "frames": result.frames,
+            "duration_s": result.duration_s,
+            "hardware_s": result.hardware_s,
+            "resumed_at": result.resumed_at,
+        }
+    )
+    store.group.attrs["runs"] = runs
+    summary = _summary(store, runs)
+    store.finalize({"summary": summary})
+    if staging != store_path:
+        shutil.move(str(staging), str(store_path))
+    summary["store"] = str(store_path)
+    return summary
+
+
+def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bool):
+    from threedcal.hardware.printer import MarlinHost
+    from threedcal.sim.bench import SimBench
+
+    bench_settings = scene["bench"]
+    with (
+        SimBench(
+            prepared.sensor,
+            scene["probe"]["radius_mm"],
+            bench_settings,
+            scene["seed"],
+            printer=prepared.printer,
+            faults=bench_settings.get("faults", ""),
+            fault_rate=bench_settings.get("fault_rate", 0.0),
+        ) as bench,
+        MarlinHost(bench.url, prepared.printer) as host,
+    ):
+        result = collect(
+            store,
+            prepared.sensor,
+            host,
+            bench.camera,
+            prepared.settings,
+            hardware_clock=bench.firmware.clock.now,
+            clock=_BenchClock(bench.firmware),
+            progress=progress,
+        )
+        return result, bench.truth
+
+
+def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: bool) -> RunResult:
+    from threedcal.hardware.camera import open_camera
+    from threedcal.hardware.printer import MarlinHost
+
+    def attach_probe() -> None:
+        input("Attach the probe to the print head, then press Enter to start probing... ")
+
+    with (
+        open_camera(scene["camera"], prepared.sensor) as camera,
+        MarlinHost(scene["port"], prepared.printer) as host,
+    ):
+        return collect(
+            store,
+            prepared.sensor,
+            host,
+            camera,
+            prepared.settings,
+            attach_probe=attach_probe,
+            progress=progress,
+        )
+
+
+def _summary(store: RawStore, runs: list[dict]) -> dict[str, Any]:
+    duration = sum(r["duration_s"] for r in runs)
+    frames = sum(r["frames"] for r in runs)
+    return {
+        "points": len(store.plan),
+        "frames": int(store.offsets[-1]),
+        "duration_s": round(duration, 3),
+        "frames_per_s": round(frames / duration, 2) if duration > 0 else None,
+        "estimated_hardware_s": round(sum(r["hardware_s"] for r in runs), 1),
+        "runs": len(runs),
+    }
+
+
+class _EstimateSink:
+    """Stands in for the store when only the printer's time is wanted: nothing is kept."""
+
+    def __init__(self, plan: pd.DataFrame):
+        self.plan = plan
+        self.offsets = frame_offsets(plan)
+        self._blank = False
+
+    def first_uncaptured(self) -> int:
+        return 0
+
+    def has_blank(self) -> bool:
+        return self._blank
+
+    def write_blank(self, frames) -> None:
+        self._blank = True
+
+    def write_point(self, point, record) -> None:
+        pass
+
+
+class _ClockOnlyCamera:
+    """Takes frames at the camera's rate without rendering them."""
+
+    def __init__(self, clock, fps: float):
+        self.clock, self.fps = clock, fps
+
+    def flush(self) -> None:
+        pass
+
+    def capture(self, count: int):
+        stamps = []
+        for _ in range(count):
+            self.clock.advance(1.0 / self.fps)
+            stamps.append(self.clock.now())
+        return np.zeros((count, 1, 1, 3), np.uint8), np.asarray(stamps)
+
+
+def estimate_hardware_s(
+    sensor: Mapping, printer: Mapping, plan: pd.DataFrame, progress: bool = False
+) -> float:
+    """Seconds the real printer needs for `plan`: the same loop, driven against the fake firmware's
+    motion model (homing, trapezoidal moves, M400 waits, settling, capture at the camera's rate)."""
+    from threedcal.hardware.printer import MarlinHost
+    from threedcal.sim.marlin import SimMarlin, forget, register
+
+    firmware = SimMarlin(printer, speedup=math.inf)
+    name = f"estimate-{id(firmware)}"
+    register(name, firmware)
+    try:
+        with MarlinHost(f"simmarlin://{name}", printer) as host:
+            result = collect(
+                _EstimateSink(plan),
+                sensor,
+                host,
+                _ClockOnlyCamera(firmware.clock, float(sensor["camera"]["default_fps"])),
+                MotionSettings.from_profile(sensor),
+                hardware_clock=firmware.clock.now,
+                clock=_BenchClock(firmware),
+                progress=progress,
+            )
+    finally:
+        forget(name)
+    return result.hardware_s
+
+
+def write_summary(summary: Mapping, path: str | Path) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(dict(summary), indent=2, sort_keys=True) + "\n")
+
+
+def collect_stage(
+    name: str,
+    scene: Mapping,
+    *,
+    store: str | Path,
+    staging: str | Path,
+    summary: str | Path,
+    coverage: str | Path,
+    mosaic: str | Path,
+    truth: str | Path,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """The `collect` rule: store, summary.json, coverage and sample-frame figures, bench truth."""
+    from threedcal.collect.figures import coverage_figure, mosaic_figure
+    from threedcal.collect.store import open_raw
+
+    prepared = prepare(scene, source=f"scenes.{name}")
+    result = collect_scene(
+        name, scene, store, staging_path=staging, truth_path=truth, progress=progress
+    )
+    if scene["port"] != "sim":
+        Path(truth).write_text(json.dumps({"simulated": False}) + "\n")
+    write_summary(result, summary)
+    coverage_figure(
+        prepared.plan, prepared.sensor, coverage, title=f"{name}: {len(prepared.plan)} probe points"
+    )
+    mosaic_figure(open_raw(store), mosaic, title=f"{name}: sample frames")
+    return result

@@ -1,0 +1,177 @@
+"""The simulated bench: the fake Marlin firmware and the gel simulator coupled through the head pose.
+
+The pose the firmware reports is the pose the camera renders: each captured frame reads the
+firmware's physical head position at that instant (on its virtual clock) and renders the ball there.
+The bench also hides what a real user never knows exactly — the sensor's seating offset and
+rotation in its printed base, and the Z at which the probe first touches the gel — drawn from the
+seed and written to a truth file that only the *evaluation* of registration reads.
+
+Printer → image, nominally: the centre of the sensor's plan area lies at the image centre, printer +X
+runs along image columns and printer +Y (toward the back) up the image, at the profile's px/mm.
+The hidden seating rotates and shifts the sensor about the plan centre.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import uuid
+import zlib
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from threedcal.sim.marlin import SimMarlin, forget, register
+
+
+@dataclass(frozen=True)
+class BenchTruth:
+    """What the bench hides: the true seating and first-touch height."""
+
+    seating_offset_mm: tuple[float, float]
+    seating_rotation_deg: float
+    touch_offset_mm: float  # true first-touch Z minus the profile's nominal z_touch_mm
+    affine_px_per_mm: list[list[float]]  # true printer (X, Y) mm → image (column, row) px
+
+    def write(self, path: str | Path) -> None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(asdict(self), indent=2) + "\n")
+
+    @classmethod
+    def read(cls, path: str | Path) -> BenchTruth:
+        data = json.loads(Path(path).read_text())
+        return cls(
+            seating_offset_mm=tuple(data["seating_offset_mm"]),
+            seating_rotation_deg=data["seating_rotation_deg"],
+            touch_offset_mm=data["touch_offset_mm"],
+            affine_px_per_mm=data["affine_px_per_mm"],
+        )
+
+
+def plan_centre_printer_mm(sensor: Mapping) -> tuple[float, float]:
+    mount = sensor["mount"]
+    width, height = sensor["probing"]["plan_area_mm"]
+    return mount["x_offset_mm"] + width / 2, mount["y_offset_mm"] + height / 2
+
+
+def nominal_affine(sensor: Mapping) -> np.ndarray:
+    """(2, 3) printer (X, Y) mm → image (column, row) px for a perfectly seated sensor."""
+    s = float(sensor["px_per_mm"])
+    cx = (sensor["image"]["width_px"] - 1) / 2
+    cy = (sensor["image"]["height_px"] - 1) / 2
+    px, py = plan_centre_printer_mm(sensor)
+    return np.array([[s, 0.0, cx - s * px], [0.0, -s, cy + s * py]])
+
+
+def draw_truth(sensor: Mapping, settings: Mapping, seed: int) -> BenchTruth:
+    """Seating and touch errors drawn uniformly within the configured magnitudes."""
+    rng = np.random.default_rng([seed, 0xBE7C])
+    offset = rng.uniform(-1, 1, 2) * float(settings["seating_offset_mm"])
+    rotation = float(rng.uniform(-1, 1) * float(settings["seating_rotation_deg"]))
+    touch = float(rng.uniform(-1, 1) * float(settings["touch_offset_mm"]))
+    nominal = nominal_affine(sensor)
+    # The sensor is rotated by `rotation` about the plan centre and shifted by `offset`: a printer
+    # point p sits at gel position R⁻¹(p − c − offset) + c, which the nominal map sends to pixels.
+    t = math.radians(rotation)
+    inverse = np.array([[math.cos(t), math.sin(t)], [-math.sin(t), math.cos(t)]])
+    centre = np.array(plan_centre_printer_mm(sensor))
+    linear = nominal[:, :2] @ inverse
+    translation = nominal[:, :2] @ (centre - inverse @ (centre + offset)) + nominal[:, 2]
+    affine = np.column_stack([linear, translation])
+    return BenchTruth(
+        seating_offset_mm=(float(offset[0]), float(offset[1])),
+        seating_rotation_deg=rotation,
+        touch_offset_mm=touch,
+        affine_px_per_mm=affine.round(12).tolist(),
+    )
+
+
+class SimCamera:
+    """The bench's camera: renders the gel under the ball wherever the firmware's head is."""
+
+    def __init__(self, bench: SimBench):
+        self.bench = bench
+        self.fps = float(bench.sensor["camera"]["default_fps"])
+        self._rep = 0
+
+    def flush(self) -> None:
+        self._rep = 0  # a fresh hold: creep and noise restart for the frames that follow
+
+    def capture(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        frames, stamps = [], []
+        clock = self.bench.firmware.clock
+        for _ in range(count):
+            clock.advance(1.0 / self.fps)
+            frames.append(self.bench.render_now(self._rep))
+            stamps.append(clock.now())
+            self._rep += 1
+        return np.stack(frames), np.asarray(stamps)
+
+
+class SimBench:
+    """Fake printer + simulated sensor + hidden truth, opened at `bench.url` like a serial port."""
+
+    def __init__(
+        self,
+        sensor: Mapping,
+        probe_radius_mm: float,
+        settings: Mapping,
+        seed: int,
+        *,
+        printer: str | Mapping = "ender3",
+        faults: str = "",
+        fault_rate: float = 0.0,
+        speedup: float = math.inf,
+    ):
+        from threedcal.sim.indenters import Sphere
+        from threedcal.sim.optics import GelSimulator
+
+        self.sensor = sensor
+        self.seed = int(seed)
+        self.truth = draw_truth(sensor, settings, seed)
+        self._affine = np.asarray(self.truth.affine_px_per_mm)
+        self._z_touch = float(sensor["mount"]["z_touch_mm"]) + self.truth.touch_offset_mm
+        self.gel = GelSimulator(sensor, seed=seed)
+        self.ball = Sphere(probe_radius_mm)
+        self.firmware = SimMarlin(
+            printer, seed=seed, faults=faults, rate=fault_rate, speedup=speedup
+        )
+        self.name = f"bench-{uuid.uuid4().hex[:10]}"
+        register(self.name, self.firmware)
+        self.url = f"simmarlin://{self.name}"
+        self.camera = SimCamera(self)
+
+    def close(self) -> None:
+        forget(self.name)
+
+    def __enter__(self) -> SimBench:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def pose_px(self, x_mm: float, y_mm: float) -> tuple[float, float]:
+        col, row = self._affine[:, :2] @ np.array([x_mm, y_mm]) + self._affine[:, 2]
+        return float(col), float(row)
+
+    def penetration_mm(self, center_px: tuple[float, float], z_mm: float) -> float:
+        """How far the ball's bottom at printer Z sits below the undeformed gel surface under it."""
+        u = (center_px[0] - self.gel._cx) / self.gel.px_per_mm
+        v = (center_px[1] - self.gel._cy) / self.gel.px_per_mm
+        return self._z_touch - float(self.gel.sag_mm(u, v)) - z_mm
+
+    def render_now(self, rep: int) -> np.ndarray:
+        x, y, z = self.firmware.position()
+        center = self.pose_px(x, y)
+        depth = self.penetration_mm(center, z)
+        steps = np.round(np.array([x, y, z]) * 1000).astype(np.int64)
+        index = zlib.crc32(np.append(steps, rep).tobytes())  # same pose and rep → same noise
+        if depth <= 0:
+            return self.gel.blank(frame_index=index)
+        return self.gel.render(self.ball, center, 0.0, depth, frame_index=index, hold_frame=rep)
+
+    @property
+    def hardware_s(self) -> float:
+        return self.firmware.clock.now()
