@@ -132,9 +132,14 @@ class HeightMap(Indenter):
         finite = [np.isfinite(c) for c in corners]
         all_finite = finite[0] & finite[1] & finite[2] & finite[3]
         with np.errstate(invalid="ignore"):
-            bilinear = sum(w_ * np.where(f, c, 0.0) for w_, c, f in zip(weights, corners, finite, strict=True))
+            bilinear = sum(
+                w_ * np.where(f, c, 0.0) for w_, c, f in zip(weights, corners, finite, strict=True)
+            )
         # where a neighbour has no surface, take the nearest map pixel (keeps walls vertical)
-        nearest = g[np.clip(np.rint(fy).astype(np.int64), 0, h - 1), np.clip(np.rint(fx).astype(np.int64), 0, w - 1)]
+        nearest = g[
+            np.clip(np.rint(fy).astype(np.int64), 0, h - 1),
+            np.clip(np.rint(fx).astype(np.int64), 0, w - 1),
+        ]
         out = np.where(all_finite, bilinear, nearest)
         out[outside] = np.inf
         return out.astype(np.float32)

@@ -35,6 +35,7 @@ from threedcal.sim.indenters import Indenter
 
 _NOISE_BANK = 6  # pre-drawn noise fields
 _NOISE_PAD = 32  # random shift range of a noise field, px
+SKIRT_EXTENT = 4.0  # the skirt ends (smoothly) this many skirt widths beyond the contact
 
 
 def _stream(seed: int, *keys: int) -> np.random.Generator:
@@ -100,9 +101,10 @@ class GelSimulator:
         if self._dome is None:
             return np.zeros_like(np.asarray(x_mm, dtype=np.float32))
         d = self._dome
-        return d["kx_per_mm"] * (x_mm - d.get("apex_x_mm", 0.0)) ** 2 + d["ky_per_mm"] * (
-            y_mm - d.get("apex_y_mm", 0.0)
-        ) ** 2
+        return (
+            d["kx_per_mm"] * (x_mm - d.get("apex_x_mm", 0.0)) ** 2
+            + d["ky_per_mm"] * (y_mm - d.get("apex_y_mm", 0.0)) ** 2
+        )
 
     def _sag_gradient(self, x_mm, y_mm):
         if self._dome is None:
@@ -125,7 +127,9 @@ class GelSimulator:
             self._lights.append(
                 {
                     "P": P,
-                    "ref2": float(P @ P),  # squared distance to the image centre: irradiance 1 there
+                    "ref2": float(
+                        P @ P
+                    ),  # squared distance to the image centre: irradiance 1 there
                     "gain": float(li["gain_dn"]),
                     # diffuse light: one level (times the LED colour) or its own RGB (mixed in the gel)
                     "scatter": np.asarray(li["scatter_dn"], dtype=np.float32)
@@ -160,14 +164,19 @@ class GelSimulator:
         bg = np.broadcast_to(amb * vig[..., None], (self.height, self.width, 3)).copy()
         self._resp0 = []
         for li, col, (resp, irr) in zip(
-            self._lights, self._col, self._shading(self.X, self.Y, self.Z0, self._n0, vig), strict=True
+            self._lights,
+            self._col,
+            self._shading(self.X, self.Y, self.Z0, self._n0, vig),
+            strict=True,
         ):
             self._resp0.append(resp.astype(np.float32))
             bg += irr[..., None] * li["scatter"] + (irr * li["gain"] * resp)[..., None] * col
         xx, yy = np.meshgrid(np.arange(self.width), np.arange(self.height))
         diag = math.hypot(self.width, self.height)
         for spot in optics.get("hot_spots", []):
-            d2 = (xx - spot["x"] * (self.width - 1)) ** 2 + (yy - spot["y"] * (self.height - 1)) ** 2
+            d2 = (xx - spot["x"] * (self.width - 1)) ** 2 + (
+                yy - spot["y"] * (self.height - 1)
+            ) ** 2
             g = np.exp(-d2 / (2 * (spot["sigma"] * diag) ** 2)).astype(np.float32)
             bg += g[..., None] * np.asarray(spot["amplitude_dn"], dtype=np.float32)
         texture_dn = float(optics.get("texture_dn", 0.0))
@@ -234,7 +243,9 @@ class GelSimulator:
         self.check_depth(depth_mm)
         cx, cy = (float(v) for v in center_px)
         if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(rotation_deg)):
-            raise ConfigError(f"pose must be finite, got center_px={center_px}, rotation_deg={rotation_deg}")
+            raise ConfigError(
+                f"pose must be finite, got center_px={center_px}, rotation_deg={rotation_deg}"
+            )
         frame = self._bg.copy()
         if depth_mm > 0:
             delta = self.contact_change(
@@ -290,7 +301,9 @@ class GelSimulator:
         rim = -amp * tw * np.exp(1.0 - tw)
         sag_c = float(self.sag_mm(ax, ay))
         z0 = self.Z0[y0:y1, x0:x1]
-        z_out = sag_c + (z0 - sag_c) * (1.0 - np.exp(-tw)) + rim
+        # back to the undeformed (domed) surface over the skirt; exactly there at SKIRT_EXTENT widths
+        taper = np.square(np.clip(1.0 - tw * (1.0 / SKIRT_EXTENT), 0.0, 1.0))
+        z_out = z0 + ((sag_c - z0) * np.exp(-tw) + rim) * taper
         with np.errstate(invalid="ignore"):
             z = np.maximum(sag_c + pen, z_out)  # never through the indenter; equal to it in contact
         return z.astype(np.float32), contact
@@ -298,7 +311,8 @@ class GelSimulator:
     def window(self, indenter: Indenter, center_px, depth_mm: float):
         """Pixel bounds (y0, y1, x0, x1) of the region a contact can change, or None off the frame."""
         s = self.px_per_mm
-        reach = indenter.reach_mm + 6 * self.skirt_mm
+        a = indenter.contact_radius_mm(depth_mm)
+        reach = (indenter.reach_mm if a is None else a) + SKIRT_EXTENT * self.skirt_mm
         margin = reach * s + 3 * self.blur_sigma + 2
         x0 = max(int(math.floor(center_px[0] - margin)), 0)
         x1 = min(int(math.ceil(center_px[0] + margin)) + 1, self.width)

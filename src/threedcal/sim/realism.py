@@ -124,7 +124,12 @@ def load_ball_dataset(root: str | Path) -> BallDataset:
         raise ConfigError(f"{label_path}: no labelled images")
     bg = read_rgb(root / "background.png")
     return BallDataset(
-        root, float(meta["px_per_mm"]), float(meta["ball_radius_mm"]), bg.shape[1], bg.shape[0], labels
+        root,
+        float(meta["px_per_mm"]),
+        float(meta["ball_radius_mm"]),
+        bg.shape[1],
+        bg.shape[0],
+        labels,
     )
 
 
@@ -146,9 +151,7 @@ def image_figures(
     out["bg_lowfreq_std"] = float(np.mean(low[far].std(axis=0)))
     lum = img @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
     centre = _patch_mean(lum, far, h // 2 - PATCH // 2, w // 2 - PATCH // 2)
-    corners = [
-        _patch_mean(lum, far, y, x) for y in (0, h - PATCH) for x in (0, w - PATCH)
-    ]
+    corners = [_patch_mean(lum, far, y, x) for y in (0, h - PATCH) for x in (0, w - PATCH)]
     ratios = [c / centre for c in corners if not math.isnan(c)] if not math.isnan(centre) else []
     out["corner_centre_min"] = min(ratios) if ratios else math.nan
     out["corner_centre_max"] = max(ratios) if ratios else math.nan
@@ -185,9 +188,7 @@ def simulated_depth_mm(label: BallLabel, data: BallDataset) -> float:
     return R - math.sqrt(R * R - a * a)
 
 
-def compare(
-    data: BallDataset, profile: Mapping[str, Any], seed: int = 0
-) -> list[dict[str, Any]]:
+def compare(data: BallDataset, profile: Mapping[str, Any], seed: int = 0) -> list[dict[str, Any]]:
     """One row per figure: real min/max, simulated median, tolerance, pass."""
     from threedcal.sim.indenters import Sphere
     from threedcal.sim.optics import GelSimulator
@@ -204,7 +205,11 @@ def compare(
         real.append(image_figures(data.read(label.image), real_bg, label, ball_px))
         # the real background frame is a real frame too: its figures (same mask) join the range
         real.append(
-            {k: v for k, v in image_figures(real_bg, real_bg, label, ball_px).items() if k in BACKGROUND}
+            {
+                k: v
+                for k, v in image_figures(real_bg, real_bg, label, ball_px).items()
+                if k in BACKGROUND
+            }
         )
         frame = sim.render(
             ball, label.center_px, 0.0, simulated_depth_mm(label, data), frame_index=i + 1
@@ -213,8 +218,10 @@ def compare(
     rows = []
     for fig in FIGURES:
         r = np.array([f[fig] for f in real if fig in f], dtype=float)
-        s = float(np.nanmedian([f[fig] for f in simulated]))
-        lo, hi, tol = float(np.nanmin(r)), float(np.nanmax(r)), TOLERANCE[fig]
+        s = float(np.median([f[fig] for f in simulated if not math.isnan(f[fig])] or [math.nan]))
+        r = r[~np.isnan(r)]
+        lo, hi = (float(r.min()), float(r.max())) if r.size else (math.nan, math.nan)
+        tol = TOLERANCE[fig]
         rows.append(
             {
                 "figure": fig,
