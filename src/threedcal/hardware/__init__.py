@@ -1,1 +1,2 @@
-"""Real hardware: the Marlin printer host, its motion-time model and printer profiles."""
+"""Real hardware: the Marlin printer host and its motion-time model (printer.py, motion.py, gcode.py)
+and the sensor camera (camera.py)."""

@@ -1,0 +1,247 @@
+"""Is the simulator realistic? The same image statistics on real ball frames and on renders of the
+same ball at the same scale and placement, side by side, with a stated tolerance per figure.
+
+Figures (per image; the real *range* is min..max over the real images — for the four background
+figures the real background frame, under each image's mask, counts as a real image too, since the
+contact frames were lit a little differently from it — and the simulated figure is the median over
+the renders):
+
+- ``bg_lowfreq_std``: spatial std (DN, mean over channels) of the frame blurred with sigma 10 px,
+  outside 1.5 ball radii of the contact: how non-uniform the illumination field is.
+- ``corner_centre_min`` / ``corner_centre_max``: luminance of the four 24 px corner patches over the
+  centre patch (pixels near the contact left out): vignetting against LED fall-off.
+- ``hf_noise_std``: std (DN, mean over channels) of the frame minus its sigma-1 px blur, outside the
+  contact: sensor noise plus fine texture.
+- ``dI_p1_<c>`` / ``dI_p99_<c>``: 1st / 99th percentile of (frame - background) per channel inside the
+  evaluation disc 0.9 x min(label radius, 0.98 ball radius): the contact's contrast.
+- ``r2_<c>``: R² of the per-channel linear fit of ΔI on the true sphere normals (nx, ny, nz, 1) inside
+  the same disc: how photometric-stereo-like the shading is (1 = perfectly Lambertian and noiseless).
+
+Tolerances (how far the simulated figure may sit outside the real range) and why:
+
+- DN-valued background figures: 2 DN for the low-frequency std (the real frames drift by several DN
+  between the background shot and the contact shots — the outside-contact mean difference is up to
+  ±9 DN — so 2 DN is well inside the real frame-to-frame variation), 0.25 DN for the noise std
+  (a quarter of the ~1 DN noise, the quantisation step's own std is 0.29 DN).
+- Corner/centre ratios: 0.05 (5 % of the luminance, the spread between the four real corners of one
+  frame is larger).
+- ΔI percentiles: 8 DN. The labels are hand-drawn circles (the dataset notes they include part of the
+  halo), and a 2 px error in a ~38 px radius moves the disc's 1st/99th percentiles by several DN; no
+  depth was recorded, so the simulated depth comes from the label radius with the same uncertainty.
+- R²: 0.05, about the spread of R² between real images of neighbouring placements.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from threedcal.errors import ConfigError
+
+CHANNELS = "RGB"
+TOLERANCE = {
+    "bg_lowfreq_std": 2.0,
+    "corner_centre_min": 0.05,
+    "corner_centre_max": 0.05,
+    "hf_noise_std": 0.25,
+    **{f"dI_p1_{c}": 8.0 for c in CHANNELS},
+    **{f"dI_p99_{c}": 8.0 for c in CHANNELS},
+    **{f"r2_{c}": 0.05 for c in CHANNELS},
+}
+FIGURES = list(TOLERANCE)
+BACKGROUND = ("bg_lowfreq_std", "corner_centre_min", "corner_centre_max", "hf_noise_std")
+PATCH = 24
+
+
+@dataclass(frozen=True)
+class BallLabel:
+    image: str
+    center_px: tuple[float, float]
+    radius_px: float
+
+
+@dataclass(frozen=True)
+class BallDataset:
+    """A real ball-image folder (DESIGN.md: images, background.png, labels.csv, dataset.yaml)."""
+
+    root: Path
+    px_per_mm: float
+    ball_radius_mm: float
+    width_px: int
+    height_px: int
+    labels: list[BallLabel]
+
+    def read(self, name: str) -> np.ndarray:
+        return read_rgb(self.root / name)
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ConfigError(f"{path}: cannot read as an image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def load_ball_dataset(root: str | Path) -> BallDataset:
+    from threedcal.config import load_yaml
+
+    root = Path(root)
+    meta_path = root / "dataset.yaml"
+    if not meta_path.is_file():
+        raise ConfigError(f"{root}: not a ball-image dataset (no dataset.yaml)")
+    meta = load_yaml(meta_path) or {}
+    for key in ("px_per_mm", "ball_radius_mm"):
+        if not isinstance(meta.get(key), int | float) or meta[key] <= 0:
+            raise ConfigError(f"{meta_path}: {key} must be a positive number")
+    labels = []
+    label_path = root / "labels.csv"
+    try:
+        with label_path.open(newline="") as fh:
+            for row_no, row in enumerate(csv.DictReader(fh), start=2):
+                try:
+                    labels.append(
+                        BallLabel(
+                            row["image"],
+                            (float(row["center_x_px"]), float(row["center_y_px"])),
+                            float(row["radius_px"]),
+                        )
+                    )
+                except (KeyError, TypeError, ValueError) as exc:
+                    raise ConfigError(
+                        f"{label_path}: row {row_no}: need image,center_x_px,center_y_px,radius_px ({exc})"
+                    ) from None
+    except OSError as exc:
+        raise ConfigError(f"{label_path}: cannot read ({exc.strerror})") from None
+    if not labels:
+        raise ConfigError(f"{label_path}: no labelled images")
+    bg = read_rgb(root / "background.png")
+    return BallDataset(
+        root,
+        float(meta["px_per_mm"]),
+        float(meta["ball_radius_mm"]),
+        bg.shape[1],
+        bg.shape[0],
+        labels,
+    )
+
+
+def image_figures(
+    img: np.ndarray, background: np.ndarray, label: BallLabel, ball_radius_px: float
+) -> dict[str, float]:
+    """Every figure of one contact image against its background."""
+    import cv2
+
+    img = img.astype(np.float32)
+    bg = background.astype(np.float32)
+    h, w = img.shape[:2]
+    yy, xx = np.mgrid[:h, :w]
+    cx, cy = label.center_px
+    r2 = (xx - cx) ** 2 + (yy - cy) ** 2
+    far = r2 > (1.5 * ball_radius_px) ** 2
+    out: dict[str, float] = {}
+    low = cv2.GaussianBlur(img, (0, 0), 10)
+    out["bg_lowfreq_std"] = float(np.mean(low[far].std(axis=0)))
+    lum = img @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+    centre = _patch_mean(lum, far, h // 2 - PATCH // 2, w // 2 - PATCH // 2)
+    corners = [_patch_mean(lum, far, y, x) for y in (0, h - PATCH) for x in (0, w - PATCH)]
+    ratios = [c / centre for c in corners if not math.isnan(c)] if not math.isnan(centre) else []
+    out["corner_centre_min"] = min(ratios) if ratios else math.nan
+    out["corner_centre_max"] = max(ratios) if ratios else math.nan
+    hf = img - cv2.GaussianBlur(img, (0, 0), 1.0)
+    out["hf_noise_std"] = float(np.mean(hf[far].std(axis=0)))
+    rad = 0.9 * min(label.radius_px, 0.98 * ball_radius_px)
+    disc = r2 < rad**2
+    d_i = (img - bg)[disc]
+    nx = (xx[disc] - cx) / ball_radius_px
+    ny = (yy[disc] - cy) / ball_radius_px
+    nz = np.sqrt(np.clip(1 - nx**2 - ny**2, 0, 1))
+    design = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
+    for c, name in enumerate(CHANNELS):
+        y = d_i[:, c]
+        out[f"dI_p1_{name}"] = float(np.percentile(y, 1))
+        out[f"dI_p99_{name}"] = float(np.percentile(y, 99))
+        coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+        resid = y - design @ coef
+        out[f"r2_{name}"] = float(1 - resid.var() / y.var()) if y.var() > 0 else math.nan
+    return out
+
+
+def _patch_mean(lum: np.ndarray, keep: np.ndarray, y: int, x: int) -> float:
+    sel = keep[y : y + PATCH, x : x + PATCH]
+    if sel.mean() < 0.5:  # the contact covers this patch
+        return math.nan
+    return float(lum[y : y + PATCH, x : x + PATCH][sel].mean())
+
+
+def simulated_depth_mm(label: BallLabel, data: BallDataset) -> float:
+    """The depth whose contact radius equals the label's (capped at 0.98 R): a = sqrt(2Rd - d^2)."""
+    R = data.ball_radius_mm
+    a = min(label.radius_px / data.px_per_mm, 0.98 * R)
+    return R - math.sqrt(R * R - a * a)
+
+
+def compare(data: BallDataset, profile: Mapping[str, Any], seed: int = 0) -> list[dict[str, Any]]:
+    """One row per figure: real min/max, simulated median, tolerance, pass."""
+    from threedcal.sim.indenters import Sphere
+    from threedcal.sim.optics import GelSimulator
+
+    sim = GelSimulator(
+        profile, seed, image_size=(data.width_px, data.height_px), px_per_mm=data.px_per_mm
+    )
+    ball = Sphere(data.ball_radius_mm)
+    ball_px = data.ball_radius_mm * data.px_per_mm
+    real_bg = data.read("background.png")
+    sim_bg = sim.blank(frame_index=0)
+    real, simulated = [], []
+    for i, label in enumerate(data.labels):
+        real.append(image_figures(data.read(label.image), real_bg, label, ball_px))
+        # the real background frame is a real frame too: its figures (same mask) join the range
+        real.append(
+            {
+                k: v
+                for k, v in image_figures(real_bg, real_bg, label, ball_px).items()
+                if k in BACKGROUND
+            }
+        )
+        frame = sim.render(
+            ball, label.center_px, 0.0, simulated_depth_mm(label, data), frame_index=i + 1
+        )
+        simulated.append(image_figures(frame, sim_bg, label, ball_px))
+    rows = []
+    for fig in FIGURES:
+        r = np.array([f[fig] for f in real if fig in f], dtype=float)
+        s = float(np.median([f[fig] for f in simulated if not math.isnan(f[fig])] or [math.nan]))
+        r = r[~np.isnan(r)]
+        lo, hi = (float(r.min()), float(r.max())) if r.size else (math.nan, math.nan)
+        tol = TOLERANCE[fig]
+        rows.append(
+            {
+                "figure": fig,
+                "real_min": lo,
+                "real_max": hi,
+                "sim": s,
+                "tolerance": tol,
+                "ok": bool(lo - tol <= s <= hi + tol),
+            }
+        )
+    return rows
+
+
+def format_table(rows: list[dict[str, Any]]) -> str:
+    lines = [
+        f"{'figure':20s} {'real min':>9s} {'real max':>9s} {'sim':>9s} {'tol':>6s}  verdict",
+    ]
+    for r in rows:
+        lines.append(
+            f"{r['figure']:20s} {r['real_min']:9.3f} {r['real_max']:9.3f} {r['sim']:9.3f} "
+            f"{r['tolerance']:6.2f}  {'ok' if r['ok'] else 'OUT OF RANGE'}"
+        )
+    return "\n".join(lines)

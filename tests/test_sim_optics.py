@@ -1,0 +1,155 @@
+import math
+
+import numpy as np
+import pytest
+
+from threedcal.errors import ConfigError
+from threedcal.profiles import load_profile
+from threedcal.sim.indenters import Flat, HeightMap, Sphere
+from threedcal.sim.optics import GelSimulator
+
+
+@pytest.fixture(scope="module", params=["digit", "gelsight_mini"])
+def sim(request):
+    return GelSimulator(load_profile("sensor", request.param), seed=7)
+
+
+def test_profiles_validate_and_hold_the_issue_constants():
+    digit, mini = load_profile("sensor", "digit"), load_profile("sensor", "gelsight_mini")
+    assert (digit["image"]["width_px"], digit["image"]["height_px"]) == (240, 320)
+    assert (mini["image"]["width_px"], mini["image"]["height_px"]) == (320, 240)
+    assert digit["gel"]["max_penetration_mm"] == 4.0 and mini["gel"]["max_penetration_mm"] == 3.5
+    assert mini["px_per_mm"] == pytest.approx(1 / 0.0634, rel=1e-3)
+    assert len(digit["lights"]) == 3 and digit["gel"]["dome"] is not None
+
+
+def test_sensor_schema_is_closed(tmp_path):
+    bad = tmp_path / "s.yaml"
+    bad.write_text("name: s\ntype: vision\npx_per_mm: 10\ncolour: red\n")
+    with pytest.raises(ConfigError, match="unknown key 'colour'"):
+        load_profile("sensor", bad)
+    incomplete = tmp_path / "t.yaml"
+    incomplete.write_text("name: t\ntype: vision\n")
+    with pytest.raises(ConfigError, match="'gel' is a required property"):
+        load_profile("sensor", incomplete)
+
+
+def test_same_seed_same_bytes_and_frames_differ_by_noise(sim):
+    ball = Sphere(2.0)
+    a = sim.render(ball, (100.3, 110.7), 0, 1.0, frame_index=5)
+    b = GelSimulator(sim.profile, seed=7).render(ball, (100.3, 110.7), 0, 1.0, frame_index=5)
+    assert a.dtype == np.uint8 and a.shape == (sim.height, sim.width, 3)
+    assert np.array_equal(a, b)
+    c = sim.render(ball, (100.3, 110.7), 0, 1.0, frame_index=6)
+    diff = a.astype(int) - c.astype(int)
+    assert 0.3 < diff.std() < 5  # about 1 DN of noise per frame, not a different image
+
+
+def test_gel_follows_an_exact_sphere_inside_the_contact(sim):
+    R, d = 2.0, 0.8
+    ball = Sphere(R)
+    center = (sim.width / 2 + 0.37, sim.height / 2 - 0.21)
+    win = sim.window(ball, center, d)
+    z, contact = sim.surface(ball, center, 0.0, d, win)
+    y0, y1, x0, x1 = win
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    r = np.hypot(xx - center[0], yy - center[1]) / sim.px_per_mm
+    a = math.sqrt(2 * R * d - d * d)
+    mismatch = contact ^ (r < a)
+    assert not mismatch.any() or np.abs(r[mismatch] - a).max() < 1e-4  # float32 rounding only
+    sag_c = float(
+        sim.sag_mm((center[0] - sim._cx) / sim.px_per_mm, (center[1] - sim._cy) / sim.px_per_mm)
+    )
+    expected = sag_c + d - (R - np.sqrt(np.maximum(R * R - r**2, 0)))
+    np.testing.assert_allclose(z[contact], expected[contact], atol=1e-5)
+    assert z[contact].max() == pytest.approx(sag_c + d, abs=2e-3)
+
+
+def test_contact_changes_the_image_where_the_ball_is(sim):
+    blank = sim.blank(frame_index=3).astype(int)
+    frame = sim.render(Sphere(2.0), (sim.width / 2, sim.height / 2), 0, 1.2, frame_index=3).astype(
+        int
+    )
+    change = np.abs(frame - blank).sum(axis=2)
+    cy, cx = sim.height // 2, sim.width // 2
+    assert change[cy - 20 : cy + 20, cx - 20 : cx + 20].mean() > 20
+    assert change[:10, :10].max() <= 6  # far corner: only quantisation and flicker
+
+
+def test_depth_beyond_max_penetration_is_a_clear_error(sim):
+    with pytest.raises(ConfigError, match="maximum safe penetration"):
+        sim.render(Sphere(2.0), (50, 50), 0, sim.max_penetration_mm + 0.01)
+    with pytest.raises(ConfigError):
+        sim.render(Sphere(2.0), (50, 50), 0, float("nan"))
+    with pytest.raises(ConfigError):
+        sim.render(Sphere(2.0), (50, 50), 0, -0.1)
+
+
+def test_indenter_outside_the_gel_leaves_the_image_unchanged(sim):
+    far = (-10 * sim.width, 5 * sim.height)
+    assert np.array_equal(sim.render(Sphere(2.0), far, 0, 1.0, frame_index=4), sim.blank(4))
+    assert np.array_equal(sim.render(Sphere(2.0), (50, 50), 0, 0.0, frame_index=4), sim.blank(4))
+
+
+@pytest.mark.parametrize("indenter", [Flat(3.0), Sphere(1.0)])
+def test_vertical_walls_and_full_depth_stay_finite_and_clipped(sim, indenter):
+    frame = sim.render(
+        indenter, (sim.width / 2, sim.height / 2), 0, sim.max_penetration_mm, frame_index=1
+    )
+    assert frame.dtype == np.uint8
+    delta = sim.contact_change(indenter, (sim.width / 2, sim.height / 2), 0, sim.max_penetration_mm)
+    assert np.isfinite(delta[1]).all()
+    # a very bright raw value saturates at 255 instead of wrapping to a dark one
+    bright = sim._finish(np.full((sim.height, sim.width, 3), 400.0, np.float32), 0)
+    dark = sim._finish(np.full((sim.height, sim.width, 3), -50.0, np.float32), 0)
+    assert bright.min() == 255 and dark.max() == 0
+
+
+def test_steep_walls_cast_shadows_away_from_the_light():
+    sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
+    light = sim._lights[0]
+    z = np.zeros((40, 40), np.float32)
+    z[15:25, 15:25] = 2.0  # a 2 mm block toward the camera
+    lit = sim._lit(z, light)
+    ux, uy = light["dir"]
+    behind = (int(round(20 - 8 * uy)), int(round(20 - 8 * ux)))  # row, col on the far side
+    toward = (int(round(20 + 10 * uy)), int(round(20 + 10 * ux)))
+    assert lit[behind] == 0 and lit[toward] == 1 and lit[20, 20] == 1
+
+
+def test_height_map_sphere_matches_the_analytic_sphere():
+    R, s = 2.0, 40.0
+    yy, xx = (np.mgrid[:161, :161] - 80) / s
+    r2 = xx**2 + yy**2
+    relief = np.where(r2 <= R * R, np.sqrt(np.maximum(R * R - r2, 0)), np.nan)
+    hm, sp = HeightMap(relief, s), Sphere(R)
+    dx = np.array([0.0, 0.3, -1.1, 1.5, 5.0])
+    dy = np.array([0.0, 0.2, 0.4, -0.9, 0.0])
+    g_hm, g_sp = hm.gap(dx, dy), sp.gap(dx, dy)
+    np.testing.assert_allclose(g_hm[:4], g_sp[:4], atol=2e-3)
+    assert np.isinf(g_hm[4]) and np.isinf(g_sp[4])
+
+
+def test_rotation_turns_an_asymmetric_indenter():
+    sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
+    relief = np.zeros((20, 80))  # a 1 x 4 mm bar at 20 px/mm
+    bar = HeightMap(relief, 20.0)
+    c = (160.0, 120.0)
+    win = sim.window(bar, c, 0.5)
+    _, along = sim.surface(bar, c, 0.0, 0.5, win)
+    _, across = sim.surface(bar, c, 90.0, 0.5, win)
+    cols = lambda m: np.ptp(np.nonzero(m)[1])  # noqa: E731
+    rows = lambda m: np.ptp(np.nonzero(m)[0])  # noqa: E731
+    assert cols(along) > 3 * rows(along) and rows(across) > 3 * cols(across)
+
+
+def test_creep_deepens_a_hold_slightly_and_monotonically(sim):
+    depths = [sim.effective_depth_mm(1.0, k) for k in (0, 1, 5, 30, 1000)]
+    assert depths[0] == 1.0 and all(b > a for a, b in zip(depths, depths[1:], strict=False))
+    assert depths[-1] <= 1.0 + sim.creep_fraction + 1e-12
+
+
+def test_bad_indenters_are_config_errors():
+    for make in (lambda: Sphere(0), lambda: Flat(-1), lambda: HeightMap(np.ones(3), 10)):
+        with pytest.raises(ConfigError):
+            make()
