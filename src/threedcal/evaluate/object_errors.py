@@ -133,13 +133,14 @@ def evaluate_press(
     center_px: Sequence[float] | None = None,
     rotation_deg: float = 0.0,
     max_shift_px: float | None = None,
-    iterations: int = 2,
+    iterations: int = 3,
 ) -> PressEvaluation:
     """The paper's protocol on one predicted depth map: align in x, y, fit the depth, score.
 
     The ground truth at the nominal pose and depth is aligned to the prediction by
     cross-correlation (sub-pixel); the mesh is re-rasterised at the corrected pose (exact, no image
-    interpolation); the indentation is fitted; and the alignment is repeated with the fitted depth.
+    interpolation); the indentation is fitted; and the alignment is repeated with the fitted depth,
+    keeping the pose and depth with the least squared error.
     """
     pred = np.asarray(pred, dtype=np.float64)
     check_indentation(nominal_indentation_mm, max_penetration_mm)
@@ -150,12 +151,21 @@ def evaluate_press(
     surface = surface_height(mesh, pred.shape, px_per_mm, center, rotation_deg)
     depth = nominal_indentation_mm
     total = np.zeros(2)
+    best = None
     for _ in range(max(1, iterations)):
         (dx, dy), _ = align_xy(pred, surface.depth(depth), max_shift_px=max_shift_px, subpixel=True)
         if dx or dy:
-            total += (dx, dy)
+            total = total + (dx, dy)
             surface = surface_height(mesh, pred.shape, px_per_mm, center + total, rotation_deg)
         depth = fit_indentation(pred, surface, bounds=(0.0, max_penetration_mm))
+        sse = float(((pred - surface.depth(depth)) ** 2).sum())
+        # vertical walls make the correlation step as a wall crosses a pixel centre: a
+        # refinement is kept only if it fits better
+        if best is None or sse < best[0]:
+            best = (sse, surface, depth, total.copy())
+        elif not (dx or dy):
+            break
+    _, surface, depth, total = best
     gt = surface.depth(depth)
     return PressEvaluation(
         gt, surface, (float(total[0]), float(total[1])), depth, depth_errors_um(pred, gt)

@@ -215,7 +215,12 @@ def load_object(name_or_stl: str | Path) -> Mesh:
         )
     mesh = read_stl(ref)
     if not mesh.is_watertight():
-        raise ConfigError(f"{ref}: the STL is not a closed (watertight) surface")
+        raise ConfigError(
+            f"{ref}: the STL is not a closed (watertight), consistently wound surface; "
+            "repair it (e.g. in your CAD tool or slicer) and export again"
+        )
+    if mesh.volume < 0:  # wound inside out: turn the normals outwards
+        mesh = Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.name)
     return mesh.normalised()
 
 
