@@ -35,6 +35,7 @@ GROUP_HELP = {
     "profiles": "built-in sensor and printer profiles",
     "printer": "talk to a Marlin 3D printer",
     "sim": "the simulated bench: fake firmware, optical simulator",
+    "objects": "test objects: CAD, STL files, ground-truth depth",
 }
 
 

@@ -1,0 +1,71 @@
+"""`threedcal objects export`: the test objects as STL files to 3D-print, with depth previews."""
+
+from __future__ import annotations
+
+import argparse
+
+from threedcal.cli import Command
+
+
+def _export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from threedcal.errors import ConfigError
+    from threedcal.evaluate.groundtruth import surface_height
+    from threedcal.evaluate.mesh import write_stl
+    from threedcal.evaluate.object_figures import plot_depth_preview
+    from threedcal.evaluate.objects import OBJECT_NAMES, load_object, object_label
+    from threedcal.profiles import load_profile
+
+    sensor = load_profile("sensor", args.sensor)
+    px_per_mm = args.px_per_mm or sensor["px_per_mm"]
+    shape = (sensor["image"]["height_px"], sensor["image"]["width_px"])
+    if args.indentation_mm <= 0:
+        raise ConfigError(f"--indentation-mm must be > 0, got {args.indentation_mm}")
+    refs = args.objects or list(OBJECT_NAMES)
+    meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
+    out = Path(args.out)
+    for name, mesh in meshes.items():
+        stl = write_stl(mesh, out / f"{name}.stl")
+        depth = surface_height(mesh, shape, px_per_mm).depth(args.indentation_mm)
+        png = plot_depth_preview(
+            depth,
+            out / f"{name}_depth.png",
+            px_per_mm=px_per_mm,
+            title=f"{name}: {args.indentation_mm:g} mm deep, {px_per_mm:g} px/mm",
+        )
+        size = " x ".join(f"{v:.2f}" for v in mesh.extent)
+        print(
+            f"{stl}  {size} mm  {len(mesh.faces)} faces  volume {mesh.volume:.1f} mm^3  "
+            f"watertight={mesh.is_watertight()}  preview {png.name}"
+        )
+    return 0
+
+
+def _configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--out", required=True, help="folder for <object>.stl and <object>_depth.png"
+    )
+    parser.add_argument(
+        "--objects",
+        nargs="+",
+        metavar="OBJECT",
+        help="built-in names (hemispheres, pill, pawn) or STL paths (default: the three built-ins)",
+    )
+    parser.add_argument(
+        "--sensor", default="digit", help="sensor profile for the preview grid (default: digit)"
+    )
+    parser.add_argument("--px-per-mm", type=float, help="override the sensor's px/mm")
+    parser.add_argument(
+        "--indentation-mm", type=float, default=1.0, help="preview depth (default: 1.0)"
+    )
+
+
+COMMANDS = [
+    Command(
+        ("objects", "export"),
+        "write the test objects as STL files (press frame: contact side toward -z) with depth previews",
+        _export,
+        _configure,
+    )
+]

@@ -1,0 +1,260 @@
+"""Closed triangle meshes in numpy: the few operations the test objects need, and STL files.
+
+Own code rather than a mesh library: the objects are solids of revolution and one height field, and
+ground truth needs only vertices and faces. Faces are wound counter-clockwise seen from outside
+(outward normals), so a closed mesh's signed volume is positive.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from threedcal.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh in mm: ``vertices`` (V, 3) float64, ``faces`` (F, 3) int64 vertex indices."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    name: str = "mesh"
+
+    def __post_init__(self) -> None:
+        vertices = np.asarray(self.vertices, dtype=np.float64)
+        faces = np.asarray(self.faces, dtype=np.int64)
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise ConfigError(f"mesh {self.name!r}: vertices must be (V, 3), got {vertices.shape}")
+        if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+            raise ConfigError(f"mesh {self.name!r}: faces must be (F, 3), F > 0, got {faces.shape}")
+        if faces.min() < 0 or faces.max() >= len(vertices):
+            raise ConfigError(f"mesh {self.name!r}: a face refers to a vertex that does not exist")
+        if not np.all(np.isfinite(vertices)):
+            raise ConfigError(f"mesh {self.name!r}: vertices must be finite")
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "faces", faces)
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """(F, 3, 3): the corner coordinates of every face."""
+        return self.vertices[self.faces]
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3): lowest and highest x, y, z."""
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    @property
+    def extent(self) -> np.ndarray:
+        return np.ptp(self.vertices, axis=0)
+
+    @property
+    def volume(self) -> float:
+        """Signed volume (divergence theorem); positive for a closed, outward-wound mesh."""
+        a, b, c = (self.triangles[:, i] for i in range(3))
+        return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+    def is_watertight(self) -> bool:
+        """Every edge is shared by exactly two faces that traverse it in opposite directions."""
+        f = self.faces
+        directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        if np.any(directed[:, 0] == directed[:, 1]):
+            return False
+        n = np.int64(len(self.vertices))
+        keys = directed[:, 0] * n + directed[:, 1]
+        if len(np.unique(keys)) != len(keys):  # an edge used twice in the same direction
+            return False
+        reverse = directed[:, 1] * n + directed[:, 0]
+        return bool(np.all(np.isin(reverse, keys)))
+
+    def transformed(self, rotation: np.ndarray | None = None, translation=(0.0, 0.0, 0.0)) -> Mesh:
+        """x' = R x + t. A reflection (det R < 0) also reverses the winding to keep normals outward."""
+        rot = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+        vertices = self.vertices @ rot.T + np.asarray(translation, dtype=np.float64)
+        faces = self.faces if np.linalg.det(rot) > 0 else self.faces[:, ::-1]
+        return Mesh(vertices, faces, self.name)
+
+    def normalised(self) -> Mesh:
+        """Centre the x-y bounding box on the origin and put the lowest point at z = 0."""
+        lo, hi = self.bounds
+        shift = -np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+        return self.transformed(translation=shift)
+
+
+def rotation_x(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rotation_y(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotation_z(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def revolve(profile: np.ndarray, sections: int = 128, name: str = "revolve") -> Mesh:
+    """Solid of revolution about the z axis from a profile of (z, radius) points.
+
+    The profile runs from one point on the axis (radius 0) to another, with radius > 0 in between;
+    equal consecutive z give flat annular faces (vertical walls once the solid lies on its side).
+    """
+    profile = np.asarray(profile, dtype=np.float64)
+    if profile.ndim != 2 or profile.shape[1] != 2 or len(profile) < 3:
+        raise ConfigError(f"{name}: profile must be (N >= 3, 2) points of (z, radius)")
+    if profile[0, 1] != 0 or profile[-1, 1] != 0 or np.any(profile[1:-1, 1] <= 0):
+        raise ConfigError(f"{name}: profile must start and end on the axis with radius > 0 between")
+    if np.any(np.all(np.diff(profile, axis=0) == 0, axis=1)):
+        raise ConfigError(f"{name}: profile has repeated consecutive points")
+    if sections < 3:
+        raise ConfigError(f"{name}: sections must be >= 3, got {sections}")
+    rings = profile[1:-1]
+    phi = 2 * np.pi * np.arange(sections) / sections
+    ring_xyz = np.stack(
+        [
+            rings[:, 1, None] * np.cos(phi),
+            rings[:, 1, None] * np.sin(phi),
+            np.broadcast_to(rings[:, 0, None], (len(rings), sections)),
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
+    bottom = len(ring_xyz)
+    top = bottom + 1
+    vertices = np.vstack([ring_xyz, [0, 0, profile[0, 0]], [0, 0, profile[-1, 0]]])
+    j = np.arange(sections)
+    jn = (j + 1) % sections
+    faces = [np.stack([np.full(sections, bottom), jn, j], axis=1)]
+    for k in range(len(rings) - 1):
+        a, b = k * sections + j, k * sections + jn
+        c, d = (k + 1) * sections + jn, (k + 1) * sections + j
+        faces += [np.stack([a, b, c], axis=1), np.stack([a, c, d], axis=1)]
+    last = (len(rings) - 1) * sections
+    faces.append(np.stack([last + j, last + jn, np.full(sections, top)], axis=1))
+    mesh = Mesh(vertices, np.concatenate(faces), name)
+    if profile[-1, 0] < profile[0, 0]:  # profile runs downwards: the winding is inside out
+        mesh = Mesh(mesh.vertices, mesh.faces[:, ::-1], name)
+    return mesh
+
+
+def height_field_solid(
+    points_xy: np.ndarray, top_z: np.ndarray, bottom_z: float, name: str = "height_field"
+) -> Mesh:
+    """A closed solid between z = bottom_z and z = top_z(x, y) over the Delaunay triangulation of the points.
+
+    Top and bottom share one triangulation; its boundary edges are extruded into side walls, so
+    the result is watertight whatever the point set.
+    """
+    from scipy.spatial import Delaunay
+
+    points_xy = np.asarray(points_xy, dtype=np.float64)
+    top_z = np.asarray(top_z, dtype=np.float64)
+    if np.any(top_z <= bottom_z):
+        raise ConfigError(f"{name}: the top must lie above the bottom everywhere")
+    tri = Delaunay(points_xy)
+    if len(tri.coplanar):
+        raise ConfigError(f"{name}: {len(tri.coplanar)} duplicate points in the height field")
+    simplices = tri.simplices.astype(np.int64)
+    p = points_xy[simplices]
+    area2 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
+        p[:, 1, 1] - p[:, 0, 1]
+    )
+    simplices[area2 < 0] = simplices[area2 < 0][:, ::-1]  # counter-clockwise seen from +z
+    n = len(points_xy)
+    directed = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
+    keys = directed[:, 0] * n + directed[:, 1]
+    boundary = directed[~np.isin(directed[:, 1] * n + directed[:, 0], keys)]
+    a_top, b_top = boundary[:, 0], boundary[:, 1]
+    a_bot, b_bot = a_top + n, b_top + n
+    vertices = np.vstack(
+        [
+            np.column_stack([points_xy, top_z]),
+            np.column_stack([points_xy, np.full(n, bottom_z)]),
+        ]
+    )
+    faces = np.concatenate(
+        [
+            simplices,
+            simplices[:, ::-1] + n,
+            np.stack([a_bot, b_bot, b_top], axis=1),
+            np.stack([a_bot, b_top, a_top], axis=1),
+        ]
+    )
+    return Mesh(vertices, faces, name)
+
+
+# --- STL files ---------------------------------------------------------------------------------
+
+
+def write_stl(mesh: Mesh, path: str | Path) -> Path:
+    """Binary STL (float32, facet normals computed); what slicers and CAD tools read."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tris = mesh.triangles
+    normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+    record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
+    data = np.zeros(len(tris), dtype=record)
+    data["normal"] = normals
+    data["corners"] = tris
+    header = f"threedcal {mesh.name}".encode()[:80].ljust(80, b" ")
+    with path.open("wb") as fh:
+        fh.write(header)
+        fh.write(struct.pack("<I", len(tris)))
+        fh.write(data.tobytes())
+    return path
+
+
+def read_stl(path: str | Path, name: str | None = None) -> Mesh:
+    """Binary or ASCII STL → Mesh; corners at identical coordinates become one vertex."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"STL file {str(path)!r} does not exist")
+    raw = path.read_bytes()
+    name = name or path.stem
+    corners = None
+    if len(raw) >= 84:
+        count = struct.unpack("<I", raw[80:84])[0]
+        if len(raw) == 84 + 50 * count and count > 0:
+            record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
+            corners = np.frombuffer(raw, dtype=record, count=count, offset=84)["corners"]
+    if corners is None:
+        corners = _ascii_corners(raw, path)
+    corners = np.asarray(corners, dtype=np.float64).reshape(-1, 3)
+    vertices, faces = np.unique(corners, axis=0, return_inverse=True)
+    faces = faces.reshape(-1, 3)
+    faces = faces[
+        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    ]
+    if len(faces) == 0:
+        raise ConfigError(f"{path}: the STL has no non-degenerate triangles")
+    return Mesh(vertices, faces, name)
+
+
+def _ascii_corners(raw: bytes, path: Path) -> np.ndarray:
+    try:
+        text = raw.decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: neither a binary nor an ASCII STL file") from exc
+    if not text.lstrip().lower().startswith("solid"):
+        raise ConfigError(f"{path}: neither a binary nor an ASCII STL file (no 'solid' header)")
+    values = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        words = line.split()
+        if words and words[0].lower() == "vertex":
+            try:
+                values.append([float(w) for w in words[1:4]])
+            except (ValueError, IndexError) as exc:
+                raise ConfigError(
+                    f"{path}:{number}: malformed vertex line {line.strip()!r}"
+                ) from exc
+    if not values or len(values) % 3:
+        raise ConfigError(f"{path}: ASCII STL must list 3 vertices per facet, found {len(values)}")
+    return np.array(values)

@@ -1,0 +1,185 @@
+"""Test objects: CAD meshes, STL files and ground-truth depth against analytic answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from threedcal.errors import ConfigError
+from threedcal.evaluate.groundtruth import PenetrationError, depth_map, surface_height
+from threedcal.evaluate.mesh import Mesh, height_field_solid, read_stl, revolve, write_stl
+from threedcal.evaluate.objects import (
+    OBJECT_NAMES,
+    PawnParams,
+    load_object,
+    make_object,
+    pawn_profile,
+)
+
+PX_PER_MM = 19.5
+
+
+def sphere(radius: float, sections: int = 256, rings: int = 128) -> Mesh:
+    t = np.linspace(0, np.pi, rings + 1)
+    profile = np.column_stack([-radius * np.cos(t), radius * np.sin(t)])
+    profile[0, 1] = profile[-1, 1] = 0.0
+    return revolve(profile, sections, name="sphere")
+
+
+def sphere_cap_depth(shape, center, radius, indentation):
+    rows, cols = np.indices(shape, dtype=float)
+    rho2 = ((cols - center[0]) ** 2 + (rows - center[1]) ** 2) / PX_PER_MM**2
+    height = radius - np.sqrt(np.clip(radius**2 - rho2, 0, None))
+    return np.where(rho2 < radius**2, np.maximum(indentation - height, 0.0), 0.0)
+
+
+@pytest.fixture(scope="module")
+def objects():
+    return {name: make_object(name) for name in OBJECT_NAMES}
+
+
+def test_builtin_objects_are_closed_and_fit_in_10_mm(objects):
+    r = 2.0
+    expected = {
+        "pill": np.pi * r**2 * (10 - 2 * r) + 4 / 3 * np.pi * r**3,
+        "hemispheres": 10 * 10 * 1.0 + 2 / 3 * np.pi * (2.5**3 + 2**3 + 1.5**3 + 1**3),
+    }
+    for name, mesh in objects.items():
+        assert mesh.is_watertight(), name
+        lo, hi = mesh.bounds
+        assert np.all(hi[:2] - lo[:2] <= 10 + 1e-9), name
+        np.testing.assert_allclose((lo[:2] + hi[:2]) / 2, 0, atol=1e-9)
+        assert lo[2] == pytest.approx(0, abs=1e-12)
+        assert mesh.volume > 0
+        if name in expected:  # inscribed facets: slightly less than the true solid
+            assert expected[name] * 0.995 < mesh.volume <= expected[name] * (1 + 1e-9), name
+    assert objects["pill"].extent == pytest.approx([10, 4, 4], abs=1e-6)
+    assert objects["pawn"].extent[0] == pytest.approx(10)
+
+
+def test_pawn_profile_has_vertical_walls_and_a_narrow_neck():
+    p = PawnParams()
+    prof = pawn_profile(p)
+    flat = np.diff(prof[:, 0]) == 0  # equal z: a flat face, i.e. a vertical wall lying down
+    assert flat.sum() >= 3
+    assert prof[:, 1].max() == p.base_radius_mm
+    with pytest.raises(ConfigError, match="neck"):
+        make_object("pawn", neck_radius_mm=2.5)
+
+
+def test_stl_roundtrip_binary_and_ascii(tmp_path, objects):
+    path = write_stl(objects["pawn"], tmp_path / "pawn.stl")
+    back = read_stl(path)
+    assert back.is_watertight()
+    assert len(back.faces) == len(objects["pawn"].faces)
+    assert back.volume == pytest.approx(objects["pawn"].volume, rel=1e-5)
+    # an ASCII tetrahedron, wound inside out, away from the origin
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) + [5, 5, 5]
+    faces = [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]]  # inward normals
+    lines = ["solid tet"]
+    for f in faces:
+        lines += ["facet normal 0 0 0", "outer loop"]
+        lines += [f"vertex {a} {b} {c}" for a, b, c in v[f]]
+        lines += ["endloop", "endfacet"]
+    ascii_path = tmp_path / "tet.stl"
+    ascii_path.write_text("\n".join(lines + ["endsolid tet"]))
+    tet = load_object(str(ascii_path))
+    assert tet.volume == pytest.approx(1 / 6)
+    assert tet.bounds[0, 2] == 0 and tet.bounds[0, 0] == -0.5
+
+
+def test_load_object_errors(tmp_path):
+    with pytest.raises(ConfigError, match="hemispheres, pill, pawn"):
+        load_object("rook")
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_object(str(tmp_path / "missing.stl"))
+    open_mesh = Mesh(np.eye(3), [[0, 1, 2]], "sheet")
+    write_stl(open_mesh, tmp_path / "sheet.stl")
+    with pytest.raises(ConfigError, match="watertight"):
+        load_object(str(tmp_path / "sheet.stl"))
+    (tmp_path / "junk.stl").write_bytes(b"\x00\xff" * 50)
+    with pytest.raises(ConfigError, match="STL"):
+        load_object(str(tmp_path / "junk.stl"))
+
+
+def test_sphere_ground_truth_matches_the_analytic_cap():
+    radius, depth, shape, center = 2.0, 0.8, (120, 140), (70.3, 55.7)
+    gt = depth_map(
+        sphere(radius), depth, shape, PX_PER_MM, max_penetration_mm=1.5, center_px=center
+    )
+    exact = sphere_cap_depth(shape, center, radius, depth)
+    # facets of a 256 x 128 sphere sit < 0.3 µm inside it: < 1 µm in height up to 60° slopes
+    assert np.abs(gt - exact).max() < 1e-3
+    assert ((gt > 0) == (exact > 0)).mean() > 0.999
+    # rotation about the (vertical) axis changes nothing for a sphere
+    turned = depth_map(
+        sphere(radius),
+        depth,
+        shape,
+        PX_PER_MM,
+        max_penetration_mm=1.5,
+        center_px=center,
+        rotation_deg=33.0,
+    )
+    assert np.abs(turned - exact).max() < 1e-3
+
+
+def test_object_partly_outside_the_image_is_clipped():
+    radius, depth, shape, center = 2.0, 1.0, (80, 60), (-10.0, 30.0)  # lowest point off-image
+    gt = depth_map(
+        sphere(radius), depth, shape, PX_PER_MM, max_penetration_mm=2.0, center_px=center
+    )
+    exact = sphere_cap_depth(shape, center, radius, depth)
+    assert gt.shape == shape
+    assert 0 < gt.max() < depth  # the deepest point is not in view
+    assert np.abs(gt - exact).max() < 1e-3
+    far = depth_map(
+        sphere(radius), depth, shape, PX_PER_MM, max_penetration_mm=2.0, center_px=(500, 500)
+    )
+    assert not far.any()
+
+
+def test_vertical_walls_give_finite_steps():
+    # a 2 mm x 3 mm box: flat bottom, four vertical walls
+    corners = np.array([[-1.0, -1.5], [1.0, -1.5], [1.0, 1.5], [-1.0, 1.5]])
+    box = height_field_solid(corners, np.full(4, 1.0), 0.0, name="box")
+    assert box.is_watertight() and box.volume == pytest.approx(6.0)
+    center = (40.25, 40.4)
+    gt = depth_map(box, 0.7, (81, 81), PX_PER_MM, max_penetration_mm=1.0, center_px=center)
+    rows, cols = np.indices(gt.shape)
+    inside = (np.abs(cols - center[0]) < 1.0 * PX_PER_MM) & (
+        np.abs(rows - center[1]) < 1.5 * PX_PER_MM
+    )
+    assert np.all(np.isfinite(gt))
+    np.testing.assert_allclose(gt[inside], 0.7, atol=1e-12)
+    assert not gt[~inside].any()
+
+
+def test_pawn_neck_is_shadowed_and_walls_are_finite(objects):
+    p = PawnParams()
+    surface = surface_height(objects["pawn"], (160, 260), PX_PER_MM)
+    gt = surface.depth(1.5, max_penetration_mm=2.0)
+    assert np.all(np.isfinite(gt)) and gt.max() <= 1.5 and gt.min() == 0
+    cy, cx = (160 - 1) / 2, (260 - 1) / 2
+    neck_x = (6.25 - 5.0) * PX_PER_MM + cx  # neck at 6.1-6.43 mm from the base face
+    head_x = (p.length_mm - p.head_radius_mm - 5.0) * PX_PER_MM + cx
+    row = int(round(cy))
+    assert gt[row, int(round(neck_x))] == 0  # 1.7 mm above the base rim: never touches at 1.5 mm
+    expected_head = 1.5 - (p.base_radius_mm - p.head_radius_mm)
+    assert gt[row, int(round(head_x))] == pytest.approx(expected_head, abs=2e-3)
+    # the base's flat face: a vertical wall where depth drops from ~1.5 mm to 0 in one pixel
+    base_col = int(np.ceil(cx - 5.0 * PX_PER_MM))
+    assert gt[row, base_col] > 1.4 and gt[row, base_col - 1] == 0
+
+
+def test_too_deep_and_negative_indentations_are_refused():
+    with pytest.raises(PenetrationError, match="deeper than the maximum penetration 1.5 mm"):
+        depth_map(sphere(2.0), 2.0, (20, 20), PX_PER_MM, max_penetration_mm=1.5)
+    with pytest.raises(PenetrationError, match=">= 0"):
+        depth_map(sphere(2.0), -0.1, (20, 20), PX_PER_MM, max_penetration_mm=1.5)
+    surface = surface_height(sphere(2.0), (20, 20), PX_PER_MM)
+    with pytest.raises(PenetrationError):
+        surface.depth(3.0, max_penetration_mm=2.5)
+    assert not surface.depth(0.0).any()
+    with pytest.raises(ConfigError, match="px_per_mm"):
+        surface_height(sphere(2.0), (20, 20), 0.0)
