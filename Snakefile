@@ -26,6 +26,7 @@ SCENES = list(config["scenes"])
 IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
+COLLECTED_SCENES = [name for name in SCENES if name not in IMPORTED_SCENES]
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 

@@ -9,6 +9,7 @@ from threedcal.dataset.registration import (
     estimate_touch_offset_mm,
     find_contact,
     fit_affine,
+    locate_contact,
 )
 
 PPM = 19.0
@@ -36,7 +37,7 @@ def rotation_scale(theta_deg, sx, sy, shear=0.0):
 
 
 def test_find_contact_locates_a_subpixel_centre():
-    contact = find_contact(*shaded_frame((101.3, 180.6)))
+    contact = locate_contact(*shaded_frame((101.3, 180.6)))
     assert contact is not None
     assert abs(contact.x_px - 101.3) < 0.5 and abs(contact.y_px - 180.6) < 0.5
     a_px = math.sqrt(2 * 2.0 * 1.0 - 1.0) * PPM
@@ -62,7 +63,7 @@ def test_affine_with_rotation_and_unequal_scales_is_recovered_from_frames():
     truth = xy_mm @ linear.T + offset
     found = []
     for i, (cx, cy) in enumerate(truth):
-        contact = find_contact(*shaded_frame((cx, cy), seed=i))
+        contact = locate_contact(*shaded_frame((cx, cy), seed=i))
         found.append((contact.x_px, contact.y_px))
     fit = fit_affine(xy_mm, np.array(found))
     np.testing.assert_allclose(fit.matrix[:, :2], linear, atol=0.05)

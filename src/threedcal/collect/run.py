@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from threedcal.collect.plan import clearance_z, plan_area_mm, plan_to_printer
+from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_to_printer
 from threedcal.collect.store import PointRecord, RawStore
 
 
@@ -56,6 +56,7 @@ class MotionSettings:
     plunge_feed_mm_s: float = 5.0
     settle_s: float = 0.3
     n_blank: int = 10
+    hop_mm: float = 0.5  # lift above the higher gel surface of two neighbouring points
 
     @classmethod
     def from_profile(cls, sensor: Mapping) -> MotionSettings:
@@ -116,11 +117,16 @@ def collect(
         disable=not progress,
         dynamic_ncols=True,
     )
+    # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed gel
+    # sits lower away from its apex), never above the clearance height.
+    surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
     try:
         for point in range(start, len(plan)):
             row = plan.iloc[point]
             target = plan_to_printer(sensor, row.x_mm, row.y_mm, row.depth_mm)
-            printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
+            previous = surface_z[point - 1] if point > start else np.inf
+            hop_z = min(safe_z, max(previous, surface_z[point]) + settings.hop_mm)
+            printer.move_to(z=hop_z, feed_mm_s=settings.plunge_feed_mm_s)
             printer.move_to(x=target[0], y=target[1], feed_mm_s=settings.travel_feed_mm_s)
             printer.move_to(z=target[2], feed_mm_s=settings.plunge_feed_mm_s)
             printer.wait_until_idle()
@@ -130,7 +136,9 @@ def collect(
             count = int(offsets[point + 1] - offsets[point])
             frames, stamps = camera.capture(count)
             hw_now = hardware_clock() - started_hw
-            printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
+            lift_to = surface_z[point + 1] if point + 1 < len(plan) else np.inf
+            lift_z = min(safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
+            printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
             store.write_point(
                 point,
                 PointRecord(
@@ -143,6 +151,7 @@ def collect(
             )
             frames_done += count
             bar.update(1)
+        printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
         printer.wait_until_idle()
     finally:
         bar.close()

@@ -75,6 +75,52 @@ def find_contact(
     )
 
 
+def refine_contact(
+    frame: np.ndarray,
+    blank: np.ndarray,
+    coarse: Contact,
+    quantile: float = 0.7,
+    smooth_px: float = 1.0,
+) -> Contact:
+    """Sub-pixel centre and radius from the contact's rim.
+
+    The edge of a pressed sphere is where the gel's slope changes fastest, so the colour change's
+    spatial gradient peaks on a circle there. A weighted algebraic (Kåsa) circle fit to the
+    strongest-gradient pixels near the coarse contact is symmetric by construction: unlike an area
+    centroid, asymmetric lighting or a one-sided shadow barely moves it.
+    """
+    diff = frame.astype(np.float32) - blank.astype(np.float32)
+    if diff.ndim == 2:
+        diff = diff[..., None]
+    energy = np.zeros(diff.shape[:2], dtype=np.float32)
+    for channel in range(diff.shape[2]):
+        gy, gx = np.gradient(ndimage.gaussian_filter(diff[..., channel], smooth_px))
+        energy += gx * gx + gy * gy
+    edge = np.sqrt(energy)
+    rows, cols = np.indices(edge.shape)
+    near = np.hypot(cols - coarse.x_px, rows - coarse.y_px) < 1.8 * coarse.radius_px + 3
+    if near.sum() < 12:
+        return coarse
+    chosen = near & (edge > np.quantile(edge[near], quantile))
+    weight = edge[chosen].astype(float)
+    x, y = cols[chosen].astype(float), rows[chosen].astype(float)
+    design = np.column_stack([x, y, np.ones_like(x)]) * weight[:, None]
+    solution, *_ = np.linalg.lstsq(design, (x * x + y * y) * weight, rcond=None)
+    cx, cy = solution[0] / 2, solution[1] / 2
+    radius2 = solution[2] + cx * cx + cy * cy
+    if not (np.isfinite(cx) and np.isfinite(cy) and radius2 > 0):
+        return coarse
+    return Contact(
+        x_px=float(cx), y_px=float(cy), radius_px=float(np.sqrt(radius2)), strength=coarse.strength
+    )
+
+
+def locate_contact(frame: np.ndarray, blank: np.ndarray) -> Contact | None:
+    """Coarse contact (find_contact) refined on its rim (refine_contact); None without contact."""
+    coarse = find_contact(frame, blank, level=0.3)
+    return None if coarse is None else refine_contact(frame, blank, coarse)
+
+
 @dataclass(frozen=True)
 class AffineFit:
     matrix: np.ndarray  # (2, 3): [col, row]ᵀ = M[:, :2] @ [x_mm, y_mm]ᵀ + M[:, 2]

@@ -73,6 +73,8 @@ class GelSimulator:
         self.creep_frames = float(gel.get("creep_frames", 10.0))
         self.nonlinearity = float(optics.get("nonlinearity", 0.0))
         self.wrap = float(optics.get("wrap", 0.0))
+        self.shadow_strength = float(optics.get("shadow_strength", 1.0))
+        self.shadow_reach_mm = float(optics.get("shadow_reach_mm", math.inf))
         self.blur_sigma = float(optics.get("blur_sigma_px", 0.0))
         self.gain_jitter = float(optics.get("frame_gain_jitter", 0.0))
         self.noise_dn = np.asarray(optics.get("noise_dn", [0, 0, 0]), dtype=np.float32)
@@ -359,12 +361,16 @@ class GelSimulator:
         return (li["ref2"] / r2) * self._vig[y0:y1, x0:x1]
 
     def _lit(self, z: np.ndarray, li) -> np.ndarray:
-        """1 where the light reaches the surface, 0 in the cast shadow of a wall toward the light."""
+        """1 where the light reaches the surface, less in the cast shadow of a wall toward the light.
+
+        Light in the gel scatters: a shadow only darkens the directional term by `shadow_strength`,
+        and only within `shadow_reach_mm` of its wall (real gels show short, soft shadows).
+        """
         span = float(z.max() - z.min())
-        if span * self.px_per_mm < 0.5 * li["tan_el"]:  # nothing can rise above the ray
+        if self.shadow_strength <= 0 or span * self.px_per_mm < 0.5 * li["tan_el"]:
             return np.float32(1.0)
         s = self.px_per_mm
-        reach_px = min(span / li["tan_el"] * s, max(z.shape))
+        reach_px = min(span / li["tan_el"] * s, self.shadow_reach_mm * s, max(z.shape))
         steps = int(min(16, max(2, math.ceil(reach_px / 1.5))))
         h, w = z.shape
         pad = int(math.ceil(reach_px)) + 1
@@ -378,7 +384,7 @@ class GelSimulator:
                 continue
             shifted = zp[pad + oy : pad + oy + h, pad + ox : pad + ox + w]
             np.maximum(occl, shifted - z - (math.hypot(ox, oy) / s) * li["tan_el"], out=occl)
-        return (occl <= 0).astype(np.float32)
+        return (1.0 - self.shadow_strength * (occl > 0)).astype(np.float32)
 
     def _finish(self, frame: np.ndarray, frame_index: int) -> np.ndarray:
         rng = _stream(self.seed, 3, int(frame_index))
