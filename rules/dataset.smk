@@ -16,3 +16,30 @@ rule dataset_import:
         code=source_digest("dataset"),
     script:
         "../scripts/dataset_import.py"
+
+
+rule dataset_collected:
+    input:
+        store="results/{scene}/raw.zarr",
+        truth="results/{scene}/collect/bench_truth.json",
+    output:
+        trainset=directory("results/{scene}/dataset/trainset"),
+        splits="results/{scene}/dataset/splits.csv",
+        registration="results/{scene}/dataset/registration.json",
+        figure=report(
+            "results/{scene}/dataset/registration.png",
+            caption="../workflow/report/registration.rst",
+            category="{scene}",
+            subcategory="2 registration",
+        ),
+    log:
+        "results/{scene}/logs/dataset.log",
+    wildcard_constraints:
+        scene="|".join(COLLECTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+    conda:
+        CONDA_ENV
+    params:
+        scene=lambda wildcards: config["scenes"][wildcards.scene],
+        code=source_digest("dataset", "collect"),
+    script:
+        "../scripts/dataset_collected.py"

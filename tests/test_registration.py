@@ -58,13 +58,14 @@ def test_shape_mismatch_is_an_error():
 def test_affine_with_rotation_and_unequal_scales_is_recovered_from_frames():
     linear = rotation_scale(3.0, 19.2, -18.7)  # printer y points up in the image: negative scale
     offset = np.array([118.0, 162.0])
-    xs, ys = np.meshgrid(np.linspace(-4, 4, 5), np.linspace(-6, 6, 6))
+    xs, ys = np.meshgrid(np.linspace(-3, 3, 5), np.linspace(-5, 5, 6))
     xy_mm = np.column_stack([xs.ravel(), ys.ravel()])
     truth = xy_mm @ linear.T + offset
     found = []
     for i, (cx, cy) in enumerate(truth):
         contact = locate_contact(*shaded_frame((cx, cy), seed=i))
-        found.append((contact.x_px, contact.y_px))
+        found.append((np.nan, np.nan) if contact is None else (contact.x_px, contact.y_px))
+    assert np.isfinite(found).all(axis=1).sum() >= 15  # contacts cut by the frame edge are left out
     fit = fit_affine(xy_mm, np.array(found))
     np.testing.assert_allclose(fit.matrix[:, :2], linear, atol=0.05)
     # Error of the fitted map over the probed area, against the true one.

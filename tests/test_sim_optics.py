@@ -114,7 +114,22 @@ def test_steep_walls_cast_shadows_away_from_the_light():
     ux, uy = light["dir"]
     behind = (int(round(20 - 8 * uy)), int(round(20 - 8 * ux)))  # row, col on the far side
     toward = (int(round(20 + 10 * uy)), int(round(20 + 10 * ux)))
-    assert lit[behind] == 0 and lit[toward] == 1 and lit[20, 20] == 1
+    # A shadow removes `shadow_strength` of the directional light (scattered light fills the rest).
+    assert lit[behind] == pytest.approx(1 - sim.shadow_strength)
+    assert lit[toward] == 1 and lit[20, 20] == 1
+
+
+def test_cast_shadows_end_at_their_reach():
+    sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
+    light = sim._lights[0]
+    z = np.zeros((80, 80), np.float32)
+    z[35:45, 35:45] = 2.0  # 2 mm high: an unbounded shadow at 14 degrees would run 8 mm
+    lit = sim._lit(z, light)
+    ux, uy = light["dir"]
+    reach_px = sim.shadow_reach_mm * sim.px_per_mm
+    far = 5 + reach_px + 3  # from the block's centre: past its wall and the shadow's reach
+    beyond = (int(round(40 - far * uy)), int(round(40 - far * ux)))
+    assert lit[beyond] == 1
 
 
 def test_height_map_sphere_matches_the_analytic_sphere():

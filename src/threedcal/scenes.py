@@ -47,6 +47,8 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
             f"{root}/collect/summary.json",
             f"{root}/collect/coverage.png",
             f"{root}/collect/frames.png",
+            f"{root}/dataset/registration.json",
+            f"{root}/dataset/splits.csv",
         ]
     return targets
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -94,6 +96,17 @@ class RawStore:
         path = Path(path)
         if path.exists():
             raise ConfigError(f"{path}: already exists; refusing to overwrite collected data")
+        # Build the empty store beside its place and rename it there: a kill during creation
+        # leaves no half-made store for a resume to trip over (the leftover holds no data).
+        building = path.with_name(path.name + ".creating")
+        if building.exists():
+            shutil.rmtree(building)
+        cls._build(building, plan, image_shape, n_blank, attrs)
+        os.replace(building, path)
+        return cls(path, zarr.open_group(str(path), mode="r+"), plan)
+
+    @staticmethod
+    def _build(path: Path, plan, image_shape, n_blank: int, attrs) -> None:
         offsets = frame_offsets(plan)
         n_frames = int(offsets[-1])
         height, width, channels = image_shape
@@ -133,7 +146,6 @@ class RawStore:
         group.create_array(
             "captured", data=np.zeros(len(plan), dtype=bool), dimension_names=["plan_point"]
         )
-        return cls(path, group, plan)
 
     @classmethod
     def open_for_resume(cls, path: str | Path, plan: pd.DataFrame) -> RawStore:

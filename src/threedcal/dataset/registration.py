@@ -79,15 +79,16 @@ def refine_contact(
     frame: np.ndarray,
     blank: np.ndarray,
     coarse: Contact,
-    quantile: float = 0.7,
+    n_rays: int = 72,
     smooth_px: float = 1.0,
-) -> Contact:
-    """Sub-pixel centre and radius from the contact's rim.
+) -> Contact | None:
+    """Sub-pixel centre and radius from the contact's rim; None when the rim leaves the image.
 
     The edge of a pressed sphere is where the gel's slope changes fastest, so the colour change's
-    spatial gradient peaks on a circle there. A weighted algebraic (Kåsa) circle fit to the
-    strongest-gradient pixels near the coarse contact is symmetric by construction: unlike an area
-    centroid, asymmetric lighting or a one-sided shadow barely moves it.
+    spatial gradient peaks on a circle there. Along `n_rays` rays from the coarse centre the peak is
+    located to sub-pixel (parabola through the maximum), and a circle is fitted to those points with
+    outlier rejection. Equal angular sampling keeps the fit symmetric: a brighter side, a one-sided
+    shadow or a lighting gradient barely moves it (an area centroid moves by pixels).
     """
     diff = frame.astype(np.float32) - blank.astype(np.float32)
     if diff.ndim == 2:
@@ -97,26 +98,42 @@ def refine_contact(
         gy, gx = np.gradient(ndimage.gaussian_filter(diff[..., channel], smooth_px))
         energy += gx * gx + gy * gy
     edge = np.sqrt(energy)
-    rows, cols = np.indices(edge.shape)
-    near = np.hypot(cols - coarse.x_px, rows - coarse.y_px) < 1.8 * coarse.radius_px + 3
-    if near.sum() < 12:
-        return coarse
-    chosen = near & (edge > np.quantile(edge[near], quantile))
-    weight = edge[chosen].astype(float)
-    x, y = cols[chosen].astype(float), rows[chosen].astype(float)
-    design = np.column_stack([x, y, np.ones_like(x)]) * weight[:, None]
-    solution, *_ = np.linalg.lstsq(design, (x * x + y * y) * weight, rcond=None)
-    cx, cy = solution[0] / 2, solution[1] / 2
-    radius2 = solution[2] + cx * cx + cy * cy
-    if not (np.isfinite(cx) and np.isfinite(cy) and radius2 > 0):
-        return coarse
-    return Contact(
-        x_px=float(cx), y_px=float(cy), radius_px=float(np.sqrt(radius2)), strength=coarse.strength
-    )
+    height, width = edge.shape
+    r0 = coarse.radius_px
+    radii = np.linspace(0.5 * r0, 1.6 * r0, max(int(4.4 * r0), 8))
+    points = []
+    for angle in np.linspace(0.0, 2 * np.pi, n_rays, endpoint=False):
+        xs = coarse.x_px + radii * np.cos(angle)
+        ys = coarse.y_px + radii * np.sin(angle)
+        if xs.min() < 0 or ys.min() < 0 or xs.max() > width - 1 or ys.max() > height - 1:
+            return None  # the rim may be cut by the frame's edge: no unbiased circle
+        profile = ndimage.map_coordinates(edge, [ys, xs], order=1)
+        k = int(np.argmax(profile))
+        offset = 0.0
+        if 0 < k < len(profile) - 1:
+            curvature = profile[k - 1] - 2 * profile[k] + profile[k + 1]
+            if curvature < 0:
+                offset = 0.5 * (profile[k - 1] - profile[k + 1]) / curvature
+        r = float(np.interp(k + offset, np.arange(len(radii)), radii))
+        points.append((coarse.x_px + r * np.cos(angle), coarse.y_px + r * np.sin(angle)))
+    points = np.asarray(points)
+    keep = np.ones(len(points), dtype=bool)
+    for _ in range(3):
+        x, y = points[keep, 0], points[keep, 1]
+        solution, *_ = np.linalg.lstsq(
+            np.column_stack([x, y, np.ones_like(x)]), x * x + y * y, rcond=None
+        )
+        cx, cy = solution[0] / 2, solution[1] / 2
+        radius = float(np.sqrt(max(solution[2] + cx * cx + cy * cy, 0.0)))
+        residual = np.abs(np.hypot(points[:, 0] - cx, points[:, 1] - cy) - radius)
+        keep = residual < max(3 * 1.4826 * float(np.median(residual[keep])), 0.5)
+        if keep.sum() < 8:
+            return None
+    return Contact(x_px=float(cx), y_px=float(cy), radius_px=radius, strength=coarse.strength)
 
 
 def locate_contact(frame: np.ndarray, blank: np.ndarray) -> Contact | None:
-    """Coarse contact (find_contact) refined on its rim (refine_contact); None without contact."""
+    """Coarse contact (find_contact) refined on its rim (refine_contact); None without a whole contact."""
     coarse = find_contact(frame, blank, level=0.3)
     return None if coarse is None else refine_contact(frame, blank, coarse)
 
