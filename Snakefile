@@ -4,7 +4,7 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import is_imported, validate_config
+from threedcal.config import is_imported, training_fractions, validate_config
 from threedcal.provenance import source_digest
 from threedcal.scenes import study_targets
 
@@ -36,6 +36,7 @@ wildcard_constraints:
 
 include: "rules/scene.smk"
 include: "rules/dataset.smk"
+include: "rules/train.smk"
 
 
 rule all:

@@ -13,7 +13,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from threedcal.config import is_imported
+from threedcal.config import is_imported, training_fractions
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -35,7 +35,28 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     targets = [f"{root}/scene.json"]
     if is_imported(scene):
         targets += [f"{root}/dataset/splits.csv"]
+    if has_trainset(scene):
+        targets += model_targets(name, scene)
+    if is_imported(scene):
+        targets += [f"{root}/ball_eval.json"]
     return targets
+
+
+def has_trainset(scene: Mapping) -> bool:
+    """Scenes whose results/{scene}/dataset/trainset some rule writes (today: imported ones).
+
+    Collected scenes join when the collection + dataset stages write their trainset: then return True.
+    """
+    return is_imported(scene)
+
+
+def model_targets(name: str, scene: Mapping) -> list[str]:
+    """One training job per fraction P: model.pt and losses.csv (+ losses.png) under models/P{p}/."""
+    return [
+        f"{RESULTS}/{name}/models/P{p}/{leaf}"
+        for p in training_fractions(scene)
+        for leaf in ("model.pt", "losses.csv")
+    ]
 
 
 def study_targets(config: Mapping) -> list[str]:
