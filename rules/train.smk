@@ -1,15 +1,6 @@
 # Stage `train`: one model per (scene, P) from the scene's model-ready set; ball_eval for imported balls.
 
 
-def model_settings(wildcards):
-    scene = config["scenes"][wildcards.scene]
-    return {
-        "model": scene["model"],
-        "seed": scene["seed"],
-        "torch_threads": scene["torch_threads"],
-    }
-
-
 rule train:
     input:
         trainset="results/{scene}/dataset/trainset",
@@ -21,11 +12,14 @@ rule train:
         "results/{scene}/logs/train_P{p}.log",
     wildcard_constraints:
         p=r"\d+",
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
     conda:
         CONDA_ENV
+    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
     params:
-        settings=model_settings,
+        settings=lambda wildcards: {
+            key: config["scenes"][wildcards.scene][key]
+            for key in ("model", "seed", "torch_threads")
+        },
         code=source_digest("model", "dataset"),
     script:
         "../scripts/train.py"
