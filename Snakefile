@@ -4,9 +4,9 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import is_imported, validate_config
+from threedcal.config import is_imported, training_fractions, validate_config
 from threedcal.provenance import source_digest
-from threedcal.scenes import study_targets
+from threedcal.scenes import ablation_scenes, study_targets
 
 min_version("9.0")
 
@@ -27,6 +27,7 @@ IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
 COLLECTED_SCENES = [name for name in SCENES if name not in IMPORTED_SCENES]
+ABLATION_SCENES = ablation_scenes(config)
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 
@@ -39,6 +40,8 @@ include: "rules/scene.smk"
 include: "rules/collect.smk"
 include: "rules/dataset.smk"
 include: "rules/integrate.smk"
+include: "rules/train.smk"
+include: "rules/stats.smk"
 
 
 rule all:

@@ -4,7 +4,9 @@
 
 def ablation_models(wildcards):
     fractions = training_fractions(config["scenes"][wildcards.scene])
-    return {f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions}
+    return {
+        f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions
+    }
 
 
 def ablation_losses(wildcards):
@@ -52,20 +54,22 @@ rule stats:
             category="{scene}",
             subcategory="4 ablation",
         ),
+    log:
+        "results/{scene}/logs/stats.log",
     wildcard_constraints:
         scene="|".join(ABLATION_SCENES) or "(?!)",  # "(?!)" matches nothing
+    conda:
+        CONDA_ENV
     params:
-        fractions=lambda wildcards: training_fractions(config["scenes"][wildcards.scene]),
+        fractions=lambda wildcards: training_fractions(
+            config["scenes"][wildcards.scene]
+        ),
         summary=lambda wildcards: (
             f"results/{wildcards.scene}/collect/summary.json"
             if wildcards.scene in COLLECTED_SCENES
             else None
         ),
         code=source_digest("evaluate", "model", "dataset", "depth"),
-    conda:
-        CONDA_ENV
-    log:
-        "results/{scene}/logs/stats.log",
     script:
         "../scripts/stats.py"
 
@@ -80,12 +84,12 @@ rule stats_overview:
             category="study",
             subcategory="ablation",
         ),
+    log:
+        "results/logs/stats_overview.log",
+    conda:
+        CONDA_ENV
     params:
         scenes=ABLATION_SCENES,
         code=source_digest("evaluate"),
-    conda:
-        CONDA_ENV
-    log:
-        "results/logs/stats_overview.log",
     script:
         "../scripts/stats_overview.py"

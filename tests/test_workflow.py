@@ -48,7 +48,8 @@ def test_bad_config_fails_at_parse_time_naming_the_key(tmp_path):
     assert result.returncode != 0
     output = result.stdout + result.stderr
     assert (
-        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, lookup)" in output
+        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, lookup)"
+        in output
     )
     assert not (tmp_path / "results").exists()
 
@@ -67,6 +68,13 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     for name in config["scenes"]:
         record = json.loads((tmp_path / f"results/{name}/scene.json").read_text())
         assert record["scene"] == name and record["software"]["threedcal"]
+    for name, scene in config["scenes"].items():
+        if "import" in scene:
+            assert (tmp_path / f"results/{name}/models/P80/model.pt").stat().st_size > 0
+            assert (tmp_path / f"results/{name}/models/P80/losses.png").is_file()
+            ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
+            assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 8
+            assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
     # Nothing changed: nothing to do.
     assert scheduled_jobs(tmp_path, path) == []
     # Change one setting of one scene: only that scene's dependent jobs rerun.
@@ -77,6 +85,27 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     rerun_scenes = {wc["scene"] for _, wc in jobs if "scene" in wc}
     assert rerun_scenes == {first}
     assert ("scene", {"scene": first}) in jobs
+
+
+def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_path):
+    config = {
+        "scenes": {
+            "balls": {
+                "sensor": "gelsight_mini",
+                "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
+                "ablation": [20, 80],
+            }
+        }
+    }
+    jobs = scheduled_jobs(tmp_path, write_config(tmp_path, config))
+    trains = sorted(wc["p"] for rule, wc in jobs if rule == "train")
+    assert trains == ["20", "80"]
+    assert ("ball_eval", {"scene": "balls"}) in jobs
+    # Asking for one P schedules that training alone (plus the dataset it reads).
+    one = scheduled_jobs(
+        tmp_path, write_config(tmp_path, config), "results/balls/models/P20/model.pt"
+    )
+    assert sorted(rule for rule, _ in one) == ["dataset_import", "train"]
 
 
 def targets_config():

@@ -7,4 +7,13 @@ try:
 except PackageNotFoundError:  # running from a source tree without an install
     __version__ = "0.0.0+unknown"
 
-__all__ = ["__version__"]
+__all__ = ["__version__", "DepthEstimator"]
+
+
+def __getattr__(name: str):
+    # Lazy: `import threedcal` stays light; torch loads on first use of the estimator.
+    if name == "DepthEstimator":
+        from threedcal.model.inference import DepthEstimator
+
+        return DepthEstimator
+    raise AttributeError(f"module 'threedcal' has no attribute {name!r}")

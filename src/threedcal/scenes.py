@@ -13,7 +13,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from threedcal.config import is_imported
+from threedcal.config import FULL_TRAINING_P, is_imported, training_fractions
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -23,6 +23,17 @@ INTEGRATION_STUDY_TARGETS = [
     f"{RESULTS}/integration/error_vs_time.png",
     f"{RESULTS}/integration/reading.md",
 ]
+# Per-scene outputs of the stats stage (rules/stats.smk), for scenes with an ablation.
+STATS_FILES = (
+    "validation_mse.csv",
+    "tests.csv",
+    "recommendation.txt",
+    "error_vs_cost.csv",
+    "loss_curves.png",
+    "mse_map.png",
+    "mse_kde.png",
+    "error_vs_cost.png",
+)
 # Versions recorded with every scene: the packages whose behaviour changes numbers.
 RECORDED_PACKAGES = (
     "threedcal",
@@ -41,6 +52,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     targets = [f"{root}/scene.json"]
     if is_imported(scene):
         targets += [f"{root}/dataset/splits.csv"]
+
     else:
         targets += [
             f"{root}/raw.zarr",
@@ -50,7 +62,31 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
             f"{root}/dataset/registration.json",
             f"{root}/dataset/splits.csv",
         ]
+    targets += model_targets(name, scene)
+    if is_imported(scene):
+        targets += [f"{root}/ball_eval.json"]
+    if has_ablation(scene):
+        targets += [f"{root}/stats/{name}" for name in STATS_FILES]
     return targets
+
+
+def has_ablation(scene: Mapping) -> bool:
+    """Scenes whose statistics compare several training fractions against P = 80."""
+    fractions = training_fractions(scene)
+    return len(fractions) > 1 and FULL_TRAINING_P in fractions
+
+
+def ablation_scenes(config: Mapping) -> list[str]:
+    return [name for name, scene in config["scenes"].items() if has_ablation(scene)]
+
+
+def model_targets(name: str, scene: Mapping) -> list[str]:
+    """One training job per fraction P: model.pt and losses.csv (+ losses.png) under models/P{p}/."""
+    return [
+        f"{RESULTS}/{name}/models/P{p}/{leaf}"
+        for p in training_fractions(scene)
+        for leaf in ("model.pt", "losses.csv")
+    ]
 
 
 def study_targets(config: Mapping) -> list[str]:
@@ -60,6 +96,8 @@ def study_targets(config: Mapping) -> list[str]:
         targets += scene_targets(name, scene)
     if config.get("integration_study", {}).get("enabled"):
         targets += INTEGRATION_STUDY_TARGETS
+    if ablation_scenes(config):
+        targets += [f"{RESULTS}/stats/mse_std_vs_p.png"]
     return targets
 
 

@@ -50,7 +50,9 @@ def coordinate_mse(estimator, trainset: TrainingSet, split: str = "val") -> pd.D
     return table.groupby("point", as_index=False)["mse"].mean()
 
 
-def ablation_table(model_paths: Mapping[int, str | Path], trainset: TrainingSet, splits: pd.DataFrame) -> pd.DataFrame:
+def ablation_table(
+    model_paths: Mapping[int, str | Path], trainset: TrainingSet, splits: pd.DataFrame
+) -> pd.DataFrame:
     """validation_mse.csv: P, point, x_mm, y_mm, mse for every model P and validation coordinate."""
     from threedcal.model.inference import DepthEstimator
 
@@ -85,14 +87,25 @@ def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, 
     fractions = sorted(table["P"].unique())
     columns = min(len(fractions), 3)
     rows = int(np.ceil(len(fractions) / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 3.2 * rows), dpi=110, squeeze=False)
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(3.4 * columns, 3.2 * rows), dpi=110, squeeze=False
+    )
     vmin, vmax = np.percentile(table["mse"], [2, 98])
     for ax, p in zip(axes.ravel(), fractions, strict=False):
         part = table[table["P"] == p]
-        points = ax.scatter(part["x_mm"], part["y_mm"], c=part["mse"], cmap="magma", vmin=vmin, vmax=vmax, s=18)
-        train = splits[(splits["split"] == "train") & (splits["min_p"] > 0) & (splits["min_p"] <= p)]
+        points = ax.scatter(
+            part["x_mm"], part["y_mm"], c=part["mse"], cmap="magma", vmin=vmin, vmax=vmax, s=18
+        )
+        train = splits[
+            (splits["split"] == "train") & (splits["min_p"] > 0) & (splits["min_p"] <= p)
+        ]
         ax.scatter(train["x_mm"], train["y_mm"], marker="x", c="tab:cyan", s=10, lw=0.8)
-        ax.set(title=f"P = {p} % ({len(train)} training points)", aspect="equal", xlabel="x (mm)", ylabel="y (mm)")
+        ax.set(
+            title=f"P = {p} % ({len(train)} training points)",
+            aspect="equal",
+            xlabel="x (mm)",
+            ylabel="y (mm)",
+        )
         ax.title.set_fontsize(8)
     for ax in axes.ravel()[len(fractions) :]:
         ax.axis("off")
@@ -130,8 +143,12 @@ def std_figure(tables: Mapping[str, pd.DataFrame], path: str | Path) -> None:
     for scene, table in sorted(tables.items()):
         spread = table.groupby("P")["mse"].std()
         ax.plot(spread.index, spread.values, "o-", label=scene)
-    ax.set(xscale="log", xlabel="P (% of probe points)", ylabel="std of validation MSE",
-           title="spread of the error against training fraction")
+    ax.set(
+        xscale="log",
+        xlabel="P (% of probe points)",
+        ylabel="std of validation MSE",
+        title="spread of the error against training fraction",
+    )
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path)
@@ -152,7 +169,9 @@ def cost_table(
                 "P": int(p),
                 "points": points,
                 "mean_mse": float(table.loc[table["P"] == p, "mse"].mean()),
-                "probing_h": None if hardware_s is None else round(hardware_s * points / n_points / 3600, 4),
+                "probing_h": None
+                if hardware_s is None
+                else round(hardware_s * points / n_points / 3600, 4),
                 "training_min": round(float(losses[p]["seconds"].sum()) / 60, 3),
             }
         )
@@ -164,12 +183,20 @@ def cost_figure(costs: pd.DataFrame, path: str | Path, title: str) -> None:
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, sharey=True)
     for ax, column, label in zip(
-        axes, ("probing_h", "training_min"), ("estimated probing time (h)", "training time (min)"), strict=True
+        axes,
+        ("probing_h", "training_min"),
+        ("estimated probing time (h)", "training time (min)"),
+        strict=True,
     ):
         ax.plot(costs[column], costs["mean_mse"], "o-")
         for _, row in costs.iterrows():
-            ax.annotate(f"P={int(row['P'])}", (row[column], row["mean_mse"]), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")
+            ax.annotate(
+                f"P={int(row['P'])}",
+                (row[column], row["mean_mse"]),
+                fontsize=7,
+                xytext=(3, 3),
+                textcoords="offset points",
+            )
         ax.set(xlabel=label, yscale="log")
     axes[0].set_ylabel("mean validation MSE")
     fig.suptitle(title)

@@ -1,0 +1,13 @@
+"""Rule `train`: one model at fraction P → model.pt, losses.csv, losses.png."""
+
+from threedcal.logs import stage_log
+from threedcal.model.train import TrainSettings, train
+
+with stage_log(snakemake.log[0]):
+    settings = TrainSettings.from_scene(snakemake.params.settings)
+    train(
+        snakemake.input.trainset,
+        snakemake.output.model.rsplit("/", 1)[0],
+        int(snakemake.wildcards.p),
+        settings,
+    )

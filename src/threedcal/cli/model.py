@@ -1,0 +1,148 @@
+"""`threedcal predict` (one image → depth) and `threedcal live` (a stream → depth video + frames/s)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from threedcal.cli import Command
+
+
+def _estimator_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--checkpoint", required=True, help="model.pt (or the authors' TouchNet .pth)"
+    )
+    parser.add_argument("--blank", help="blank (no-contact) image; needed for the authors' weights")
+    parser.add_argument("--px-per-mm", type=float, help="needed for the authors' weights")
+    parser.add_argument("--device", help="cpu, cuda, ... (default: CUDA when present)")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+
+
+def _estimator(args: argparse.Namespace):
+    import torch
+
+    from threedcal.dataset.importers import read_rgb
+    from threedcal.model.inference import DepthEstimator
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    blank = read_rgb(Path(args.blank)) if args.blank else None
+    return DepthEstimator.from_checkpoint(
+        args.checkpoint, device=args.device, blank=blank, px_per_mm=args.px_per_mm
+    )
+
+
+def colour_map(depth_mm, vmax: float | None = None):
+    """uint8 RGB image of a depth map (viridis; 0 mm dark, vmax bright)."""
+    import matplotlib
+    import numpy as np
+
+    top = vmax or max(float(np.percentile(depth_mm, 99.5)), 1e-6)
+    rgba = matplotlib.colormaps["viridis"](np.clip(depth_mm / top, 0.0, 1.0))
+    return (rgba[..., :3] * 255).astype(np.uint8)
+
+
+def _predict(args: argparse.Namespace) -> int:
+    import cv2
+    import numpy as np
+
+    from threedcal.dataset.importers import read_rgb
+
+    estimator = _estimator(args)
+    depth = estimator.depth(read_rgb(Path(args.image)))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.save(out, depth)
+    png = Path(args.png) if args.png else out.with_suffix(".png")
+    cv2.imwrite(str(png), cv2.cvtColor(colour_map(depth), cv2.COLOR_RGB2BGR))
+    print(f"{out}: depth {depth.shape} mm, max {float(depth.max()):.3f} mm; colour map {png}")
+    return 0
+
+
+def _live(args: argparse.Namespace) -> int:
+    import time
+
+    import cv2
+    import numpy as np
+    from tqdm import tqdm
+
+    from threedcal.model.sources import open_source
+
+    estimator = _estimator(args)
+    frames_out, times = [], []
+    source = open_source(args.source)
+    for count, frame in enumerate(tqdm(source, desc="live", unit="frame", total=args.frames)):
+        if args.frames and count >= args.frames:
+            break
+        began = time.perf_counter()
+        depth = estimator.depth(frame)
+        times.append(time.perf_counter() - began)
+        fps = len(times) / sum(times)
+        view = np.concatenate([frame, colour_map(depth, args.max_depth_mm)], axis=1)
+        cv2.putText(
+            view, f"{fps:5.1f} fps", (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1
+        )
+        if args.out:
+            frames_out.append(view)
+        if args.show:
+            cv2.imshow("threedcal live", cv2.cvtColor(view, cv2.COLOR_RGB2BGR))
+            if cv2.waitKey(1) & 0xFF == ord("q"):
+                break
+    if not times:
+        print("no frames")
+        return 1
+    print(
+        f"{len(times)} frames, depth at {len(times) / sum(times):.1f} frames/s ({estimator.preset})"
+    )
+    if args.out:
+        _write_video(Path(args.out), frames_out, args.video_fps)
+        print(f"wrote {args.out}")
+    return 0
+
+
+def _write_video(path: Path, frames, fps: float) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() == ".gif":
+        from PIL import Image
+
+        images = [Image.fromarray(f) for f in frames]
+        images[0].save(
+            path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0
+        )
+        return
+    import cv2
+
+    height, width = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    for frame in frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    writer.release()
+
+
+def _configure_predict(parser: argparse.ArgumentParser) -> None:
+    _estimator_args(parser)
+    parser.add_argument("--image", required=True, help="sensor image (PNG, RGB)")
+    parser.add_argument("--out", required=True, help="depth map in mm, .npy")
+    parser.add_argument("--png", help="colour map PNG (default: --out with .png)")
+
+
+def _configure_live(parser: argparse.ArgumentParser) -> None:
+    _estimator_args(parser)
+    parser.add_argument(
+        "--source",
+        required=True,
+        help="camera index (0), folder of images, video file, or results/{scene}/dataset/trainset",
+    )
+    parser.add_argument("--frames", type=int, default=0, help="stop after this many (0: all)")
+    parser.add_argument("--out", help="write frame | depth side by side to a .gif or .mp4")
+    parser.add_argument("--video-fps", type=float, default=10.0, help="playback rate of --out")
+    parser.add_argument("--max-depth-mm", type=float, default=None, help="colour scale top")
+    parser.add_argument("--show", action="store_true", help="show a window (needs a display)")
+
+
+COMMANDS = [
+    Command(
+        ("predict",), "depth map (mm, .npy + PNG) of one sensor image", _predict, _configure_predict
+    ),
+    Command(("live",), "depth of a camera or image stream, with frames/s", _live, _configure_live),
+]

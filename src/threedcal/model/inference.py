@@ -1,0 +1,97 @@
+"""DepthEstimator: a checkpoint → gradients and depth (mm) of raw sensor frames, batched, CPU or GPU."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from threedcal.depth import integrate
+from threedcal.errors import ConfigError
+from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
+
+
+class DepthEstimator:
+    """Frames (H, W, 3) uint8 RGB, or (N, H, W, 3) → gradients (…, H, W, 2) and depth (…, H, W) mm."""
+
+    def __init__(
+        self,
+        checkpoint: Mapping[str, Any],
+        device: str | torch.device | None = None,
+        blank: np.ndarray | None = None,
+        px_per_mm: float | None = None,
+        batch_size: int = 8,
+    ) -> None:
+        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.preset = checkpoint["preset"]
+        self.normalisation = dict(checkpoint["normalisation"])
+        if blank is None and checkpoint.get("blank") is None:
+            raise ConfigError(
+                "this checkpoint carries no blank frame (the authors' weights): pass blank="
+            )
+        blank = np.asarray(checkpoint["blank"] if blank is None else blank, dtype=np.float32)
+        self.px_per_mm = float(px_per_mm or checkpoint.get("px_per_mm") or 0)
+        if self.px_per_mm <= 0:
+            raise ConfigError("this checkpoint carries no px_per_mm: pass px_per_mm=")
+        self.image_shape = tuple(blank.shape[:2])
+        if checkpoint.get("image_shape") and tuple(checkpoint["image_shape"]) != self.image_shape:
+            raise ConfigError(
+                f"blank is {self.image_shape}, the model was trained on {tuple(checkpoint['image_shape'])}"
+            )
+        self.batch_size = batch_size
+        self.model = model_from_checkpoint(checkpoint).to(self.device).eval()
+        height, width = self.image_shape
+        ys = torch.linspace(-1.0, 1.0, height) if height > 1 else torch.zeros(1)
+        xs = torch.linspace(-1.0, 1.0, width) if width > 1 else torch.zeros(1)
+        grid_y, grid_x = torch.meshgrid(ys, xs, indexing="ij")
+        self._coords = torch.stack([grid_x, grid_y]).to(self.device)
+        self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, **kwargs) -> DepthEstimator:
+        """Load a threedcal model.pt (or the authors' TouchNet weights, with blank= and px_per_mm=)."""
+        return cls(read_checkpoint(path), **kwargs)
+
+    def _as_batch(self, frames: np.ndarray) -> tuple[np.ndarray, bool]:
+        frames = np.asarray(frames)
+        single = frames.ndim == 3
+        if single:
+            frames = frames[None]
+        if frames.ndim != 4 or frames.shape[1:] != (*self.image_shape, 3):
+            raise ConfigError(
+                f"frames must be (H, W, 3) or (N, H, W, 3) with (H, W) = {self.image_shape}, "
+                f"got {frames.shape}"
+            )
+        return frames, single
+
+    @torch.inference_mode()
+    def gradients(self, frames: np.ndarray) -> np.ndarray:
+        """(…, H, W, 2) float32: ∂z/∂x (columns) and ∂z/∂y (rows), z positive into the gel."""
+        frames, single = self._as_batch(frames)
+        out = []
+        sign = self.normalisation["gradient_sign"]
+        for start in range(0, len(frames), self.batch_size):
+            chunk = torch.from_numpy(np.array(frames[start : start + self.batch_size]))
+            chunk = chunk.to(self.device).permute(0, 3, 1, 2).float()
+            diff = (chunk - self._blank) / 255.0
+            coords = self._coords.expand(len(chunk), -1, -1, -1)
+            x = adapt_inputs(torch.cat([diff, coords], 1), self.normalisation, self.image_shape)
+            out.append((self.model(x) * sign).permute(0, 2, 3, 1).float().cpu().numpy())
+        grads = np.concatenate(out)
+        return grads[0] if single else grads
+
+    def depth(self, frames: np.ndarray, method: str = "poisson_dst") -> np.ndarray:
+        """(…, H, W) float32 depth in mm (positive into the gel), integrated per frame."""
+        grads = self.gradients(frames)
+        single = grads.ndim == 3
+        grads = grads[None] if single else grads
+        depth = np.stack(
+            [
+                integrate(g[..., 0], g[..., 1], method=method, px_per_mm=self.px_per_mm)
+                for g in grads
+            ]
+        ).astype(np.float32)
+        return depth[0] if single else depth

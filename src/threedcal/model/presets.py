@@ -1,0 +1,105 @@
+"""Network presets: the paper's TouchNet exactly, small per-pixel CPU nets, and the lookup baseline.
+
+Every preset maps a (N, 5, H, W) float32 input — (frame − blank)/255 as three channels plus x and y
+coordinate channels — to (N, 2, H, W) gradients (∂z/∂x, ∂z/∂y). `touchnet` keeps the authors'
+parameter names (conv1…conv9, bn1…bn8) so their published state_dict loads unchanged.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from threedcal.errors import ConfigError
+from threedcal.model import PRESET_NAMES
+
+INPUT_CHANNELS = 5
+OUTPUT_CHANNELS = 2
+
+# (out_channels, kernel, dropout) of TouchNet's eight hidden modules (3D Cal, Kota et al.).
+TOUCHNET_LAYERS = (
+    (32, 7, 0.2),
+    (64, 7, 0.2),
+    (128, 7, 0.2),
+    (256, 5, 0.3),
+    (256, 5, 0.3),
+    (128, 5, 0.2),
+    (64, 3, 0.2),
+    (32, 3, 0.2),
+)
+
+
+class TouchNet(nn.Module):
+    """The paper's fully convolutional net: 8 × (conv, BatchNorm, ReLU, Dropout2d), then a 1×1 head."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        channels = INPUT_CHANNELS
+        for i, (out, kernel, drop) in enumerate(TOUCHNET_LAYERS, start=1):
+            setattr(self, f"conv{i}", nn.Conv2d(channels, out, kernel, padding=kernel // 2))
+            setattr(self, f"bn{i}", nn.BatchNorm2d(out))
+            setattr(self, f"dropout{i}", nn.Dropout2d(drop))
+            channels = out
+        self.conv9 = nn.Conv2d(channels, OUTPUT_CHANNELS, kernel_size=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for i in range(1, len(TOUCHNET_LAYERS) + 1):
+            conv, bn, drop = (getattr(self, f"{n}{i}") for n in ("conv", "bn", "dropout"))
+            x = drop(F.relu(bn(conv(x))))
+        return self.conv9(x)
+
+
+class PixelNet(nn.Module):
+    """A k×k context convolution, then 1×1 layers: a per-pixel colour+position → gradient map.
+
+    The GelSight colour→normal relation is almost local, so a small neighbourhood plus the pixel's
+    position carries most of the information at a tiny fraction of TouchNet's cost.
+    """
+
+    def __init__(self, hidden: int = 16, depth: int = 2, kernel: int = 3) -> None:
+        super().__init__()
+        layers: list[nn.Module] = [
+            nn.Conv2d(INPUT_CHANNELS, hidden, kernel, padding=kernel // 2),
+            nn.ReLU(),
+        ]
+        for _ in range(depth - 1):
+            layers += [nn.Conv2d(hidden, hidden, 1), nn.ReLU()]
+        layers.append(nn.Conv2d(hidden, OUTPUT_CHANNELS, 1))
+        self.body = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.body(x)
+
+
+# Preset name → (constructor, keyword arguments stored in the checkpoint).
+PIXELNET_ARGS = {
+    "compact": {"hidden": 16, "depth": 2, "kernel": 3},
+    "compact_tiny": {"hidden": 8, "depth": 2, "kernel": 3},
+}
+
+
+def build_model(preset: str, **overrides) -> nn.Module:
+    """A freshly initialised model of `preset` (weights from torch's global RNG: seed it first)."""
+    if preset not in PRESET_NAMES:
+        raise ConfigError(f"unknown model preset {preset!r} (allowed: {', '.join(PRESET_NAMES)})")
+    if preset == "touchnet":
+        return TouchNet()
+    if preset == "lookup":
+        from threedcal.model.lookup import LookupTable
+
+        return LookupTable(**overrides)
+    return PixelNet(**{**PIXELNET_ARGS[preset], **overrides})
+
+
+def preset_args(preset: str) -> dict:
+    if preset == "lookup":
+        from threedcal.model.lookup import LOOKUP_DEFAULTS
+
+        return dict(LOOKUP_DEFAULTS)
+    return dict(PIXELNET_ARGS.get(preset, {}))
+
+
+def is_learned(preset: str) -> bool:
+    """True for presets trained by gradient descent (lookup is fitted by binning)."""
+    return preset != "lookup"

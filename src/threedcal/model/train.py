@@ -1,0 +1,346 @@
+"""Training one model on a TrainingSet at one fraction P: deterministic, resumable, patch-sampled.
+
+The paper trains TouchNet on full frames; on a CPU that is out of reach, so each epoch draws, per
+training frame, a few patches around the contact (where the labels vary) plus a few anywhere (so the
+background is learnt to be flat). Patch positions come from a generator seeded by (seed, epoch) and
+torch is reseeded per epoch, so a resumed run continues exactly as an uninterrupted one and the same
+settings give the same bytes of model.pt.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import os
+import time
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.errors import ConfigError
+from threedcal.model.checkpoint import (
+    FORMAT,
+    FORMAT_VERSION,
+    OUR_NORMALISATION,
+    adapt_inputs,
+    model_from_checkpoint,
+    read_checkpoint,
+    save_checkpoint,
+)
+from threedcal.model.presets import build_model, is_learned, preset_args
+
+RESUME_NAME = "checkpoint.pt"
+LOSS_COLUMNS = ("epoch", "train_loss", "val_loss", "seconds")
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Every setting a training reads (the scene's `model:` section plus seed and threads)."""
+
+    preset: str = "compact"
+    epochs_base: int = 4
+    batch_size: int = 64
+    lr: float = 1e-4
+    weight_decay: float = 1e-4
+    init: str | None = None
+    patch_px: int = 96
+    contact_patches: int = 8
+    background_patches: int = 2
+    seed: int = 0
+    torch_threads: int = 2
+    device: str = "auto"  # auto = CUDA when present, else CPU
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> TrainSettings:
+        model = dict(scene.get("model", {}))
+        known = {f for f in cls.__dataclass_fields__ if f not in ("seed", "torch_threads")}
+        unknown = set(model) - known
+        if unknown:
+            raise ConfigError(
+                f"model: unknown setting(s) {sorted(unknown)} (allowed: {sorted(known)})"
+            )
+        return cls(
+            seed=int(scene.get("seed", 0)),
+            torch_threads=int(scene.get("torch_threads", 2)),
+            **model,
+        )
+
+    def epochs(self, percent: int) -> int:
+        """epochs_base · 80 / P (the paper keeps the number of gradient steps roughly constant)."""
+        if not 1 <= percent <= 80:
+            raise ConfigError(f"training fraction P must be 1..80 percent, got {percent}")
+        return max(1, round(self.epochs_base * 80 / percent))
+
+
+def _window(top: int, left: int, size: tuple[int, int]) -> tuple[slice, slice]:
+    return slice(top, top + size[0]), slice(left, left + size[1])
+
+
+def sample_windows(
+    ts: TrainingSet, indices: np.ndarray, settings: TrainSettings, rng: np.random.Generator
+) -> list[tuple[int, tuple[slice, slice]]]:
+    """Contact patches (centre jittered by up to a third of the patch) and background patches."""
+    height, width = ts.image_shape
+    size = (min(settings.patch_px, height), min(settings.patch_px, width))
+    out = []
+    for i in indices:
+        cx, cy = ts.center_px[i]
+        for _ in range(settings.contact_patches):
+            jx, jy = rng.uniform(-size[1] / 3, size[1] / 3), rng.uniform(-size[0] / 3, size[0] / 3)
+            top = int(np.clip(round(cy + jy - size[0] / 2), 0, height - size[0]))
+            left = int(np.clip(round(cx + jx - size[1] / 2), 0, width - size[1]))
+            out.append((int(i), _window(top, left, size)))
+        for _ in range(settings.background_patches):
+            top = int(rng.integers(0, height - size[0] + 1))
+            left = int(rng.integers(0, width - size[1] + 1))
+            out.append((int(i), _window(top, left, size)))
+    return out
+
+
+def _batches(ts, windows, batch_size):
+    for start in range(0, len(windows), batch_size):
+        chunk = windows[start : start + batch_size]
+        x = np.stack([ts.inputs(i, w) for i, w in chunk])
+        y = np.stack([ts.labels(i, w) for i, w in chunk])
+        yield torch.from_numpy(x), torch.from_numpy(y)
+
+
+def configure_torch(settings: TrainSettings) -> torch.device:
+    """Threads, determinism and device, set before any tensor is made."""
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # deterministic cuBLAS
+    torch.set_num_threads(settings.torch_threads)
+    torch.use_deterministic_algorithms(True)
+    torch.backends.cudnn.benchmark = False
+    if settings.device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(settings.device)
+
+
+def _resume_key(settings: TrainSettings, percent: int, ts: TrainingSet) -> str:
+    described = {
+        "settings": asdict(settings),
+        "percent": percent,
+        "frames": list(ts.frames.shape),
+        "meta": ts.meta or {},
+    }
+    return hashlib.sha256(json.dumps(described, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _cpu_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+
+
+def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.Module, dict]:
+    torch.manual_seed(settings.seed)
+    if settings.init is None:
+        return build_model(settings.preset), dict(OUR_NORMALISATION)
+    source = read_checkpoint(settings.init)
+    if source["preset"] != settings.preset:
+        raise ConfigError(
+            f"model.init: {settings.init} holds a {source['preset']!r} model, "
+            f"but model.preset is {settings.preset!r}"
+        )
+    shape = source.get("image_shape")
+    if shape is not None and tuple(shape) != ts.image_shape:
+        raise ConfigError(
+            f"model.init: {settings.init} was trained on {tuple(shape)} images, "
+            f"this dataset has {ts.image_shape}"
+        )
+    return model_from_checkpoint(source), dict(source.get("normalisation", OUR_NORMALISATION))
+
+
+def _mse(model, ts, windows, settings, device, normalisation) -> float:
+    if not windows:
+        return float("nan")
+    model.eval()
+    total, count = 0.0, 0
+    sign = normalisation["gradient_sign"]
+    with torch.no_grad():
+        for x, y in _batches(ts, windows, settings.batch_size):
+            x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
+            pred = model(x) * sign
+            total += float(torch.sum((pred - y.to(device)) ** 2))
+            count += y.numel()
+    return total / count
+
+
+def train(
+    ts: TrainingSet | str | Path,
+    out_dir: str | Path,
+    percent: int,
+    settings: TrainSettings,
+    progress: bool = True,
+) -> dict:
+    """Train at fraction `percent` into out_dir/{model.pt, losses.csv, losses.png}; returns the checkpoint."""
+    if not isinstance(ts, TrainingSet):
+        ts = TrainingSet.load(ts)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    device = configure_torch(settings)
+    train_idx = ts.indices("train", percent=percent)
+    if len(train_idx) == 0:
+        raise ConfigError(f"P={percent}: no training frames in this dataset's split")
+    val_idx = ts.indices("val")
+    val_windows = sample_windows(
+        ts, val_idx, _val_settings(settings), np.random.default_rng([settings.seed, 1 << 20])
+    )
+    model, normalisation = _initial_model(settings, ts)
+    model.to(device)
+    epochs = settings.epochs(percent) if is_learned(settings.preset) else 1
+    key = _resume_key(settings, percent, ts)
+    resume_path = out_dir / RESUME_NAME
+    rows: list[dict] = []
+    start = 1
+    if is_learned(settings.preset):
+        optimizer = torch.optim.AdamW(
+            model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay
+        )
+        if resume_path.is_file():
+            state = read_checkpoint(resume_path)
+            if state.get("resume_key") == key:
+                model.load_state_dict(state["state_dict"])
+                optimizer.load_state_dict(state["optimizer"])
+                rows = list(state["losses"])
+                start = int(state["epoch"]) + 1
+    bar = tqdm(
+        range(start, epochs + 1), desc=f"train P{percent}", unit="epoch", disable=not progress
+    )
+    for epoch in bar:
+        began = time.perf_counter()
+        rng = np.random.default_rng([settings.seed, epoch])
+        torch.manual_seed(settings.seed * 1_000_003 + epoch)
+        if is_learned(settings.preset):
+            train_loss = _train_epoch(
+                model, ts, train_idx, settings, rng, device, optimizer, normalisation
+            )
+        else:
+            model.fit(_Pairs(ts, train_idx))
+            train_loss = _mse(
+                model,
+                ts,
+                sample_windows(ts, train_idx, settings, rng),
+                settings,
+                device,
+                normalisation,
+            )
+        val_loss = _mse(model, ts, val_windows, settings, device, normalisation)
+        rows.append(
+            {
+                "epoch": epoch,
+                "train_loss": train_loss,
+                "val_loss": val_loss,
+                "seconds": round(time.perf_counter() - began, 3),
+            }
+        )
+        bar.set_postfix(train=f"{train_loss:.4g}", val=f"{val_loss:.4g}")
+        if is_learned(settings.preset) and epoch < epochs:
+            checkpoint = _checkpoint(model, settings, ts, percent, epoch, normalisation)
+            checkpoint.update(
+                epoch=epoch, optimizer=optimizer.state_dict(), losses=rows, resume_key=key
+            )
+            save_checkpoint(resume_path, checkpoint)
+    final = _checkpoint(model, settings, ts, percent, epochs, normalisation)
+    save_checkpoint(out_dir / "model.pt", final)
+    write_losses(out_dir / "losses.csv", rows)
+    plot_losses(out_dir / "losses.png", rows, title=f"{settings.preset}, P={percent}")
+    resume_path.unlink(missing_ok=True)
+    return final
+
+
+def _val_settings(settings: TrainSettings) -> TrainSettings:
+    return replace(settings, contact_patches=1, background_patches=1)
+
+
+def _train_epoch(model, ts, train_idx, settings, rng, device, optimizer, normalisation) -> float:
+    windows = sample_windows(ts, train_idx, settings, rng)
+    order = rng.permutation(len(windows))
+    windows = [windows[k] for k in order]
+    model.train()
+    total, count = 0.0, 0
+    sign = normalisation["gradient_sign"]
+    for x, y in _batches(ts, windows, settings.batch_size):
+        x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
+        y = y.to(device)
+        optimizer.zero_grad(set_to_none=True)
+        loss = torch.nn.functional.mse_loss(model(x) * sign, y)
+        loss.backward()
+        optimizer.step()
+        total += float(loss.detach()) * len(x)
+        count += len(x)
+    return total / count
+
+
+class _Pairs:
+    """Re-iterable (inputs, labels) of full frames, read lazily (the lookup fit reads them twice)."""
+
+    def __init__(self, ts: TrainingSet, indices: np.ndarray):
+        self.ts, self.indices = ts, indices
+
+    def __iter__(self):
+        for i in self.indices:
+            yield self.ts.inputs(int(i)), self.ts.labels(int(i))
+
+
+def _checkpoint(model, settings, ts, percent, epoch, normalisation) -> dict:
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "preset": settings.preset,
+        "preset_args": preset_args(settings.preset)
+        if settings.init is None
+        else _init_args(settings),
+        "state_dict": _cpu_state(model),
+        "normalisation": normalisation,
+        "blank": torch.from_numpy(np.ascontiguousarray(ts.blank, dtype=np.float32)),
+        "px_per_mm": float(ts.px_per_mm),
+        "image_shape": list(ts.image_shape),
+        "training": {
+            "percent": int(percent),
+            "epochs": int(epoch),
+            "settings": {k: v for k, v in asdict(settings).items() if v is not None},
+        },
+    }
+
+
+def _init_args(settings: TrainSettings) -> dict:
+    return dict(read_checkpoint(settings.init).get("preset_args", {}))
+
+
+def write_losses(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=LOSS_COLUMNS)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow(
+                {k: (f"{v:.8g}" if isinstance(v, float) else v) for k, v in row.items()}
+            )
+
+
+def plot_losses(path: Path, rows: list[dict], title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
+    epochs = [r["epoch"] for r in rows]
+    for key, label in (("train_loss", "train"), ("val_loss", "validation")):
+        values = [r[key] for r in rows]
+        if any(math.isfinite(v) for v in values):
+            ax.plot(epochs, values, marker="o", ms=3, label=label)
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("MSE of gradients")
+    if all(r["train_loss"] > 0 for r in rows):
+        ax.set_yscale("log")
+    ax.set_title(title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)

@@ -1,0 +1,303 @@
+"""Model presets, training, checkpoints and the inference API (threedcal.model)."""
+
+import os
+import pickle
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from threedcal.dataset.labels import sphere_gradients
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.errors import ConfigError
+from threedcal.model import PRESET_NAMES
+from threedcal.model.checkpoint import CheckpointError, adapt_inputs, read_checkpoint
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.lookup import LookupTable
+from threedcal.model.presets import TouchNet, build_model
+from threedcal.model.train import TrainSettings, train
+
+SHAPE = (40, 48)
+
+
+def synthetic_set(n=6, seed=0) -> TrainingSet:
+    """Frames whose colour change is a fixed function of the sphere's gradients (learnable exactly)."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform([14, 12], [34, 28], (n, 2))
+    depths = rng.uniform(0.4, 0.9, n)
+    frames = []
+    blank = np.full((*SHAPE, 3), 100.0, np.float32)
+    for (cx, cy), d in zip(centres, depths, strict=True):
+        g = sphere_gradients(SHAPE, (cx, cy), 2.0, d, 8.0)
+        frame = blank + np.stack(
+            [40 * g[..., 0], 40 * g[..., 1], 20 * np.hypot(*g.transpose(2, 0, 1))], -1
+        )
+        frames.append(np.clip(np.rint(frame), 0, 255).astype(np.uint8))
+    samples = pd.DataFrame(
+        {
+            "frame": np.arange(n),
+            "point": np.arange(n),
+            "center_x_px": centres[:, 0],
+            "center_y_px": centres[:, 1],
+            "depth_mm": depths,
+            "eval_radius_px": np.full(n, 6.0),
+            "split": ["train"] * (n - 2) + ["val"] * 2,
+            "min_p": [20] * 2 + [80] * (n - 4) + [0, 0],
+        }
+    )
+    return TrainingSet(np.stack(frames), blank, samples, px_per_mm=8.0, sphere_radius_mm=2.0)
+
+
+TINY = dict(epochs_base=1, patch_px=24, contact_patches=2, background_patches=1, torch_threads=1)
+
+
+@pytest.mark.parametrize("preset", PRESET_NAMES)
+def test_every_preset_maps_5_channels_to_2_at_the_input_size(preset):
+    torch.manual_seed(0)
+    model = build_model(preset).eval()
+    with torch.no_grad():
+        out = model(torch.zeros(2, 5, 17, 23))
+    assert out.shape == (2, 2, 17, 23)
+    assert torch.isfinite(out).all()
+
+
+def test_unknown_preset_is_a_config_error():
+    with pytest.raises(ConfigError, match="allowed: touchnet"):
+        build_model("big")
+
+
+def test_touchnet_has_the_papers_layers_and_the_authors_parameter_names():
+    state = TouchNet().state_dict()
+    chans = [5, 32, 64, 128, 256, 256, 128, 64, 32, 2]
+    kernels = [7, 7, 7, 5, 5, 5, 3, 3, 1]
+    for i in range(1, 10):
+        assert state[f"conv{i}.weight"].shape == (
+            chans[i],
+            chans[i - 1],
+            kernels[i - 1],
+            kernels[i - 1],
+        )
+        assert state[f"conv{i}.bias"].shape == (chans[i],)
+    for i in range(1, 9):
+        for leaf in ("weight", "bias", "running_mean", "running_var", "num_batches_tracked"):
+            assert f"bn{i}.{leaf}" in state
+    assert len(state) == 9 * 2 + 8 * 5
+    drops = [m.p for m in TouchNet().modules() if isinstance(m, torch.nn.Dropout2d)]
+    assert drops == [0.2, 0.2, 0.2, 0.3, 0.3, 0.2, 0.2, 0.2]
+
+
+def test_authors_bare_state_dict_loads_with_their_normalisation(tmp_path):
+    torch.manual_seed(1)
+    authors = TouchNet().eval()
+    path = tmp_path / "gsmini_pretrained_weights.pth"
+    torch.save(authors.state_dict(), path)  # what the authors publish: a bare state_dict
+    checkpoint = read_checkpoint(path)
+    assert checkpoint["preset"] == "touchnet"
+    assert checkpoint["normalisation"] == {"coords": "pixel_index", "gradient_sign": -1.0}
+    blank = np.full((12, 10, 3), 90, np.uint8)
+    frame = np.random.default_rng(0).integers(0, 255, (12, 10, 3), dtype=np.uint8)
+    est = DepthEstimator(checkpoint, device="cpu", blank=blank, px_per_mm=10.0)
+    # Reference: the authors' own input recipe, (frame − blank)/255 then 1-based pixel indices.
+    diff = torch.from_numpy((frame.astype(np.float32) - blank) / 255).permute(2, 0, 1)
+    xs = torch.arange(1, 11, dtype=torch.float32).repeat(12, 1)
+    ys = torch.arange(1, 13, dtype=torch.float32)[:, None].repeat(1, 10)
+    with torch.no_grad():
+        theirs = authors(torch.cat([diff, xs[None], ys[None]])[None])[0].permute(1, 2, 0).numpy()
+    np.testing.assert_allclose(est.gradients(frame), -theirs, atol=1e-5)
+
+
+def test_adapt_inputs_maps_unit_coordinates_to_one_based_pixel_indices():
+    x = torch.zeros(1, 5, 3, 4)
+    x[:, 3] = torch.tensor([-1.0, -1 / 3, 1 / 3, 1.0])
+    x[:, 4] = torch.tensor([-1.0, 0.0, 1.0])[:, None]
+    out = adapt_inputs(x, {"coords": "pixel_index"}, (3, 4))
+    assert out[0, 3, 0].tolist() == pytest.approx([1, 2, 3, 4])
+    assert out[0, 4, :, 0].tolist() == pytest.approx([1, 2, 3])
+    assert adapt_inputs(x, {"coords": "unit"}, (3, 4)) is x
+
+
+class _Exploit:
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+@pytest.mark.filterwarnings("ignore:Detected pickle protocol")
+def test_a_malicious_pickle_is_refused_and_never_runs(tmp_path):
+    marker = tmp_path / "pwned"
+    exploit = _Exploit()
+    exploit.marker = marker
+    path = tmp_path / "evil.pt"
+    with open(path, "wb") as handle:
+        pickle.dump({"format": "threedcal-model", "payload": exploit}, handle)
+    with pytest.raises(CheckpointError, match="refused"):
+        read_checkpoint(path)
+    torch.save({"format": "threedcal-model", "payload": exploit}, tmp_path / "evil2.pt")
+    with pytest.raises(CheckpointError, match="refused"):
+        DepthEstimator.from_checkpoint(tmp_path / "evil2.pt")
+    assert not marker.exists()
+
+
+def test_not_a_model_is_a_clear_error(tmp_path):
+    torch.save({"weights": torch.zeros(2)}, tmp_path / "x.pt")
+    with pytest.raises(CheckpointError, match="neither a threedcal checkpoint"):
+        read_checkpoint(tmp_path / "x.pt")
+    with pytest.raises(ConfigError, match="missing"):
+        read_checkpoint(tmp_path / "nope.pt")
+
+
+def test_epochs_scale_as_base_times_80_over_p():
+    s = TrainSettings(epochs_base=3)
+    assert [s.epochs(p) for p in (80, 40, 20, 1)] == [3, 6, 12, 240]
+    with pytest.raises(ConfigError):
+        s.epochs(0)
+
+
+def test_training_is_deterministic_to_the_byte_and_writes_losses(tmp_path):
+    ts = synthetic_set()
+    settings = TrainSettings(preset="compact_tiny", seed=3, **TINY)
+    train(ts, tmp_path / "a", 80, settings, progress=False)
+    train(ts, tmp_path / "b", 80, settings, progress=False)
+    assert (tmp_path / "a/model.pt").read_bytes() == (tmp_path / "b/model.pt").read_bytes()
+    losses = pd.read_csv(tmp_path / "a/losses.csv")
+    assert list(losses.columns) == ["epoch", "train_loss", "val_loss", "seconds"]
+    assert len(losses) == 1 and np.isfinite(losses[["train_loss", "val_loss"]]).all().all()
+    assert (tmp_path / "a/losses.png").stat().st_size > 1000
+    assert not (tmp_path / "a/checkpoint.pt").exists()
+    other = TrainSettings(preset="compact_tiny", seed=4, **TINY)
+    train(ts, tmp_path / "c", 80, other, progress=False)
+    assert (tmp_path / "c/model.pt").read_bytes() != (tmp_path / "a/model.pt").read_bytes()
+
+
+def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch):
+    import threedcal.model.train as module
+
+    ts = synthetic_set()
+    settings = TrainSettings(preset="compact_tiny", seed=5, **{**TINY, "epochs_base": 3})
+    train(ts, tmp_path / "full", 80, settings, progress=False)
+    real = module._train_epoch
+    calls = []
+
+    def crash_on_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "_train_epoch", crash_on_third)
+    with pytest.raises(KeyboardInterrupt):
+        train(ts, tmp_path / "resumed", 80, settings, progress=False)
+    assert read_checkpoint(tmp_path / "resumed/checkpoint.pt")["epoch"] == 2
+    monkeypatch.setattr(module, "_train_epoch", real)
+    train(ts, tmp_path / "resumed", 80, settings, progress=False)
+    full, resumed = (tmp_path / d / "model.pt" for d in ("full", "resumed"))
+    assert full.read_bytes() == resumed.read_bytes()
+    assert len(pd.read_csv(tmp_path / "resumed/losses.csv")) == 3
+
+
+def test_checkpoint_round_trip_carries_what_inference_needs(tmp_path):
+    ts = synthetic_set()
+    checkpoint = train(
+        ts, tmp_path, 20, TrainSettings(preset="compact_tiny", **TINY), progress=False
+    )
+    assert checkpoint["training"]["percent"] == 20 and checkpoint["training"]["epochs"] == 4
+    est = DepthEstimator.from_checkpoint(tmp_path / "model.pt", device="cpu")
+    assert est.image_shape == SHAPE and est.px_per_mm == 8.0 and est.preset == "compact_tiny"
+    np.testing.assert_array_equal(
+        np.asarray(read_checkpoint(tmp_path / "model.pt")["blank"]), ts.blank
+    )
+    model = build_model("compact_tiny")
+    model.load_state_dict(checkpoint["state_dict"])
+    with torch.no_grad():
+        direct = model(torch.from_numpy(ts.inputs(0))[None])[0].permute(1, 2, 0).numpy()
+    frames = np.asarray(ts.frames[:3])
+    batch = est.gradients(frames)
+    assert batch.shape == (3, *SHAPE, 2)
+    np.testing.assert_allclose(batch[0], direct, atol=1e-5)
+    np.testing.assert_allclose(est.gradients(frames[1]), batch[1], atol=1e-6)
+    depth = est.depth(frames)
+    assert depth.shape == (3, *SHAPE) and depth.dtype == np.float32
+    with pytest.raises(ConfigError, match=r"\(H, W\) = \(40, 48\)"):
+        est.gradients(np.zeros((10, 10, 3), np.uint8))
+
+
+def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):
+    ts = synthetic_set()
+    base = train(
+        ts, tmp_path / "base", 80, TrainSettings(preset="compact_tiny", **TINY), progress=False
+    )
+    tuned_settings = TrainSettings(
+        preset="compact_tiny", init=str(tmp_path / "base/model.pt"), lr=1e-12, **TINY
+    )
+    tuned = train(ts, tmp_path / "tuned", 80, tuned_settings, progress=False)
+    for key, value in base["state_dict"].items():
+        torch.testing.assert_close(tuned["state_dict"][key], value, atol=1e-8, rtol=0)
+    with pytest.raises(ConfigError, match="holds a 'compact_tiny' model"):
+        train(
+            ts,
+            tmp_path / "x",
+            80,
+            TrainSettings(preset="compact", init=str(tmp_path / "base/model.pt"), **TINY),
+        )
+
+
+def test_compact_net_overfits_one_batch():
+    ts = synthetic_set()
+    windows = [(i, (slice(0, 40), slice(0, 48))) for i in range(4)]
+    x = torch.from_numpy(np.stack([ts.inputs(i, w) for i, w in windows]))
+    y = torch.from_numpy(np.stack([ts.labels(i, w) for i, w in windows]))
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    model = build_model("compact")
+    optimizer = torch.optim.AdamW(model.parameters(), lr=1e-2, weight_decay=0)
+    first = None
+    for _ in range(150):
+        optimizer.zero_grad()
+        loss = torch.nn.functional.mse_loss(model(x), y)
+        loss.backward()
+        optimizer.step()
+        first = first if first is not None else float(loss.detach())
+    assert float(loss.detach()) < 0.1 * first
+
+
+def test_lookup_recovers_a_colour_coded_gradient_and_fills_empty_bins():
+    rng = np.random.default_rng(0)
+    lut = LookupTable(rgb_bins=8, pos_bins=1)
+    # Label = the red change, exactly: one colour per bin, so the table must return it.
+    levels = (np.arange(8) + 0.5) / 8 * 2 - 1  # bin centres over [-1, 1]
+    red = rng.choice(levels[::2], (1, 30, 30))  # only even bins are seen in training
+    x = np.concatenate([red, np.zeros((2, 30, 30)), np.zeros((2, 30, 30))]).astype(np.float32)
+    x[1:3, 0, 0] = [-1.0, 1.0]  # stretch the G/B ranges so the table spans them
+    y = np.concatenate([red, -red]).astype(np.float32)
+    lut.fit([(x, y)])
+    with torch.no_grad():
+        out = lut(torch.from_numpy(x)[None])[0].numpy()
+    np.testing.assert_allclose(out[:, 1:, 1:], y[:, 1:, 1:], atol=1e-6)
+    assert (lut.table[..., 0] != 0).any()  # no empty bin left at zero by default
+    assert set(np.unique(lut.table[..., 0].numpy().round(6))) <= set(levels[::2].round(6))
+
+
+def test_predict_cli_writes_depth_and_colour_map(tmp_path):
+    import cv2
+
+    from threedcal.cli import main
+
+    ts = synthetic_set()
+    train(ts, tmp_path, 80, TrainSettings(preset="compact_tiny", **TINY), progress=False)
+    cv2.imwrite(
+        str(tmp_path / "img.png"), cv2.cvtColor(np.asarray(ts.frames[0]), cv2.COLOR_RGB2BGR)
+    )
+    args = [
+        "predict",
+        "--checkpoint",
+        str(tmp_path / "model.pt"),
+        "--image",
+        str(tmp_path / "img.png"),
+    ]
+    assert main([*args, "--out", str(tmp_path / "d.npy"), "--device", "cpu"]) == 0
+    assert np.load(tmp_path / "d.npy").shape == SHAPE
+    assert cv2.imread(str(tmp_path / "d.png")).shape == (*SHAPE, 3)
+    ts.save(tmp_path / "set")
+    live = ["live", "--checkpoint", str(tmp_path / "model.pt"), "--source", str(tmp_path / "set")]
+    assert main([*live, "--out", str(tmp_path / "v.gif"), "--frames", "3", "--device", "cpu"]) == 0
+    assert (tmp_path / "v.gif").stat().st_size > 0
