@@ -6,7 +6,7 @@ from snakemake.utils import min_version, validate
 
 from threedcal.config import is_imported, training_fractions, validate_config
 from threedcal.provenance import source_digest
-from threedcal.scenes import ablation_scenes, study_targets
+from threedcal.scenes import ablation_scenes, has_objects, stage_config, study_targets
 
 min_version("9.0")
 
@@ -28,6 +28,17 @@ IMPORTED_SCENES = [
 ]
 COLLECTED_SCENES = [name for name in SCENES if name not in IMPORTED_SCENES]
 ABLATION_SCENES = ablation_scenes(config)
+OBJECT_SCENES = [name for name in SCENES if has_objects(config["scenes"][name])]
+
+
+def scene_models(wildcards):
+    """{"P5": "results/{scene}/models/P5/model.pt", ...}: every model of a scene, keyed by fraction."""
+    fractions = training_fractions(config["scenes"][wildcards.scene])
+    return {
+        f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions
+    }
+
+
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 
@@ -42,6 +53,7 @@ include: "rules/dataset.smk"
 include: "rules/integrate.smk"
 include: "rules/train.smk"
 include: "rules/stats.smk"
+include: "rules/objects.smk"
 
 
 rule all:

@@ -30,7 +30,9 @@ rule collect:
     resources:
         printer=1,
     params:
-        scene=lambda wildcards: config["scenes"][wildcards.scene],
+        scene=lambda wildcards: stage_config(
+            config["scenes"][wildcards.scene], "collect"
+        ),
         staging=lambda wildcards: f"results/{wildcards.scene}/.partial/raw.zarr",
         code=source_digest("collect", "sim", "hardware"),
     script:

@@ -12,7 +12,9 @@ rule dataset_import:
     conda:
         CONDA_ENV
     params:
-        scene=lambda wildcards: config["scenes"][wildcards.scene],
+        scene=lambda wildcards: stage_config(
+            config["scenes"][wildcards.scene], "dataset"
+        ),
         code=source_digest("dataset"),
     script:
         "../scripts/dataset_import.py"
@@ -39,7 +41,9 @@ rule dataset_collected:
     conda:
         CONDA_ENV
     params:
-        scene=lambda wildcards: config["scenes"][wildcards.scene],
+        scene=lambda wildcards: stage_config(
+            config["scenes"][wildcards.scene], "dataset"
+        ),
         code=source_digest("dataset", "collect"),
     script:
         "../scripts/dataset_collected.py"

@@ -16,7 +16,7 @@ def ablation_losses(wildcards):
 
 rule stats:
     input:
-        unpack(ablation_models),
+        unpack(scene_models),
         losses=ablation_losses,
         trainset="results/{scene}/dataset/trainset",
         splits="results/{scene}/dataset/splits.csv",

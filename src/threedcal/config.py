@@ -22,7 +22,7 @@ SCHEMA_PATH = Path(str(files("threedcal") / "schemas" / "config.schema.yaml"))
 # The one fraction trained when a scene asks for no ablation: all training coordinates (80 % of all).
 FULL_TRAINING_P = 80
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
-IMPORT_IRRELEVANT = ("printer", "port", "camera", "probe", "plan", "bench")
+IMPORT_IRRELEVANT = ("printer", "port", "camera", "probe", "plan", "bench", "pressing")
 
 
 def load_yaml(path: str | Path) -> Any:

@@ -34,6 +34,8 @@ STATS_FILES = (
     "mse_kde.png",
     "error_vs_cost.png",
 )
+# Outputs of the objects stage (rules/objects.smk).
+OBJECT_FILES = ("errors.csv", "integrators.csv", "violins.png", "figures")
 # Versions recorded with every scene: the packages whose behaviour changes numbers.
 RECORDED_PACKAGES = (
     "threedcal",
@@ -45,6 +47,20 @@ RECORDED_PACKAGES = (
     "zarr",
     "snakemake",
 )
+
+
+# The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
+# stages that read the changed key (a new model preset never recollects).
+STAGE_KEYS = {
+    "collect": ("sensor", "printer", "port", "camera", "probe", "plan", "bench", "seed"),
+    "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
+    "objects": ("sensor", "objects", "pressing", "integrators", "seed", "torch_threads"),
+}
+
+
+def stage_config(scene: Mapping, stage: str) -> dict:
+    """The part of a scene's config that `stage` reads."""
+    return {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
 
 
 def scene_targets(name: str, scene: Mapping) -> list[str]:
@@ -65,9 +81,16 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     targets += model_targets(name, scene)
     if is_imported(scene):
         targets += [f"{root}/ball_eval.json"]
+    if has_objects(scene):
+        targets += [f"{root}/objects/{leaf}" for leaf in OBJECT_FILES]
     if has_ablation(scene):
         targets += [f"{root}/stats/{name}" for name in STATS_FILES]
     return targets
+
+
+def has_objects(scene: Mapping) -> bool:
+    """Scenes whose test objects the simulated bench presses (real presses are not automated)."""
+    return bool(scene.get("objects")) and not is_imported(scene) and scene.get("port") == "sim"
 
 
 def has_ablation(scene: Mapping) -> bool:

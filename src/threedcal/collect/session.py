@@ -40,6 +40,11 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
     plan = plan_from_config(scene["plan"], sensor)
     plan_source = scene["plan"].get("csv") or f"{source} grid plan"
     validate_plan(plan, sensor, printer, source=str(plan_source))
+    if scene["port"] != "sim" and scene.get("camera", "sim") == "sim":
+        raise ConfigError(
+            f"{source}: port {scene['port']!r} is a real printer but camera is 'sim': give the "
+            "sensor's video device (index or /dev/v4l/by-id path), or use port: sim"
+        )
     return ScenePlan(sensor, printer, plan, MotionSettings.from_profile(sensor))
 
 
@@ -151,14 +156,18 @@ def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bo
 
 
 def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: bool) -> RunResult:
-    from threedcal.hardware.camera import open_camera
+    from threedcal.hardware.camera import OpenCVCamera
     from threedcal.hardware.printer import MarlinHost
+
+    device = scene["camera"]
+    if isinstance(device, str) and device.isdigit():
+        device = int(device)
 
     def attach_probe() -> None:
         input("Attach the probe to the print head, then press Enter to start probing... ")
 
     with (
-        open_camera(scene["camera"], prepared.sensor) as camera,
+        OpenCVCamera(prepared.sensor, device) as camera,
         MarlinHost(scene["port"], prepared.printer) as host,
     ):
         return collect(
