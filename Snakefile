@@ -54,6 +54,7 @@ include: "rules/integrate.smk"
 include: "rules/train.smk"
 include: "rules/stats.smk"
 include: "rules/objects.smk"
+include: "rules/report.smk"
 
 
 rule all:

@@ -38,6 +38,8 @@ def write_config(directory: Path, config: dict, name: str = "config.yaml") -> Pa
 def tiny_study_config(tmp_path: Path) -> dict:
     """tests/config/test.yaml with its relative data paths made absolute (it runs in a temp dir)."""
     config = yaml.safe_load((REPO / "tests/config/test.yaml").read_text())
+    if "realism" in config:
+        config["realism"]["real"] = str((REPO / config["realism"]["real"]).resolve())
     for scene in config["scenes"].values():
         if "import" in scene:
             scene["import"]["path"] = str((REPO / scene["import"]["path"]).resolve())

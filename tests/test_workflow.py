@@ -75,16 +75,41 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
             ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
             assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 8
             assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
+    collected = next(name for name, scene in config["scenes"].items() if "import" not in scene)
+    for leaf in (
+        "raw.zarr",
+        "dataset/registration.json",
+        "stats/tests.csv",
+        "stats/recommendation.txt",
+        "objects/errors.csv",
+        "objects/figures/pill_by_P.png",
+        "models/inference.json",
+    ):
+        assert (tmp_path / f"results/{collected}/{leaf}").exists(), leaf
+    for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
+        assert (tmp_path / f"results/{leaf}").is_file(), leaf
+    assert collected in (tmp_path / "results/summary.md").read_text()
     # Nothing changed: nothing to do.
     assert scheduled_jobs(tmp_path, path) == []
-    # Change one setting of one scene: only that scene's dependent jobs rerun.
-    first, second = list(config["scenes"])
-    config["scenes"][first]["seed"] = 99
+    # A model setting of one scene: its trainings and what reads them rerun, not its collection.
+    config["scenes"][collected]["model"]["epochs_base"] = 2
     path = write_config(tmp_path, config)
     jobs = scheduled_jobs(tmp_path, path)
-    rerun_scenes = {wc["scene"] for _, wc in jobs if "scene" in wc}
-    assert rerun_scenes == {first}
-    assert ("scene", {"scene": first}) in jobs
+    rules = {rule for rule, _ in jobs}
+    assert {"train", "stats", "objects"} <= rules
+    assert not rules & {
+        "collect",
+        "dataset_collected",
+        "dataset_import",
+        "integration_study",
+        "realism",
+    }
+    assert {wc["scene"] for _, wc in jobs if "scene" in wc} == {collected}
+    # A probing setting reruns the collection and everything downstream of it, for that scene only.
+    config["scenes"][collected]["plan"]["frames"] = 2
+    jobs = scheduled_jobs(tmp_path, write_config(tmp_path, config))
+    assert ("collect", {"scene": collected}) in jobs
+    assert {wc["scene"] for _, wc in jobs if "scene" in wc} == {collected}
 
 
 def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_path):

@@ -79,6 +79,8 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
             f"{root}/dataset/splits.csv",
         ]
     targets += model_targets(name, scene)
+    if is_vision(scene):
+        targets += [f"{root}/models/inference.json"]
     if is_imported(scene):
         targets += [f"{root}/ball_eval.json"]
     if has_objects(scene):
@@ -86,6 +88,10 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if has_ablation(scene):
         targets += [f"{root}/stats/{name}" for name in STATS_FILES]
     return targets
+
+
+def is_vision(scene: Mapping) -> bool:
+    return load_profile("sensor", scene["sensor"])["type"] == "vision"
 
 
 def has_objects(scene: Mapping) -> bool:
@@ -121,6 +127,9 @@ def study_targets(config: Mapping) -> list[str]:
         targets += INTEGRATION_STUDY_TARGETS
     if ablation_scenes(config):
         targets += [f"{RESULTS}/stats/mse_std_vs_p.png"]
+    if config.get("realism"):
+        targets += [f"{RESULTS}/realism/table.txt"]
+    targets += [f"{RESULTS}/environment.json", f"{RESULTS}/summary.md"]
     return targets
 
 

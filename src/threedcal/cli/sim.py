@@ -22,23 +22,11 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _realism(args: argparse.Namespace) -> int:
-    from threedcal.profiles import load_profile
-    from threedcal.sim.realism import compare, format_table, load_ball_dataset
+    from threedcal.sim.realism import realism_report
 
-    data = load_ball_dataset(args.real)
-    profile = load_profile("sensor", args.sensor)
-    rows = compare(data, profile, seed=args.seed)
-    print(
-        f"realism: {profile['name']} optics at {data.width_px}x{data.height_px}, "
-        f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} images of {data.root}"
-    )
-    print(format_table(rows))
-    bad = [r["figure"] for r in rows if not r["ok"]]
-    if bad:
-        print(f"realism: FAIL, out of the real range by more than the tolerance: {', '.join(bad)}")
-        return 1
-    print("realism: ok, every simulated figure within the real range and tolerance")
-    return 0
+    text, ok = realism_report(args.real, args.sensor, seed=args.seed)
+    print(text, end="")
+    return 0 if ok else 1
 
 
 COMMANDS = [

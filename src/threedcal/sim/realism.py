@@ -245,3 +245,27 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             f"{r['tolerance']:6.2f}  {'ok' if r['ok'] else 'OUT OF RANGE'}"
         )
     return "\n".join(lines)
+
+
+def realism_report(
+    real: str | Path, sensor: str, seed: int = 0, out: str | Path | None = None
+) -> tuple[str, bool]:
+    """The side-by-side table as text (and written to `out`), and whether every figure passed."""
+    from threedcal.profiles import load_profile
+
+    data = load_ball_dataset(real)
+    profile = load_profile("sensor", sensor)
+    rows = compare(data, profile, seed=seed)
+    bad = [r["figure"] for r in rows if not r["ok"]]
+    lines = [
+        f"realism: {profile['name']} optics at {data.width_px}x{data.height_px}, "
+        f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} images of {data.root}",
+        format_table(rows),
+        f"realism: FAIL, out of the real range by more than the tolerance: {', '.join(bad)}"
+        if bad
+        else "realism: ok, every simulated figure within the real range and tolerance",
+    ]
+    text = "\n".join(lines) + "\n"
+    if out is not None:
+        Path(out).write_text(text)
+    return text, not bad

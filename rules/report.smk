@@ -1,0 +1,79 @@
+# Study-wide outputs: run environment, inference speed per scene, simulator realism, the summary page.
+
+
+rule environment:
+    output:
+        "results/environment.json",
+    log:
+        "results/logs/environment.log",
+    conda:
+        CONDA_ENV
+    params:
+        config=lambda wildcards: {
+            k: config[k] for k in ("seed", "torch_threads", "scenes")
+        },
+        code=source_digest("report"),
+    script:
+        "../scripts/environment.py"
+
+
+rule inference_speed:
+    input:
+        model=lambda wildcards: (
+            f"results/{wildcards.scene}/models/P{max(training_fractions(config['scenes'][wildcards.scene]))}/model.pt"
+        ),
+        trainset="results/{scene}/dataset/trainset",
+    output:
+        "results/{scene}/models/inference.json",
+    log:
+        "results/{scene}/logs/inference_speed.log",
+    conda:
+        CONDA_ENV
+    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    params:
+        threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
+        code=source_digest("model", "depth", "report"),
+    script:
+        "../scripts/inference_speed.py"
+
+
+rule realism:
+    output:
+        table=report(
+            "results/realism/table.txt",
+            caption="../workflow/report/realism.rst",
+            category="study",
+            subcategory="simulator realism",
+        ),
+    log:
+        "results/logs/realism.log",
+    conda:
+        CONDA_ENV
+    params:
+        real=config.get("realism", {}).get("real"),
+        sensor=config.get("realism", {}).get("sensor", "gelsight_mini"),
+        seed=config["seed"],
+        code=source_digest("sim"),
+    script:
+        "../scripts/realism.py"
+
+
+rule summary:
+    input:
+        [t for t in study_targets(config) if t != "results/summary.md"],
+    output:
+        report(
+            "results/summary.md",
+            caption="../workflow/report/summary.rst",
+            category="study",
+            subcategory="summary",
+        ),
+    log:
+        "results/logs/summary.log",
+    conda:
+        CONDA_ENV
+    params:
+        config=lambda wildcards: {k: config[k] for k in ("scenes",)},
+        code=source_digest("report"),
+    script:
+        "../scripts/summary.py"

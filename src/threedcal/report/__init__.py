@@ -1,0 +1,1 @@
+"""Study-wide outputs: the one-page summary and the run environment."""

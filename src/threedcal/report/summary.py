@@ -1,0 +1,169 @@
+"""results/summary.md: every scene's headline numbers on one page, read from the stage outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+
+def _json(path: Path) -> dict | None:
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _fmt(value, digits: int = 2) -> str:
+    if value is None:
+        return "—"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
+    root = results / name
+    lines = [f"## {name}", "", f"{scene.get('description', '')}".strip(), ""]
+    facts: list[tuple[str, str]] = [("sensor", str(scene["sensor"]))]
+    summary = _json(root / "collect" / "summary.json")
+    if summary:
+        hours = summary["estimated_hardware_s"] / 3600
+        facts += [
+            ("probe points / frames", f"{summary['points']} / {summary['frames']}"),
+            (
+                "estimated probing time on the real printer",
+                f"{hours:.2f} h ({summary['estimated_hardware_s']:.0f} s)",
+            ),
+            (
+                "collection here (simulated)",
+                f"{summary['duration_s']:.1f} s, {_fmt(summary['frames_per_s'], 1)} frames/s",
+            ),
+        ]
+    registration = _json(root / "dataset" / "registration.json")
+    if registration:
+        error = registration.get("error_px")
+        facts.append(
+            (
+                "registration residual / error vs hidden truth",
+                f"{registration['residual_px']:.3f} px / {_fmt(error, 3)} px",
+            )
+        )
+        facts.append(
+            ("first-touch offset (estimated)", f"{registration['touch_offset_mm']:+.3f} mm")
+        )
+    recommendation = root / "stats" / "recommendation.txt"
+    if recommendation.is_file():
+        facts.append(("recommendation", recommendation.read_text().strip()))
+    fps = _json(root / "models" / "inference.json")
+    if fps:
+        facts.append(("depth inference (P=80 model, CPU)", f"{fps['frames_per_s']:.1f} frames/s"))
+    ball = _json(root / "ball_eval.json")
+    if ball:
+        learned, lookup = ball.get("model", ball), ball.get("lookup", {})
+        facts.append(
+            (
+                "ball eval (held-out images)",
+                f"gradient RMSE {_fmt(learned.get('gradient_rmse'), 3)} (lookup {_fmt(lookup.get('gradient_rmse'), 3)}), "
+                f"cap depth MAE {_fmt(learned.get('cap_depth_mae_um'), 0)} µm (lookup {_fmt(lookup.get('cap_depth_mae_um'), 0)} µm), "
+                f"{ball.get('n_test_images')} images",
+            )
+        )
+    reskin = _json(root / "reskin_eval.json")
+    if reskin:
+        facts.append(
+            (
+                "ReSkin localisation (held-out)",
+                f"median {reskin['median_error_mm']:.2f} mm, p90 {reskin['p90_error_mm']:.2f} mm, "
+                f"depth MAE {reskin['depth_mae_mm']:.3f} mm",
+            )
+        )
+    lines += ["| | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in facts] + [""]
+    errors = root / "objects" / "errors.csv"
+    if errors.is_file():
+        table = pd.read_csv(errors)
+        table = table[table["P"] == table["P"].max()]
+        lines += [
+            f"Test objects (MAE, µm, P = {int(table['P'].max())} %):",
+            "",
+            "| object | overall | Type 1 | Type 2 |",
+            "|---|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {r.object} | {r.overall_um:.0f} | {r.type1_um:.0f} | {r.type2_um:.0f} |"
+            for r in table.itertuples()
+        ]
+        lines.append("")
+    return lines
+
+
+def write_summary(config: Mapping, results: str | Path, out: str | Path) -> str:
+    results = Path(results)
+    lines = ["# threedcal study summary", ""]
+    for name, scene in config["scenes"].items():
+        lines += scene_section(name, scene, results)
+    reading = results / "integration" / "reading.md"
+    if reading.is_file():
+        lines += ["## Depth integrators", "", reading.read_text().strip(), ""]
+    environment = _json(results / "environment.json")
+    if environment:
+        lines += ["## Run environment", "", "| | |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in environment.items() if not isinstance(v, dict)]
+        lines += [f"| {k} | {v} |" for k, v in environment.get("software", {}).items()]
+        lines.append("")
+    text = "\n".join(lines)
+    Path(out).write_text(text)
+    return text
+
+
+def environment(config: Mapping) -> dict[str, Any]:
+    """Versions, threads, seeds and hardware of this run (for the report and summary)."""
+    import torch
+
+    from threedcal.scenes import package_versions
+
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "cuda": torch.cuda.is_available(),
+        "seed": config.get("seed"),
+        "torch_threads": config.get("torch_threads"),
+        "scene_seeds": {name: s["seed"] for name, s in config["scenes"].items()},
+        "software": package_versions(),
+    }
+
+
+def measure_inference(
+    model_path: str | Path, trainset_dir: str | Path, out: str | Path, frames: int = 30
+) -> dict:
+    """Depth frames/s of a checkpoint on real frames of its dataset (the figure the summary quotes)."""
+    import time
+
+    import numpy as np
+
+    from threedcal.dataset.trainset import TrainingSet
+    from threedcal.model.inference import DepthEstimator
+
+    estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
+    trainset = TrainingSet.load(trainset_dir)
+    picks = np.linspace(0, len(trainset.frames) - 1, frames).round().astype(int)
+    batch = np.asarray(trainset.frames[picks])
+    estimator.depth(batch[0])  # warm-up
+    start = time.perf_counter()
+    for frame in batch:
+        estimator.depth(frame)
+    seconds = (time.perf_counter() - start) / len(batch)
+    import torch
+
+    record = {
+        "preset": estimator.preset,
+        "frames_per_s": round(1.0 / seconds, 2),
+        "ms_per_frame": round(seconds * 1000, 2),
+        "image_shape": list(estimator.image_shape),
+        "torch_threads": torch.get_num_threads(),
+    }
+    Path(out).write_text(json.dumps(record, indent=2) + "\n")
+    return record
