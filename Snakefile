@@ -31,14 +31,6 @@ ABLATION_SCENES = ablation_scenes(config)
 OBJECT_SCENES = [name for name in SCENES if has_objects(config["scenes"][name])]
 
 
-def scene_models(wildcards):
-    """{"P5": "results/{scene}/models/P5/model.pt", ...}: every model of a scene, keyed by fraction."""
-    fractions = training_fractions(config["scenes"][wildcards.scene])
-    return {
-        f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions
-    }
-
-
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 
@@ -47,6 +39,7 @@ wildcard_constraints:
     scene="|".join(map(re.escape, SCENES)),
 
 
+include: "rules/common.smk"
 include: "rules/scene.smk"
 include: "rules/collect.smk"
 include: "rules/dataset.smk"

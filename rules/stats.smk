@@ -2,18 +2,6 @@
 # against P = 80 and the paper's Fig. 3B / 4 figures; the cross-scene spread figure (Fig. 4C).
 
 
-def ablation_models(wildcards):
-    fractions = training_fractions(config["scenes"][wildcards.scene])
-    return {
-        f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions
-    }
-
-
-def ablation_losses(wildcards):
-    fractions = training_fractions(config["scenes"][wildcards.scene])
-    return [f"results/{wildcards.scene}/models/P{p}/losses.csv" for p in fractions]
-
-
 rule stats:
     input:
         unpack(scene_models),

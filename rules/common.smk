@@ -1,0 +1,14 @@
+# Input functions shared by the rules.
+
+
+def scene_models(wildcards):
+    """{"P5": "results/{scene}/models/P5/model.pt", ...}: every model of a scene, keyed by fraction."""
+    fractions = training_fractions(config["scenes"][wildcards.scene])
+    return {
+        f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions
+    }
+
+
+def ablation_losses(wildcards):
+    fractions = training_fractions(config["scenes"][wildcards.scene])
+    return [f"results/{wildcards.scene}/models/P{p}/losses.csv" for p in fractions]
