@@ -14,5 +14,6 @@ with stage_log(snakemake.log[0]):
         time_budget_s=study["time_budget_s"],
         seed=snakemake.params.seed,
         workers=study["workers"],
+        method_max_pixels=study["method_max_pixels"],
     )
     write_study(table, snakemake.output.csv, snakemake.output.png, snakemake.output.reading)

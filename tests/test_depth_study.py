@@ -58,3 +58,18 @@ def test_study_target_only_when_enabled():
     assert on["integration_study"]["sizes"] == [[240, 320]]
     with pytest.raises(ConfigError, match="integration_study: unknown key 'size'"):
         validate_config({"scenes": scenes, "integration_study": {"size": [[1, 2]]}})
+
+
+def test_method_pixel_limit_skips_large_grids_for_that_method_only():
+    from threedcal.depth.study import run_study
+
+    table = run_study(
+        sizes=[(8, 10), (16, 20)],
+        scenarios=["cap"],
+        methods=["poisson_dct", "lstsq_sparse"],
+        dtypes=["float64"],
+        repeats=1,
+        method_max_pixels={"lstsq_sparse": 100},
+    )
+    cells = set(zip(table["method"], table["H"], strict=True))
+    assert cells == {("poisson_dct", 8), ("poisson_dct", 16), ("lstsq_sparse", 8)}
