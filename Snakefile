@@ -6,7 +6,7 @@ from snakemake.utils import min_version, validate
 
 from threedcal.config import is_imported, training_fractions, validate_config
 from threedcal.provenance import source_digest
-from threedcal.scenes import ablation_scenes, study_targets
+from threedcal.scenes import ablation_scenes, reskin_scenes, study_targets
 
 min_version("9.0")
 
@@ -28,6 +28,7 @@ IMPORTED_SCENES = [
 ]
 COLLECTED_SCENES = [name for name in SCENES if name not in IMPORTED_SCENES]
 ABLATION_SCENES = ablation_scenes(config)
+RESKIN_SCENES = reskin_scenes(config)
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 
@@ -42,6 +43,7 @@ include: "rules/dataset.smk"
 include: "rules/integrate.smk"
 include: "rules/train.smk"
 include: "rules/stats.smk"
+include: "rules/reskin.smk"
 
 
 rule all:

@@ -47,9 +47,31 @@ RECORDED_PACKAGES = (
 )
 
 
+# Per-scene outputs of the ReSkin stage (rules/reskin.smk), for magnetic-sensor scenes.
+RESKIN_FILES = (
+    "reskin/model.pt",
+    "reskin/losses.csv",
+    "reskin/splits.csv",
+    "reskin_eval.json",
+    "reskin_eval.png",
+)
+COLLECT_FILES = ("raw.zarr", "collect/summary.json", "collect/coverage.png", "collect/frames.png")
+
+
+def is_magnetic_scene(scene: Mapping) -> bool:
+    """A scene whose sensor profile is `type: magnetic` (ReSkin): readings, not images."""
+    return load_profile("sensor", scene["sensor"]).get("type") == "magnetic"
+
+
+def reskin_scenes(config: Mapping) -> list[str]:
+    return [name for name, scene in config["scenes"].items() if is_magnetic_scene(scene)]
+
+
 def scene_targets(name: str, scene: Mapping) -> list[str]:
     root = f"{RESULTS}/{name}"
     targets = [f"{root}/scene.json"]
+    if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
+        return targets + [f"{root}/{leaf}" for leaf in COLLECT_FILES + RESKIN_FILES]
     if is_imported(scene):
         targets += [f"{root}/dataset/splits.csv"]
 
