@@ -187,11 +187,14 @@ class RawStore:
             dimension_names=["blank", *layout.dims],
         )
         if layout.value_names is not None:
-            group.create_array(
+            # Variable-length UTF-8: the string type Zarr v3 specifies (fixed-width ones warn).
+            names = group.create_array(
                 layout.dims[-1],
-                data=np.asarray(layout.value_names, dtype=str),
+                shape=(len(layout.value_names),),
+                dtype=str,
                 dimension_names=[layout.dims[-1]],
             )
+            names[:] = np.asarray(layout.value_names, dtype=object)
         point_of_frame = np.repeat(np.arange(len(plan)), plan["frames"].to_numpy())
         rep = np.arange(n_frames) - offsets[:-1][point_of_frame]
         plan_values = {
