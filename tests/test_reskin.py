@@ -365,3 +365,12 @@ def test_reskin_scene_refuses_image_analyses():
         ConfigError, match="scenes.rs.ablation: not available for a magnetic sensor"
     ):
         validate_config(bad)
+
+
+def test_cli_reads_the_simulated_board(capsys):
+    from threedcal.cli import main
+
+    assert main(["reskin", "read", "--port", "sim", "--count", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split("\t")[:3] == ["t_s", "bx0", "by0"] and len(lines) == 3
+    assert lines[2].split("\t")[0] == "0.020"  # one reading per 1/50 s
