@@ -374,3 +374,14 @@ def test_cli_reads_the_simulated_board(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split("\t")[:3] == ["t_s", "bx0", "by0"] and len(lines) == 3
     assert lines[2].split("\t")[0] == "0.020"  # one reading per 1/50 s
+
+
+def test_real_printer_with_the_simulated_board_is_refused_before_anything_opens(tmp_path):
+    from threedcal.collect.session import collect_scene
+
+    config = validate_config(
+        {"scenes": {"rs": {"sensor": "reskin", "printer": "ender3", "port": "/dev/ttyUSB9"}}}
+    )
+    with pytest.raises(ConfigError, match="set the scene's `camera` to the ReSkin board"):
+        collect_scene("rs", config["scenes"]["rs"], tmp_path / "raw.zarr", progress=False)
+    assert not any(tmp_path.iterdir())

@@ -79,6 +79,11 @@ def collect_scene(
 ) -> dict[str, Any]:
     """Collect (or resume) a scene into `store_path`; returns the summary."""
     prepared = prepare(scene, source=f"scenes.{name}")
+    if is_magnetic(prepared.sensor) and scene["port"] != "sim" and str(scene["camera"]) == "sim":
+        raise ConfigError(
+            f"scenes.{name}: a real printer port with the simulated ReSkin board; set the scene's "
+            "`camera` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
+        )
     store_path = Path(store_path)
     staging = Path(staging_path) if staging_path else store_path
     if store_path.exists() and staging != store_path:
