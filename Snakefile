@@ -6,7 +6,13 @@ from snakemake.utils import min_version, validate
 
 from threedcal.config import is_imported, training_fractions, validate_config
 from threedcal.provenance import source_digest
-from threedcal.scenes import ablation_scenes, has_objects, stage_config, study_targets
+from threedcal.scenes import (
+    ablation_scenes,
+    has_objects,
+    reskin_scenes,
+    stage_config,
+    study_targets,
+)
 
 min_version("9.0")
 
@@ -29,8 +35,7 @@ IMPORTED_SCENES = [
 COLLECTED_SCENES = [name for name in SCENES if name not in IMPORTED_SCENES]
 ABLATION_SCENES = ablation_scenes(config)
 OBJECT_SCENES = [name for name in SCENES if has_objects(config["scenes"][name])]
-
-
+RESKIN_SCENES = reskin_scenes(config)
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).
 CONDA_ENV = str(Path(workflow.basedir) / "workflow/envs/threedcal.yaml")
 
@@ -48,6 +53,7 @@ include: "rules/train.smk"
 include: "rules/stats.smk"
 include: "rules/objects.smk"
 include: "rules/report.smk"
+include: "rules/reskin.smk"
 
 
 rule all:

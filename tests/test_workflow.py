@@ -75,7 +75,15 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
             ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
             assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 8
             assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
-    collected = next(name for name, scene in config["scenes"].items() if "import" not in scene)
+        if scene["sensor"] == "reskin":
+            reskin = json.loads((tmp_path / f"results/{name}/reskin_eval.json").read_text())
+            assert reskin["n_test_readings"] > 0 and reskin["median_error_mm"] >= 0
+            assert reskin["p90_error_mm"] >= reskin["median_error_mm"]
+            assert (tmp_path / f"results/{name}/reskin_eval.png").is_file()
+            assert not (tmp_path / f"results/{name}/dataset").exists()
+    collected = next(
+        name for name, scene in config["scenes"].items() if scene.get("ablation")
+    )
     for leaf in (
         "raw.zarr",
         "dataset/registration.json",

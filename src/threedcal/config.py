@@ -137,7 +137,24 @@ def _scene_problems(scene: Mapping) -> list[str]:
             resolve_profile(kind, ref)
         except ProfileNotFound as exc:
             problems.append(f"{kind}: {exc}")
+    if scene.get("sensor") is not None and not problems:
+        problems += _magnetic_problems(scene)
     return problems
+
+
+def _magnetic_problems(scene: Mapping) -> list[str]:
+    """A magnetic (ReSkin) scene collects readings and trains the localisation MLP, nothing else."""
+    from threedcal.profiles import load_profile
+
+    if load_profile("sensor", scene["sensor"]).get("type") != "magnetic":
+        return []
+    image_only = ("import", "ablation", "objects")
+    return [
+        f"{key}: not available for a magnetic sensor ({scene['sensor']}): it gives readings, "
+        "not images (remove it)"
+        for key in image_only
+        if scene.get(key)
+    ]
 
 
 def load_config(path: str | Path) -> dict:

@@ -63,21 +63,36 @@ def stage_config(scene: Mapping, stage: str) -> dict:
     return {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
 
 
+# Per-scene outputs of the ReSkin stage (rules/reskin.smk), for magnetic-sensor scenes.
+RESKIN_FILES = (
+    "reskin/model.pt",
+    "reskin/losses.csv",
+    "reskin/splits.csv",
+    "reskin_eval.json",
+    "reskin_eval.png",
+)
+COLLECT_FILES = ("raw.zarr", "collect/summary.json", "collect/coverage.png", "collect/frames.png")
+
+
+def is_magnetic_scene(scene: Mapping) -> bool:
+    """A scene whose sensor profile is `type: magnetic` (ReSkin): readings, not images."""
+    return load_profile("sensor", scene["sensor"]).get("type") == "magnetic"
+
+
+def reskin_scenes(config: Mapping) -> list[str]:
+    return [name for name, scene in config["scenes"].items() if is_magnetic_scene(scene)]
+
+
 def scene_targets(name: str, scene: Mapping) -> list[str]:
     root = f"{RESULTS}/{name}"
     targets = [f"{root}/scene.json"]
+    if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
+        return targets + [f"{root}/{leaf}" for leaf in COLLECT_FILES + RESKIN_FILES]
     if is_imported(scene):
         targets += [f"{root}/dataset/splits.csv"]
-
     else:
-        targets += [
-            f"{root}/raw.zarr",
-            f"{root}/collect/summary.json",
-            f"{root}/collect/coverage.png",
-            f"{root}/collect/frames.png",
-            f"{root}/dataset/registration.json",
-            f"{root}/dataset/splits.csv",
-        ]
+        targets += [f"{root}/{leaf}" for leaf in COLLECT_FILES]
+        targets += [f"{root}/dataset/registration.json", f"{root}/dataset/splits.csv"]
     targets += model_targets(name, scene)
     if is_vision(scene):
         targets += [f"{root}/models/inference.json"]
@@ -91,7 +106,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
 
 
 def is_vision(scene: Mapping) -> bool:
-    return load_profile("sensor", scene["sensor"])["type"] == "vision"
+    return load_profile("sensor", scene["sensor"]).get("type") == "vision"
 
 
 def has_objects(scene: Mapping) -> bool:

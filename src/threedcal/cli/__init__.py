@@ -36,6 +36,7 @@ GROUP_HELP = {
     "printer": "talk to a Marlin 3D printer",
     "sim": "the simulated bench: fake firmware, optical simulator",
     "objects": "test objects: CAD, STL files, ground-truth depth",
+    "reskin": "the ReSkin magnetic sensor: serial check",
 }
 
 

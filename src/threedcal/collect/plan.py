@@ -112,6 +112,44 @@ def grid_plan(
     return serpentine(plan)
 
 
+def cross_plan(
+    sensor: Mapping,
+    spacing_mm: float,
+    depths_mm,
+    frames: int,
+    arm_width_mm: float,
+) -> pd.DataFrame:
+    """The authors' ReSkin plan shape: a grid over the probe area, kept where it lies within
+    `arm_width_mm`/2 of the area's centre lines (a plus sign), repeated at every depth in turn, each
+    pass serpentine ordered. 1 mm spacing, arms 6 mm wide over 16 x 16 mm give 189 points a depth."""
+    if spacing_mm <= 0 or not np.isfinite(spacing_mm):
+        raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
+    if arm_width_mm < 0 or not np.isfinite(arm_width_mm):
+        raise ConfigError(f"plan arm_width_mm must be >= 0, got {arm_width_mm!r}")
+    depths = [float(d) for d in np.atleast_1d(depths_mm)]
+    if not depths:
+        raise ConfigError("plan depths_mm must list at least one depth")
+    width, height = plan_area_mm(sensor)
+    xs = np.arange(0.0, width + 1e-9, spacing_mm)
+    ys = np.arange(0.0, height + 1e-9, spacing_mm)
+    gx, gy = np.meshgrid(xs, ys)
+    half = arm_width_mm / 2 + 1e-9
+    keep = (np.abs(gx - width / 2) <= half) | (np.abs(gy - height / 2) <= half)
+    x, y = gx[keep], gy[keep]
+    passes = []
+    for depth in depths:
+        one = pd.DataFrame(
+            {
+                "x_mm": x,
+                "y_mm": y,
+                "depth_mm": np.round(depth + dome_sag_mm(sensor, x, y), 4),
+                "frames": int(frames),
+            }
+        )
+        passes.append(serpentine(one))
+    return pd.concat(passes, ignore_index=True)
+
+
 def serpentine(plan: pd.DataFrame, row_tolerance_mm: float = 1e-6) -> pd.DataFrame:
     """Order by rows of equal y; alternate the x direction each row, so travel between points is short."""
     plan = plan.copy()
@@ -187,9 +225,17 @@ def clearance_z(sensor: Mapping) -> float:
 
 
 def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
-    """The plan a scene's `plan:` section describes (CSV or grid)."""
+    """The plan a scene's `plan:` section describes (CSV, grid or cross)."""
     if plan_config.get("csv"):
         return read_plan_csv(plan_config["csv"])
+    if plan_config.get("pattern", "grid") == "cross":
+        return cross_plan(
+            sensor,
+            spacing_mm=plan_config["spacing_mm"],
+            depths_mm=plan_config.get("depths_mm") or [plan_config["depth_mm"]],
+            frames=plan_config["frames"],
+            arm_width_mm=plan_config.get("arm_width_mm", 6.0),
+        )
     return grid_plan(
         sensor,
         spacing_mm=plan_config["spacing_mm"],

@@ -20,7 +20,7 @@ import pandas as pd
 
 from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.collect.run import MotionSettings, RunResult, collect
-from threedcal.collect.store import RawStore, frame_offsets
+from threedcal.collect.store import IMAGE_LAYOUT, RawStore, frame_offsets, readings_layout
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
@@ -84,11 +84,16 @@ def collect_scene(
 ) -> dict[str, Any]:
     """Collect (or resume) a scene into `store_path`; returns the summary."""
     prepared = prepare(scene, source=f"scenes.{name}")
+    if is_magnetic(prepared.sensor) and scene["port"] != "sim" and str(scene["camera"]) == "sim":
+        raise ConfigError(
+            f"scenes.{name}: a real printer port with the simulated ReSkin board; set the scene's "
+            "`camera` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
+        )
     store_path = Path(store_path)
     staging = Path(staging_path) if staging_path else store_path
     if store_path.exists() and staging != store_path:
         raise ConfigError(f"{store_path}: already exists; refusing to overwrite collected data")
-    shape = (prepared.sensor["image"]["height_px"], prepared.sensor["image"]["width_px"], 3)
+    shape, layout = _sample_layout(prepared)
     if staging.exists():
         store = RawStore.open_for_resume(staging, prepared.plan)
     else:
@@ -99,10 +104,12 @@ def collect_scene(
             shape,
             prepared.settings.n_blank,
             _store_attrs(name, scene, prepared),
+            layout,
         )
     runs = list(store.group.attrs.get("runs", []))
     if scene["port"] == "sim":
-        result, truth = _collect_simulated(scene, prepared, store, progress)
+        simulate = _collect_simulated_reskin if is_magnetic(prepared.sensor) else _collect_simulated
+        result, truth = simulate(scene, prepared, store, progress)
         if truth_path is not None:
             truth.write(truth_path)
     else:
@@ -123,6 +130,55 @@ def collect_scene(
         shutil.move(str(staging), str(store_path))
     summary["store"] = str(store_path)
     return summary
+
+
+def is_magnetic(sensor: Mapping) -> bool:
+    """Magnetic sensors (ReSkin) stream readings over serial instead of camera frames."""
+    return sensor.get("type") == "magnetic"
+
+
+def _sample_layout(prepared: ScenePlan):
+    """Shape of one sample and how the store keeps it: an RGB frame, or a ReSkin reading."""
+    if is_magnetic(prepared.sensor):
+        from threedcal.hardware.reskin import value_names
+
+        names = value_names(prepared.sensor)
+        return (len(names),), readings_layout(names, prepared.plan)
+    image = prepared.sensor["image"]
+    return (image["height_px"], image["width_px"], 3), IMAGE_LAYOUT
+
+
+def _collect_simulated_reskin(scene, prepared: ScenePlan, store: RawStore, progress: bool):
+    """The simulated ReSkin bench: fake printer and board, each behind its own serial URL."""
+    from threedcal.hardware.printer import MarlinHost
+    from threedcal.hardware.reskin import ReSkinReader
+    from threedcal.sim.reskin import ReSkinBench
+
+    bench_settings = scene["bench"]
+    with (
+        ReSkinBench(
+            prepared.sensor,
+            scene["probe"]["radius_mm"],
+            bench_settings,
+            scene["seed"],
+            printer=prepared.printer,
+            faults=bench_settings.get("faults", ""),
+            fault_rate=bench_settings.get("fault_rate", 0.0),
+        ) as bench,
+        MarlinHost(bench.url, prepared.printer) as host,
+        ReSkinReader(prepared.sensor, bench.sensor_url) as reader,
+    ):
+        result = collect(
+            store,
+            prepared.sensor,
+            host,
+            reader,
+            prepared.settings,
+            hardware_clock=bench.firmware.clock.now,
+            clock=_BenchClock(bench.firmware),
+            progress=progress,
+        )
+        return result, bench.truth
 
 
 def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bool):
@@ -166,6 +222,22 @@ def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: boo
     def attach_probe() -> None:
         input("Attach the probe to the print head, then press Enter to start probing... ")
 
+    if is_magnetic(prepared.sensor):
+        from threedcal.hardware.reskin import ReSkinReader
+
+        with (
+            ReSkinReader(prepared.sensor, str(scene["camera"])) as reader,
+            MarlinHost(scene["port"], prepared.printer) as host,
+        ):
+            return collect(
+                store,
+                prepared.sensor,
+                host,
+                reader,
+                prepared.settings,
+                attach_probe=attach_probe,
+                progress=progress,
+            )
     with (
         OpenCVCamera(prepared.sensor, device) as camera,
         MarlinHost(scene["port"], prepared.printer) as host,
@@ -216,7 +288,7 @@ class _EstimateSink:
 
 
 class _ClockOnlyCamera:
-    """Takes frames at the camera's rate without rendering them."""
+    """Takes samples at the sensor's rate without rendering them."""
 
     def __init__(self, clock, fps: float):
         self.clock, self.fps = clock, fps
@@ -249,7 +321,7 @@ def estimate_hardware_s(
                 _EstimateSink(plan),
                 sensor,
                 host,
-                _ClockOnlyCamera(firmware.clock, float(sensor["camera"]["default_fps"])),
+                _ClockOnlyCamera(firmware.clock, _sample_rate_hz(sensor)),
                 MotionSettings.from_profile(sensor),
                 hardware_clock=firmware.clock.now,
                 clock=_BenchClock(firmware),
@@ -258,6 +330,12 @@ def estimate_hardware_s(
     finally:
         forget(name)
     return result.hardware_s
+
+
+def _sample_rate_hz(sensor: Mapping) -> float:
+    if is_magnetic(sensor):
+        return float(sensor["serial"]["rate_hz"])
+    return float(sensor["camera"]["default_fps"])
 
 
 def write_summary(summary: Mapping, path: str | Path) -> None:
@@ -277,7 +355,9 @@ def collect_stage(
     truth: str | Path,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """The `collect` rule: store, summary.json, coverage and sample-frame figures, bench truth."""
+    """The `collect` rule: store, summary.json, coverage and sample-frame figures, bench truth.
+
+    For a magnetic sensor `mosaic` receives a figure of sample readings instead of frames."""
     from threedcal.collect.figures import coverage_figure, mosaic_figure
     from threedcal.collect.store import open_raw
 
@@ -291,5 +371,10 @@ def collect_stage(
     coverage_figure(
         prepared.plan, prepared.sensor, coverage, title=f"{name}: {len(prepared.plan)} probe points"
     )
-    mosaic_figure(open_raw(store), mosaic, title=f"{name}: sample frames")
+    if is_magnetic(prepared.sensor):
+        from threedcal.reskin.figures import readings_figure
+
+        readings_figure(open_raw(store), prepared.sensor, mosaic, title=f"{name}: sample readings")
+    else:
+        mosaic_figure(open_raw(store), mosaic, title=f"{name}: sample frames")
     return result

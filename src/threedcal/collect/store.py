@@ -9,6 +9,11 @@ Layout (DESIGN.md, Data)::
     captured (plan_point,) bool             set only after a point's frames and labels are written
     attrs                                   profiles, plan, seeds, versions, run metadata
 
+A sensor that is not a camera stores its samples under another `SampleLayout`: a ReSkin store holds
+``readings (frame, value) float32`` and ``blank_readings (blank, value)`` with the same per-frame
+coordinates, plus a ``value`` coordinate naming each value (``bx0``, ``by0``, ...). The attribute
+``sample_variable`` says which variable holds the samples.
+
 The store is preallocated from the plan (chunks are written only when filled), so a crash or kill
 loses at most the point being captured: a resumed run starts at the first point not `captured`.
 """
@@ -62,11 +67,40 @@ def frame_offsets(plan: pd.DataFrame) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(plan["frames"].to_numpy(dtype=np.int64))])
 
 
+@dataclass(frozen=True)
+class SampleLayout:
+    """How one sample (a frame, a magnetometer reading) is stored: names, dims, dtype, chunking."""
+
+    variable: str = "frames"
+    blank_variable: str = "blank_frames"
+    dims: tuple[str, ...] = ("y", "x", "channel")
+    dtype: str = "uint8"
+    # Frames per chunk; a divisor of every point's frame count keeps each point in its own chunks.
+    chunk_frames: int = 1
+    value_names: tuple[str, ...] | None = None  # labels of the last dim, stored as a coordinate
+
+
+IMAGE_LAYOUT = SampleLayout()
+
+
+def readings_layout(value_names, plan: pd.DataFrame) -> SampleLayout:
+    """Layout of a vector sensor (ReSkin): ``readings (frame, value) float32``, chunks aligned to points."""
+    chunk = int(np.gcd.reduce(plan["frames"].to_numpy(dtype=np.int64)))
+    return SampleLayout(
+        variable="readings",
+        blank_variable="blank_readings",
+        dims=("value",),
+        dtype="float32",
+        chunk_frames=max(chunk, 1),
+        value_names=tuple(value_names),
+    )
+
+
 @dataclass
 class PointRecord:
     """What one probe point produced: K frames and their measured labels."""
 
-    frames: np.ndarray  # (K, H, W, C) uint8
+    frames: np.ndarray  # (K, *sample_shape): frames (K, H, W, C) uint8 or readings (K, V)
     cmd_xyz: tuple[float, float, float]
     reported_xyz: tuple[float, float, float]
     t_s: np.ndarray  # (K,) capture times, seconds since the run started
@@ -83,15 +117,25 @@ class RawStore:
         self.group = group
         self.plan = plan
         self.offsets = frame_offsets(plan)
+        self.variable = group.attrs.get("sample_variable", "frames")
+        self.blank_variable = group.attrs.get("blank_variable", "blank_frames")
+        self._arrays: dict[str, zarr.Array] = {}
+
+    def _array(self, name: str) -> zarr.Array:
+        """An array of the group, opened once (opening reads its metadata: ms per call)."""
+        if name not in self._arrays:
+            self._arrays[name] = self.group[name]
+        return self._arrays[name]
 
     @classmethod
     def create(
         cls,
         path: str | Path,
         plan: pd.DataFrame,
-        image_shape: tuple[int, int, int],
+        sample_shape: tuple[int, ...],
         n_blank: int,
         attrs: Mapping[str, Any],
+        layout: SampleLayout = IMAGE_LAYOUT,
     ) -> RawStore:
         path = Path(path)
         if path.exists():
@@ -101,36 +145,56 @@ class RawStore:
         building = path.with_name(path.name + ".creating")
         if building.exists():
             shutil.rmtree(building)
-        cls._build(building, plan, image_shape, n_blank, attrs)
+        cls._build(building, plan, tuple(sample_shape), n_blank, attrs, layout)
         os.replace(building, path)
         return cls(path, zarr.open_group(str(path), mode="r+"), plan)
 
     @staticmethod
-    def _build(path: Path, plan, image_shape, n_blank: int, attrs) -> None:
+    def _build(path: Path, plan, sample_shape, n_blank: int, attrs, layout: SampleLayout) -> None:
         offsets = frame_offsets(plan)
         n_frames = int(offsets[-1])
-        height, width, channels = image_shape
+        if len(sample_shape) != len(layout.dims):
+            raise ValueError(f"sample shape {sample_shape} does not match the dims {layout.dims}")
+        if layout.value_names is not None and len(layout.value_names) != sample_shape[-1]:
+            raise ValueError(
+                f"{len(layout.value_names)} value names for {sample_shape[-1]} values per sample"
+            )
         group = zarr.open_group(str(path), mode="w-", zarr_format=3)
+        layout_attrs = {"sample_variable": layout.variable, "blank_variable": layout.blank_variable}
         group.attrs.update(
-            json.loads(json.dumps({**attrs, "plan_digest": plan_digest(plan), "complete": False}))
+            json.loads(
+                json.dumps(
+                    {**attrs, **layout_attrs, "plan_digest": plan_digest(plan), "complete": False}
+                )
+            )
         )
-        frames = group.create_array(
-            "frames",
-            shape=(n_frames, height, width, channels),
-            dtype="uint8",
-            chunks=(1, height, width, channels),
+        chunk = max(1, min(layout.chunk_frames, n_frames))
+        samples = group.create_array(
+            layout.variable,
+            shape=(n_frames, *sample_shape),
+            dtype=layout.dtype,
+            chunks=(chunk, *sample_shape),
             fill_value=0,
-            dimension_names=["frame", "y", "x", "channel"],
+            dimension_names=["frame", *layout.dims],
         )
-        frames.attrs["coordinates"] = " ".join(FRAME_COORDS)
+        samples.attrs["coordinates"] = " ".join(FRAME_COORDS)
         group.create_array(
-            "blank_frames",
-            shape=(n_blank, height, width, channels),
-            dtype="uint8",
-            chunks=(1, height, width, channels),
+            layout.blank_variable,
+            shape=(n_blank, *sample_shape),
+            dtype=layout.dtype,
+            chunks=(max(1, min(layout.chunk_frames, n_blank)), *sample_shape),
             fill_value=0,
-            dimension_names=["blank", "y", "x", "channel"],
+            dimension_names=["blank", *layout.dims],
         )
+        if layout.value_names is not None:
+            # Variable-length UTF-8: the string type Zarr v3 specifies (fixed-width ones warn).
+            names = group.create_array(
+                layout.dims[-1],
+                shape=(len(layout.value_names),),
+                dtype=str,
+                dimension_names=[layout.dims[-1]],
+            )
+            names[:] = np.asarray(layout.value_names, dtype=object)
         point_of_frame = np.repeat(np.arange(len(plan)), plan["frames"].to_numpy())
         rep = np.arange(n_frames) - offsets[:-1][point_of_frame]
         plan_values = {
@@ -164,7 +228,7 @@ class RawStore:
 
     @property
     def captured(self) -> np.ndarray:
-        return self.group["captured"][:]
+        return self._array("captured")[:]
 
     def first_uncaptured(self) -> int | None:
         missing = np.flatnonzero(~self.captured)
@@ -174,7 +238,7 @@ class RawStore:
         return bool(self.group.attrs.get("blank_captured", False))
 
     def write_blank(self, frames: np.ndarray) -> None:
-        self.group["blank_frames"][: len(frames)] = frames
+        self._array(self.blank_variable)[: len(frames)] = frames
         self.group.attrs["blank_captured"] = True
 
     @property
@@ -189,7 +253,7 @@ class RawStore:
             raise ValueError(
                 f"point {point}: plan wants {count} frames, got {record.frames.shape[0]}"
             )
-        self.group["frames"][start:stop] = record.frames
+        self._array(self.variable)[start:stop] = record.frames
         measured = {
             "cmd_x_mm": record.cmd_xyz[0],
             "cmd_y_mm": record.cmd_xyz[1],
@@ -201,8 +265,9 @@ class RawStore:
             "hardware_s": record.hardware_s,
         }
         for name, value in measured.items():
-            self.group[name][start:stop] = np.broadcast_to(np.asarray(value, dtype=float), (count,))
-        self.group["captured"][point] = True
+            values = np.broadcast_to(np.asarray(value, dtype=float), (count,))
+            self._array(name)[start:stop] = values
+        self._array("captured")[point] = True
 
     def finalize(self, extra_attrs: Mapping[str, Any] | None = None) -> None:
         if self.first_uncaptured() is not None:
@@ -218,7 +283,7 @@ class RawStore:
 
 
 def open_raw(path: str | Path):
-    """The store as an xarray Dataset (frames with their per-frame label coordinates)."""
+    """The store as an xarray Dataset (frames or readings with their per-frame label coordinates)."""
     import xarray as xr
 
     path = Path(path)

@@ -1,0 +1,53 @@
+# Stage `reskin`: magnetic-sensor scenes. The readings in results/{scene}/raw.zarr train a small MLP
+# (contact x, y and depth), scored on held-out probe coordinates: results/{scene}/reskin_eval.json.
+
+
+rule reskin_train:
+    input:
+        store="results/{scene}/raw.zarr",
+    output:
+        model="results/{scene}/reskin/model.pt",
+        losses="results/{scene}/reskin/losses.csv",
+        splits="results/{scene}/reskin/splits.csv",
+    log:
+        "results/{scene}/logs/reskin_train.log",
+    wildcard_constraints:
+        scene="|".join(RESKIN_SCENES) or "(?!)",  # "(?!)" matches nothing
+    conda:
+        CONDA_ENV
+    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    params:
+        settings=lambda wildcards: config["scenes"][wildcards.scene]["reskin"],
+        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
+        torch_threads=lambda wildcards: config["scenes"][wildcards.scene][
+            "torch_threads"
+        ],
+        code=source_digest("reskin", "collect"),
+    script:
+        "../scripts/reskin_train.py"
+
+
+rule reskin_eval:
+    input:
+        store="results/{scene}/raw.zarr",
+        model="results/{scene}/reskin/model.pt",
+        splits="results/{scene}/reskin/splits.csv",
+    output:
+        metrics="results/{scene}/reskin_eval.json",
+        figure=report(
+            "results/{scene}/reskin_eval.png",
+            caption="../workflow/report/reskin_eval.rst",
+            category="{scene}",
+            subcategory="3 ReSkin",
+        ),
+    log:
+        "results/{scene}/logs/reskin_eval.log",
+    wildcard_constraints:
+        scene="|".join(RESKIN_SCENES) or "(?!)",
+    conda:
+        CONDA_ENV
+    params:
+        sensor=lambda wildcards: config["scenes"][wildcards.scene]["sensor"],
+        code=source_digest("reskin", "collect"),
+    script:
+        "../scripts/reskin_eval.py"

@@ -1,0 +1,16 @@
+"""Rule `reskin_eval`: localisation and depth errors on the held-out coordinates → json + figure."""
+
+from threedcal.logs import stage_log
+from threedcal.profiles import load_profile
+from threedcal.reskin.stage import eval_stage
+
+with stage_log(snakemake.log[0]):
+    eval_stage(
+        snakemake.input.store,
+        snakemake.input.model,
+        snakemake.input.splits,
+        load_profile("sensor", snakemake.params.sensor),
+        out_json=snakemake.output.metrics,
+        out_figure=snakemake.output.figure,
+        title=f"{snakemake.wildcards.scene}: ReSkin contact localisation on held-out coordinates",
+    )

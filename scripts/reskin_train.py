@@ -1,0 +1,15 @@
+"""Rule `reskin_train`: split a ReSkin store by coordinate and train the MLP → model.pt, losses, splits."""
+
+from threedcal.logs import stage_log
+from threedcal.reskin.stage import train_stage
+
+with stage_log(snakemake.log[0]):
+    train_stage(
+        snakemake.input.store,
+        snakemake.params.settings,
+        seed=snakemake.params.seed,
+        torch_threads=snakemake.params.torch_threads,
+        model_path=snakemake.output.model,
+        losses_path=snakemake.output.losses,
+        splits_path=snakemake.output.splits,
+    )
