@@ -81,9 +81,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
             assert reskin["p90_error_mm"] >= reskin["median_error_mm"]
             assert (tmp_path / f"results/{name}/reskin_eval.png").is_file()
             assert not (tmp_path / f"results/{name}/dataset").exists()
-    collected = next(
-        name for name, scene in config["scenes"].items() if scene.get("ablation")
-    )
+    collected = next(name for name, scene in config["scenes"].items() if scene.get("ablation"))
     for leaf in (
         "raw.zarr",
         "dataset/registration.json",
