@@ -40,10 +40,15 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
     plan = plan_from_config(scene["plan"], sensor)
     plan_source = scene["plan"].get("csv") or f"{source} grid plan"
     validate_plan(plan, sensor, printer, source=str(plan_source))
-    if scene["port"] != "sim" and scene.get("camera", "sim") == "sim":
+    if scene["port"] != "sim" and str(scene.get("camera", "sim")) == "sim":
+        device = (
+            "set the scene's `camera` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
+            if is_magnetic(sensor)
+            else "give the sensor's video device (index or /dev/v4l/by-id path)"
+        )
         raise ConfigError(
-            f"{source}: port {scene['port']!r} is a real printer but camera is 'sim': give the "
-            "sensor's video device (index or /dev/v4l/by-id path), or use port: sim"
+            f"{source}: port {scene['port']!r} is a real printer but camera is 'sim': {device}, "
+            "or use port: sim"
         )
     return ScenePlan(sensor, printer, plan, MotionSettings.from_profile(sensor))
 
@@ -84,11 +89,6 @@ def collect_scene(
 ) -> dict[str, Any]:
     """Collect (or resume) a scene into `store_path`; returns the summary."""
     prepared = prepare(scene, source=f"scenes.{name}")
-    if is_magnetic(prepared.sensor) and scene["port"] != "sim" and str(scene["camera"]) == "sim":
-        raise ConfigError(
-            f"scenes.{name}: a real printer port with the simulated ReSkin board; set the scene's "
-            "`camera` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
-        )
     store_path = Path(store_path)
     staging = Path(staging_path) if staging_path else store_path
     if store_path.exists() and staging != store_path:
