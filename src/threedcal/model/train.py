@@ -55,8 +55,7 @@ class TrainSettings:
     patch_px: int = 96
     contact_patches: int = 8
     background_patches: int = 2
-    skirt_reach: float = 0.0
-    lowpass_weight: float = 0.0  # weight of the block-mean MSE term (see _lowpass_mse)  # contact-patch centres up to this many contact radii off the centre
+    skirt_reach: float = 0.0  # contact-patch centres up to this many contact radii off the centre
     drift: str = "median"  # lighting-drift removal of the inputs (threedcal.model.drift)
     seed: int = 0
     torch_threads: int = 2
