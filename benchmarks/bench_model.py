@@ -2,13 +2,22 @@
 
 The baseline is the paper's TouchNet on the same frame in the same run; the goal for the default CPU
 preset is ≥ 30 frames/s and ≥ 100× TouchNet. Weights are freshly initialised (speed does not depend
-on their values). Usage: python benchmarks/bench_model.py [--threads N] [--seconds S]
+on their values). Each figure is the median time of single-frame calls, which a busy shared machine
+disturbs less than a mean.
+
+With --accuracy FOLDER (a ball_folder dataset, e.g. ../shared/data/gelsight_ball_fots) it also trains
+every CPU preset there with BALL_SETTINGS on the seeded 80/20 image split and prints the accuracy per
+millisecond table (held-out gradient RMSE and cap depth MAE, threedcal.model.ball_eval).
+
+Usage: python benchmarks/bench_model.py [--threads N] [--seconds S] [--accuracy FOLDER]
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -19,6 +28,18 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.presets import build_model, preset_args
 
 HEIGHT, WIDTH = 240, 320
+# The settings the accuracy table trains with: those of an imported ball scene's `model:` section
+# (README, "Choosing a preset"); chosen on an inner validation split of the training images.
+BALL_SETTINGS = dict(
+    lr=3e-3,
+    lr_schedule="cosine",
+    epochs_base=20,
+    batch_size=16,
+    patch_px=48,
+    contact_patches=16,
+    background_patches=32,
+    skirt_reach=2.5,
+)
 
 
 def estimator(preset: str, blank: np.ndarray) -> DepthEstimator:
@@ -37,31 +58,79 @@ def estimator(preset: str, blank: np.ndarray) -> DepthEstimator:
     return DepthEstimator(checkpoint, device="cpu", batch_size=1)
 
 
-def frames_per_s(est: DepthEstimator, frame: np.ndarray, seconds: float) -> float:
+def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float) -> float:
     est.depth(frame)  # warm-up
-    count, began = 0, time.perf_counter()
-    while count < 3 or time.perf_counter() - began < seconds:
+    times, began = [], time.perf_counter()
+    while len(times) < 3 or time.perf_counter() - began < seconds:
+        start = time.perf_counter()
         est.depth(frame)
-        count += 1
-    return count / (time.perf_counter() - began)
+        times.append(time.perf_counter() - start)
+    return 1000.0 * float(np.median(times))
+
+
+def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
+    """Held-out ball_eval figures of each preset trained with BALL_SETTINGS on `folder`."""
+    from threedcal.dataset.build import build_imported
+    from threedcal.model.ball_eval import evaluate
+    from threedcal.model.train import TrainSettings, train
+
+    scene = {
+        "import": {"format": "ball_folder", "path": str(folder)},
+        "seed": 0,
+        "dataset": {"downscale": 1, "max_slope_deg": 75},
+    }
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        ts = build_imported(scene, Path(tmp) / "trainset", Path(tmp) / "splits.csv")
+        test = ts.indices("val")
+        for preset in presets:
+            settings = TrainSettings(preset=preset, torch_threads=threads, **BALL_SETTINGS)
+            began = time.perf_counter()
+            checkpoint = train(ts, Path(tmp) / preset, 80, settings, progress=False)
+            seconds = time.perf_counter() - began
+            torch.set_num_threads(threads)
+            out[preset] = {
+                **evaluate(DepthEstimator(checkpoint, device="cpu"), ts, test),
+                "train_s": seconds,
+            }
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--seconds", type=float, default=3.0, help="timing per preset")
+    parser.add_argument("--accuracy", type=Path, help="ball_folder dataset for the accuracy table")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(0)
     blank = rng.uniform(60, 200, (HEIGHT, WIDTH, 3)).astype(np.float32)
     frame = np.clip(blank + rng.normal(0, 20, blank.shape), 0, 255).astype(np.uint8)
     print(f"DepthEstimator.depth at {HEIGHT}x{WIDTH}, CPU, torch threads {args.threads}")
-    fps = {p: frames_per_s(estimator(p, blank), frame, args.seconds) for p in PRESET_NAMES}
-    base = fps["touchnet"]
+    ms = {p: ms_per_frame(estimator(p, blank), frame, args.seconds) for p in PRESET_NAMES}
+    base = ms["touchnet"]
     print(f"{'preset':14s} {'frames/s':>10s} {'ms/frame':>10s} {'x touchnet':>11s}")
-    for preset, value in fps.items():
+    for preset, value in ms.items():
         mark = "  (default)" if preset == DEFAULT_PRESET else ""
-        print(f"{preset:14s} {value:10.2f} {1000 / value:10.1f} {value / base:10.0f}x{mark}")
+        print(f"{preset:14s} {1000 / value:10.2f} {value:10.1f} {base / value:10.0f}x{mark}")
+    if args.accuracy is None:
+        return
+    cpu = [p for p in PRESET_NAMES if p != "touchnet"]
+    figures = accuracy(args.accuracy, cpu, 1)
+    lookup = figures["lookup"]
+    print(f"\naccuracy per ms on {args.accuracy} (held-out images: {lookup['n_test_images']})")
+    print(
+        f"{'preset':14s} {'ms/frame':>9s} {'grad_rmse':>10s} {'depth_mae_um':>13s} "
+        f"{'rmse/lookup':>12s} {'mae/lookup':>11s} {'train_s':>8s}"
+    )
+    for preset in cpu:
+        f = figures[preset]
+        mark = "  (default)" if preset == DEFAULT_PRESET else ""
+        print(
+            f"{preset:14s} {ms[preset]:9.1f} {f['gradient_rmse']:10.3f} "
+            f"{f['cap_depth_mae_um']:13.0f} {f['gradient_rmse'] / lookup['gradient_rmse']:12.2f} "
+            f"{f['cap_depth_mae_um'] / lookup['cap_depth_mae_um']:11.2f} {f['train_s']:8.1f}{mark}"
+        )
 
 
 if __name__ == "__main__":

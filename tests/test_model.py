@@ -94,7 +94,11 @@ def test_authors_bare_state_dict_loads_with_their_normalisation(tmp_path):
     torch.save(authors.state_dict(), path)  # what the authors publish: a bare state_dict
     checkpoint = read_checkpoint(path)
     assert checkpoint["preset"] == "touchnet"
-    assert checkpoint["normalisation"] == {"coords": "pixel_index", "gradient_sign": -1.0}
+    assert checkpoint["normalisation"] == {
+        "coords": "pixel_index",
+        "gradient_sign": -1.0,
+        "drift": "none",
+    }
     blank = np.full((12, 10, 3), 90, np.uint8)
     frame = np.random.default_rng(0).integers(0, 255, (12, 10, 3), dtype=np.uint8)
     est = DepthEstimator(checkpoint, device="cpu", blank=blank, px_per_mm=10.0)
@@ -301,3 +305,37 @@ def test_predict_cli_writes_depth_and_colour_map(tmp_path):
     live = ["live", "--checkpoint", str(tmp_path / "model.pt"), "--source", str(tmp_path / "set")]
     assert main([*live, "--out", str(tmp_path / "v.gif"), "--frames", "3", "--device", "cpu"]) == 0
     assert (tmp_path / "v.gif").stat().st_size > 0
+
+
+def test_epoch_lr_constant_and_cosine_end_points():
+    from threedcal.model.train import epoch_lr
+
+    constant = TrainSettings(lr=0.01)
+    assert [epoch_lr(constant, e, 5) for e in (1, 3, 5)] == [0.01] * 3
+    cosine = TrainSettings(lr=0.01, lr_schedule="cosine")
+    assert epoch_lr(cosine, 1, 5) == pytest.approx(0.01)
+    assert epoch_lr(cosine, 3, 5) == pytest.approx(0.01 / 100 + 0.99 * 0.01 / 2)
+    assert epoch_lr(cosine, 5, 5) == pytest.approx(0.01 / 100)
+    assert epoch_lr(cosine, 1, 1) == 0.01  # a one-epoch run keeps lr
+    with pytest.raises(ConfigError, match="allowed: constant, cosine"):
+        epoch_lr(TrainSettings(lr_schedule="step"), 1, 5)
+
+
+def test_skirt_reach_moves_contact_patches_off_the_contact():
+    from threedcal.model.train import sample_windows
+
+    ts = synthetic_set()
+    centre = ts.center_px[0]
+
+    def offsets(reach):
+        settings = TrainSettings(
+            patch_px=12, contact_patches=200, background_patches=0, skirt_reach=reach
+        )
+        windows = sample_windows(ts, np.array([0]), settings, np.random.default_rng(0))
+        return np.array(
+            [[(w[1].start + 6) - centre[0], (w[0].start + 6) - centre[1]] for _, w in windows]
+        )
+
+    assert np.abs(offsets(0.0)).max() <= 12 / 3 + 1
+    far = np.abs(offsets(2.0))
+    assert far.max() > 8 and far.max() <= 2.0 * 6.0 + 1  # eval_radius_px is 6

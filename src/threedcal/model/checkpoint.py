@@ -19,10 +19,12 @@ from threedcal.model.presets import build_model
 
 FORMAT = "threedcal-model"
 FORMAT_VERSION = 1
-# Our inputs: coordinate channels in [-1, 1] over the full image; labels ∂z/∂x with z into the gel.
-OUR_NORMALISATION = {"coords": "unit", "gradient_sign": 1.0}
-# py3DCal: coordinate channels are 1-based pixel indices; its labels are −∂z/∂x in our convention.
-AUTHORS_NORMALISATION = {"coords": "pixel_index", "gradient_sign": -1.0}
+# Our inputs: coordinate channels in [-1, 1] over the full image, lighting drift removed
+# (threedcal.model.drift); labels ∂z/∂x with z into the gel.
+OUR_NORMALISATION = {"coords": "unit", "gradient_sign": 1.0, "drift": "median"}
+# py3DCal: coordinate channels are 1-based pixel indices, no drift removal; its labels are −∂z/∂x
+# in our convention.
+AUTHORS_NORMALISATION = {"coords": "pixel_index", "gradient_sign": -1.0, "drift": "none"}
 
 
 class CheckpointError(ThreedcalError):

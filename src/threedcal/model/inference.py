@@ -12,6 +12,7 @@ import torch
 from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
+from threedcal.model.drift import remove_drift
 
 
 class DepthEstimator:
@@ -28,6 +29,7 @@ class DepthEstimator:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.preset = checkpoint["preset"]
         self.normalisation = dict(checkpoint["normalisation"])
+        self.drift = self.normalisation.get("drift", "none")  # checkpoints before the drift step
         if blank is None and checkpoint.get("blank") is None:
             raise ConfigError(
                 "this checkpoint carries no blank frame (the authors' weights): pass blank="
@@ -76,7 +78,7 @@ class DepthEstimator:
         for start in range(0, len(frames), self.batch_size):
             chunk = torch.from_numpy(np.array(frames[start : start + self.batch_size]))
             chunk = chunk.to(self.device).permute(0, 3, 1, 2).float()
-            diff = (chunk - self._blank) / 255.0
+            diff = remove_drift((chunk - self._blank) / 255.0, self.drift)
             coords = self._coords.expand(len(chunk), -1, -1, -1)
             x = adapt_inputs(torch.cat([diff, coords], 1), self.normalisation, self.image_shape)
             out.append((self.model(x) * sign).permute(0, 2, 3, 1).float().cpu().numpy())

@@ -34,6 +34,7 @@ from threedcal.model.checkpoint import (
     read_checkpoint,
     save_checkpoint,
 )
+from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.presets import build_model, is_learned, preset_args
 
 RESUME_NAME = "checkpoint.pt"
@@ -48,11 +49,14 @@ class TrainSettings:
     epochs_base: int = 4
     batch_size: int = 64
     lr: float = 1e-4
+    lr_schedule: str = "constant"  # or cosine (epoch_lr)
     weight_decay: float = 1e-4
     init: str | None = None
     patch_px: int = 96
     contact_patches: int = 8
     background_patches: int = 2
+    skirt_reach: float = 0.0  # contact-patch centres up to this many contact radii off the centre
+    drift: str = "median"  # lighting-drift removal of the inputs (threedcal.model.drift)
     seed: int = 0
     torch_threads: int = 2
     device: str = "auto"  # auto = CUDA when present, else CPU
@@ -79,6 +83,23 @@ class TrainSettings:
         return max(1, round(self.epochs_base * 80 / percent))
 
 
+def epoch_lr(settings: TrainSettings, epoch: int, epochs: int) -> float:
+    """Learning rate of epoch 1..epochs: constant, or a half cosine from lr down to lr/100.
+
+    A function of the epoch alone, so a resumed run uses the same rates as an uninterrupted one.
+    """
+    if settings.lr_schedule == "constant" or epochs == 1:
+        return settings.lr
+    if settings.lr_schedule != "cosine":
+        raise ConfigError(
+            f"model.lr_schedule: {settings.lr_schedule!r} (allowed: constant, cosine)"
+        )
+    floor = settings.lr / 100
+    return floor + (settings.lr - floor) * 0.5 * (
+        1 + math.cos(math.pi * (epoch - 1) / (epochs - 1))
+    )
+
+
 def _window(top: int, left: int, size: tuple[int, int]) -> tuple[slice, slice]:
     return slice(top, top + size[0]), slice(left, left + size[1])
 
@@ -92,8 +113,12 @@ def sample_windows(
     out = []
     for i in indices:
         cx, cy = ts.center_px[i]
+        # skirt_reach > 0 lets patches cover the gel outside the contact too: it deforms and changes
+        # colour there, while its label is flat (and integrating wrong slopes there biases depth).
+        reach = settings.skirt_reach * float(ts.eval_radius_px[i])
+        jitter = (max(size[0] / 3, reach), max(size[1] / 3, reach))
         for _ in range(settings.contact_patches):
-            jx, jy = rng.uniform(-size[1] / 3, size[1] / 3), rng.uniform(-size[0] / 3, size[0] / 3)
+            jx, jy = rng.uniform(-jitter[1], jitter[1]), rng.uniform(-jitter[0], jitter[0])
             top = int(np.clip(round(cy + jy - size[0] / 2), 0, height - size[0]))
             left = int(np.clip(round(cx + jx - size[1] / 2), 0, width - size[1]))
             out.append((int(i), _window(top, left, size)))
@@ -104,12 +129,35 @@ def sample_windows(
     return out
 
 
-def _batches(ts, windows, batch_size):
+class _Inputs:
+    """Network inputs of a TrainingSet's frames or windows, with the frame's lighting drift removed.
+
+    The drift offset is estimated once per frame on the full frame (as inference does), then
+    subtracted from every window of it.
+    """
+
+    def __init__(self, ts: TrainingSet, mode: str) -> None:
+        self.ts, self.mode = ts, mode
+        self._offsets: dict[int, torch.Tensor] = {}
+
+    def offset(self, i: int) -> torch.Tensor:
+        if i not in self._offsets:
+            self._offsets[i] = drift_offset(torch.from_numpy(self.ts.inputs(i))[None])[0]
+        return self._offsets[i]
+
+    def __call__(self, i: int, window: tuple[slice, slice] | None = None) -> torch.Tensor:
+        x = torch.from_numpy(self.ts.inputs(i, window))[None]
+        if self.mode == "none":
+            return x[0]
+        return remove_drift(x, self.mode, self.offset(i)[None])[0]
+
+
+def _batches(ts, windows, batch_size, inputs: _Inputs):
     for start in range(0, len(windows), batch_size):
         chunk = windows[start : start + batch_size]
-        x = np.stack([ts.inputs(i, w) for i, w in chunk])
+        x = torch.stack([inputs(i, w) for i, w in chunk])
         y = np.stack([ts.labels(i, w) for i, w in chunk])
-        yield torch.from_numpy(x), torch.from_numpy(y)
+        yield x, torch.from_numpy(y)
 
 
 def configure_torch(settings: TrainSettings) -> torch.device:
@@ -140,7 +188,7 @@ def _cpu_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
 def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.Module, dict]:
     torch.manual_seed(settings.seed)
     if settings.init is None:
-        return build_model(settings.preset), dict(OUR_NORMALISATION)
+        return build_model(settings.preset), {**OUR_NORMALISATION, "drift": settings.drift}
     source = read_checkpoint(settings.init)
     if source["preset"] != settings.preset:
         raise ConfigError(
@@ -153,17 +201,19 @@ def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.M
             f"model.init: {settings.init} was trained on {tuple(shape)} images, "
             f"this dataset has {ts.image_shape}"
         )
-    return model_from_checkpoint(source), dict(source.get("normalisation", OUR_NORMALISATION))
+    # Fine-tuning keeps the normalisation the source network was trained with.
+    normalisation = {"drift": "none", **source.get("normalisation", OUR_NORMALISATION)}
+    return model_from_checkpoint(source), normalisation
 
 
-def _mse(model, ts, windows, settings, device, normalisation) -> float:
+def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
     if not windows:
         return float("nan")
     model.eval()
     total, count = 0.0, 0
     sign = normalisation["gradient_sign"]
     with torch.no_grad():
-        for x, y in _batches(ts, windows, settings.batch_size):
+        for x, y in _batches(ts, windows, settings.batch_size, inputs):
             x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
             pred = model(x) * sign
             total += float(torch.sum((pred - y.to(device)) ** 2))
@@ -193,6 +243,7 @@ def train(
     )
     model, normalisation = _initial_model(settings, ts)
     model.to(device)
+    inputs = _Inputs(ts, normalisation["drift"])
     epochs = settings.epochs(percent) if is_learned(settings.preset) else 1
     key = _resume_key(settings, percent, ts)
     resume_path = out_dir / RESUME_NAME
@@ -217,11 +268,13 @@ def train(
         rng = np.random.default_rng([settings.seed, epoch])
         torch.manual_seed(settings.seed * 1_000_003 + epoch)
         if is_learned(settings.preset):
+            for group in optimizer.param_groups:
+                group["lr"] = epoch_lr(settings, epoch, epochs)
             train_loss = _train_epoch(
-                model, ts, train_idx, settings, rng, device, optimizer, normalisation
+                model, ts, train_idx, settings, rng, device, optimizer, normalisation, inputs
             )
         else:
-            model.fit(_Pairs(ts, train_idx))
+            model.fit(_Pairs(ts, train_idx, inputs))
             train_loss = _mse(
                 model,
                 ts,
@@ -229,8 +282,9 @@ def train(
                 settings,
                 device,
                 normalisation,
+                inputs,
             )
-        val_loss = _mse(model, ts, val_windows, settings, device, normalisation)
+        val_loss = _mse(model, ts, val_windows, settings, device, normalisation, inputs)
         rows.append(
             {
                 "epoch": epoch,
@@ -258,14 +312,16 @@ def _val_settings(settings: TrainSettings) -> TrainSettings:
     return replace(settings, contact_patches=1, background_patches=1)
 
 
-def _train_epoch(model, ts, train_idx, settings, rng, device, optimizer, normalisation) -> float:
+def _train_epoch(
+    model, ts, train_idx, settings, rng, device, optimizer, normalisation, inputs
+) -> float:
     windows = sample_windows(ts, train_idx, settings, rng)
     order = rng.permutation(len(windows))
     windows = [windows[k] for k in order]
     model.train()
     total, count = 0.0, 0
     sign = normalisation["gradient_sign"]
-    for x, y in _batches(ts, windows, settings.batch_size):
+    for x, y in _batches(ts, windows, settings.batch_size, inputs):
         x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
         y = y.to(device)
         optimizer.zero_grad(set_to_none=True)
@@ -280,12 +336,12 @@ def _train_epoch(model, ts, train_idx, settings, rng, device, optimizer, normali
 class _Pairs:
     """Re-iterable (inputs, labels) of full frames, read lazily (the lookup fit reads them twice)."""
 
-    def __init__(self, ts: TrainingSet, indices: np.ndarray):
-        self.ts, self.indices = ts, indices
+    def __init__(self, ts: TrainingSet, indices: np.ndarray, inputs: _Inputs):
+        self.ts, self.indices, self.inputs = ts, indices, inputs
 
     def __iter__(self):
         for i in self.indices:
-            yield self.ts.inputs(int(i)), self.ts.labels(int(i))
+            yield self.inputs(int(i)).numpy(), self.ts.labels(int(i))
 
 
 def _checkpoint(model, settings, ts, percent, epoch, normalisation) -> dict:
