@@ -72,7 +72,8 @@ def loss_curves_figure(losses: Mapping[int, pd.DataFrame], path: str | Path, tit
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
     colours = plt.cm.viridis(np.linspace(0, 0.9, len(losses)))
     for colour, (p, table) in zip(colours, sorted(losses.items()), strict=True):
-        ax.plot(table["epoch"], table["val_loss"], c=colour, label=f"P = {p} %")
+        checked = table.dropna(subset=["val_loss"])  # validation runs on a subset of epochs
+        ax.plot(checked["epoch"], checked["val_loss"], c=colour, label=f"P = {p} %")
         ax.plot(table["epoch"], table["train_loss"], c=colour, ls=":", lw=1)
     ax.set(xlabel="epoch", ylabel="gradient MSE", yscale="log", title=title)
     ax.legend(fontsize=7, title="validation (solid), training (dotted)", title_fontsize=7)
