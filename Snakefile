@@ -52,6 +52,7 @@ include: "rules/integrate.smk"
 include: "rules/train.smk"
 include: "rules/stats.smk"
 include: "rules/objects.smk"
+include: "rules/presets.smk"
 include: "rules/report.smk"
 include: "rules/reskin.smk"
 

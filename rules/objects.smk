@@ -1,5 +1,5 @@
 # Stage `objects`: test objects pressed on the simulated bench, depth predicted by the P = 80 model
-# (every P for the pill), errors against the CAD ground truth (Table II, Figs. 3C, 5, 6).
+# (and every other P), errors against the CAD ground truth (Table II, Figs. 3C, 5, 6).
 
 
 rule objects:

@@ -3,7 +3,12 @@
 
 rule environment:
     output:
-        "results/environment.json",
+        report(
+            "results/environment.json",
+            caption="../workflow/report/environment.rst",
+            category="study",
+            subcategory="run environment",
+        ),
     log:
         "results/logs/environment.log",
     conda:

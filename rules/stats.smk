@@ -68,7 +68,7 @@ rule stats_overview:
     output:
         report(
             "results/stats/mse_std_vs_p.png",
-            caption="workflow/report/stats_std.rst",
+            caption="../workflow/report/stats_std.rst",
             category="study",
             subcategory="ablation",
         ),

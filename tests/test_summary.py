@@ -49,6 +49,6 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     assert "2.00 h (7200 s)" in text
     assert "0.100 px / 0.250 px" in text
     assert "probe at least 60 points" in text
-    assert "| pill | 20 | 5 | 61 |" in text and "| 90 |" not in text  # P = 80 row only
+    assert "| pill | 20 | 5 | 61 | 90 |" in text  # P = 80, with Type 2 at P = 20
     assert "gradient RMSE 0.300 (lookup 0.370)" in text and "8 images" in text
     assert (tmp_path / "summary.md").read_text() == text

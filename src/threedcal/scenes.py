@@ -97,7 +97,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if is_vision(scene):
         targets += [f"{root}/models/inference.json"]
     if is_imported(scene):
-        targets += [f"{root}/ball_eval.json"]
+        targets += [f"{root}/ball_eval.json", f"{root}/presets.csv", f"{root}/presets.png"]
     if has_objects(scene):
         targets += [f"{root}/objects/{leaf}" for leaf in OBJECT_FILES]
     if has_ablation(scene):

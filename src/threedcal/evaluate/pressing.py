@@ -2,7 +2,7 @@
 
 A person presses each object into the sensor by hand: off-centre, turned a little, a little deeper or
 shallower than meant. The bench does the same from the scene's seed, renders the frame with the gel
-simulator, and the P = 80 model (every P for the pill) predicts depth; the ground truth from the CAD
+simulator, and every model of the scene (P = 80 for the figures) predicts depth; the ground truth from the CAD
 mesh is aligned to the prediction in x, y, its depth fitted, and the errors split into Type 1
 (ground truth 0) and Type 2 (in contact).
 """
@@ -93,7 +93,11 @@ def evaluate_objects(
     *,
     progress: bool = True,
 ) -> pd.DataFrame:
-    """Render every press, predict with the models, score; write tables and figures into `out_dir`."""
+    """Render every press, predict with every model, score; write tables and figures into `out_dir`.
+
+    errors.csv has a row per object and P; the integrator comparison, the sections (Fig. 5) and the
+    violins (Fig. 6) use the P = 80 model, Fig. 3C the pill at every P.
+    """
     from tqdm import tqdm
 
     from threedcal.evaluate.object_errors import evaluate_press, pixel_errors_um
@@ -124,7 +128,7 @@ def evaluate_objects(
         label = object_label(press.name)
         frame = render_press(simulator, press, frame_index=index)
         mesh = load_object(press.name)
-        fractions = sorted(models) if label == "pill" else [full]
+        fractions = sorted(models)
         for p in fractions:
             estimator = estimators[p]
             image = _estimator_frame(estimator, frame)

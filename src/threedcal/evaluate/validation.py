@@ -89,7 +89,12 @@ def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, 
     columns = min(len(fractions), 3)
     rows = int(np.ceil(len(fractions) / columns))
     fig, axes = plt.subplots(
-        rows, columns, figsize=(3.4 * columns, 3.2 * rows), dpi=110, squeeze=False
+        rows,
+        columns,
+        figsize=(3.4 * columns, 3.4 * rows),
+        dpi=110,
+        squeeze=False,
+        layout="constrained",
     )
     vmin, vmax = np.percentile(table["mse"], [2, 98])
     for ax, p in zip(axes.ravel(), fractions, strict=False):

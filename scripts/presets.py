@@ -1,0 +1,15 @@
+"""Rule `presets`: depth error against inference time of every CPU preset on an imported scene."""
+
+from threedcal.logs import stage_log
+from threedcal.model.presets_study import presets_stage
+
+with stage_log(snakemake.log[0]):
+    presets_stage(
+        snakemake.input.trainset,
+        snakemake.params.model,
+        snakemake.params.seed,
+        snakemake.params.threads,
+        snakemake.params.presets,
+        snakemake.output.csv,
+        snakemake.output.png,
+    )

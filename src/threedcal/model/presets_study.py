@@ -1,0 +1,110 @@
+"""Depth error against inference time for every CPU preset, trained alike on one imported scene.
+
+The report's "which preset when": each preset trains with the scene's `model:` settings (preset
+swapped) at P = 80 and is scored on the held-out images (threedcal.model.ball_eval.evaluate);
+the time is DepthEstimator.depth per frame on this machine, integration included.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.model.ball_eval import evaluate
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.train import TrainSettings, train
+
+COLUMNS = ["preset", "ms_per_frame", "gradient_rmse", "cap_depth_mae_um", "train_s"]
+
+
+def depth_ms_per_frame(estimator: DepthEstimator, frames: np.ndarray, repeats: int = 3) -> float:
+    estimator.depth(frames[0])  # warm-up
+    times = []
+    for _ in range(repeats):
+        for frame in frames:
+            start = time.perf_counter()
+            estimator.depth(frame)
+            times.append(time.perf_counter() - start)
+    return 1000.0 * float(np.median(times))
+
+
+def compare_presets(
+    trainset: TrainingSet, settings: TrainSettings, presets: Sequence[str]
+) -> pd.DataFrame:
+    test = trainset.indices("val")
+    frames = np.asarray(trainset.frames[test[: min(len(test), 4)]])
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for preset in presets:
+            began = time.perf_counter()
+            checkpoint = train(
+                trainset,
+                Path(tmp) / preset,
+                80,
+                dataclasses.replace(settings, preset=preset),
+                progress=False,
+            )
+            seconds = time.perf_counter() - began
+            estimator = DepthEstimator(checkpoint, device="cpu", batch_size=1)
+            figures = evaluate(estimator, trainset, test)
+            rows.append(
+                {
+                    "preset": preset,
+                    "ms_per_frame": round(depth_ms_per_frame(estimator, frames), 3),
+                    "gradient_rmse": figures["gradient_rmse"],
+                    "cap_depth_mae_um": figures["cap_depth_mae_um"],
+                    "train_s": round(seconds, 2),
+                }
+            )
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def presets_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
+    for ax, column, label in zip(
+        axes,
+        ("cap_depth_mae_um", "gradient_rmse"),
+        ("cap depth MAE (µm)", "gradient RMSE"),
+        strict=True,
+    ):
+        ax.scatter(table["ms_per_frame"], table[column], s=30)
+        for row in table.itertuples():
+            ax.annotate(
+                row.preset,
+                (row.ms_per_frame, getattr(row, column)),
+                fontsize=8,
+                xytext=(4, 3),
+                textcoords="offset points",
+            )
+        ax.set(xscale="log", xlabel="depth inference, ms per frame (CPU)", ylabel=label)
+    fig.suptitle(title)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def presets_stage(
+    trainset_dir: str | Path,
+    model: dict,
+    seed: int,
+    threads: int,
+    presets: Sequence[str],
+    csv_path: str | Path,
+    png_path: str | Path,
+) -> pd.DataFrame:
+    settings = TrainSettings.from_scene({"model": model, "seed": seed, "torch_threads": threads})
+    table = compare_presets(TrainingSet.load(trainset_dir), settings, presets)
+    table.to_csv(csv_path, index=False)
+    presets_figure(table, png_path, "presets: held-out depth error against inference time")
+    return table
