@@ -314,3 +314,17 @@ def test_bad_shapes_are_refused():
         integrate(np.zeros((0, 5)), np.zeros((0, 5)))
     with pytest.raises(ConfigError, match="mask .* must match"):
         integrate(np.zeros((4, 5)), np.zeros((4, 5)), "lstsq_sparse", mask=np.ones((5, 4), bool))
+
+
+@pytest.mark.parametrize("shape", [(238, 318), (12, 10), (40, 1278)])
+def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
+    import scipy.fft as sfft
+
+    from threedcal.depth.spectral import _dst1_2d, _dst1_matrix
+
+    x = np.random.default_rng(3).normal(size=shape)
+    forward = _dst1_2d(x.copy(), inverse=False, workers=None)
+    np.testing.assert_allclose(forward, sfft.dstn(x, type=1), rtol=1e-12, atol=1e-10)
+    np.testing.assert_allclose(_dst1_2d(forward.copy(), inverse=True, workers=None), x, atol=1e-12)
+    # 238 + 1 = 239 is prime: that axis goes through the matrix; 11 and 13 stay with the FFT.
+    assert (_dst1_matrix(238, "float64") is not None) and _dst1_matrix(10, "float64") is None

@@ -27,6 +27,46 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+# DST-I of length n runs as an FFT of length 2(n + 1); when that has a large prime factor (a
+# 240-pixel axis: 2 * 239) the FFT falls back to a slow algorithm, and for axes this short a dense
+# matrix product is 3-4x faster. Longer axes keep the FFT (the product grows as n^2).
+_MATRIX_DST_MAX = 512
+_SMOOTH_PRIME = 13
+
+
+def _largest_prime_factor(n: int) -> int:
+    factor, largest = 2, 1
+    while factor * factor <= n:
+        while n % factor == 0:
+            largest, n = factor, n // factor
+        factor += 1
+    return max(largest, n)
+
+
+@lru_cache(maxsize=16)
+def _dst1_matrix(n: int, dtype: str) -> np.ndarray | None:
+    """scipy's unnormalised DST-I as an (n, n) matrix, for axes where it beats the FFT; else None."""
+    if n > _MATRIX_DST_MAX or _largest_prime_factor(2 * (n + 1)) <= _SMOOTH_PRIME:
+        return None
+    k = np.arange(1, n + 1)
+    return _readonly((2.0 * np.sin(np.pi * np.outer(k, k) / (n + 1))).astype(dtype))
+
+
+def _dst1_2d(x: np.ndarray, inverse: bool, workers: int | None) -> np.ndarray:
+    """2-D DST-I (or its inverse) of `x`, each axis by matrix product or FFT, whichever is faster."""
+    for axis in (0, 1):
+        n = x.shape[axis]
+        matrix = _dst1_matrix(n, str(x.dtype))
+        if matrix is None:
+            transform = sfft.idst if inverse else sfft.dst
+            x = transform(x, type=1, axis=axis, overwrite_x=True, workers=workers)
+            continue
+        x = matrix @ x if axis == 0 else x @ matrix  # the DST-I matrix is symmetric
+        if inverse:
+            x *= x.dtype.type(1.0 / (2 * (n + 1)))
+    return x
+
+
 @lru_cache(maxsize=16)
 def _dst_denominator(h: int, w: int, dtype: str) -> np.ndarray:
     """DST-I eigenvalues of the interior (h-2, w-2) Dirichlet Laplacian, summed over both axes."""
@@ -79,10 +119,10 @@ def dirichlet_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> 
     rhs += gy[2:, 1:-1]
     rhs -= gy[:-2, 1:-1]
     rhs *= gx.dtype.type(0.5)
-    spec = sfft.dstn(rhs, type=1, overwrite_x=True, workers=workers)
+    spec = _dst1_2d(rhs, inverse=False, workers=workers)
     spec /= _dst_denominator(h, w, str(gx.dtype))
     z = np.zeros((h, w), dtype=gx.dtype)
-    z[1:-1, 1:-1] = sfft.idstn(spec, type=1, overwrite_x=True, workers=workers)
+    z[1:-1, 1:-1] = _dst1_2d(spec, inverse=True, workers=workers)
     return z
 
 
