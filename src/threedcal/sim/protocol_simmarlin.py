@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import math
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+from serial.serialutil import SerialException
 
 from threedcal.errors import ConfigError
+from threedcal.sim.simport import SimulatedPort
 
 
-class Serial(SerialBase):
-    BAUDRATES = (9600, 19200, 38400, 57600, 115200, 250000)
-
+class Serial(SimulatedPort):
     def __init__(self, *args, **kwargs):
         self.firmware = None
         super().__init__(*args, **kwargs)
@@ -48,12 +47,8 @@ class Serial(SerialBase):
             self.firmware.close()
         self.is_open = False
 
-    def _reconfigure_port(self, *args, **kwargs):
-        pass
-
     def _check(self):
-        if not self.is_open:
-            raise PortNotOpenError()
+        super()._check()
         if self.firmware.disconnected:
             raise SerialException(
                 "device reports readiness to read but returned no data "
@@ -95,35 +90,3 @@ class Serial(SerialBase):
     def reset_input_buffer(self):
         self._check()
         self.firmware.take(1 << 30, self.firmware.clock.now())
-
-    def reset_output_buffer(self):
-        self._check()
-
-    @property
-    def out_waiting(self):
-        return 0
-
-    def _update_dtr_state(self):
-        pass
-
-    def _update_rts_state(self):
-        pass
-
-    def _update_break_state(self):
-        pass
-
-    @property
-    def cts(self):
-        return True
-
-    @property
-    def dsr(self):
-        return True
-
-    @property
-    def ri(self):
-        return False
-
-    @property
-    def cd(self):
-        return True

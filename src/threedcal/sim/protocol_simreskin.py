@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import math
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+from serial.serialutil import SerialException
 
 from threedcal.errors import ConfigError
+from threedcal.sim.simport import SimulatedPort
 
 
-class Serial(SerialBase):
-    BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 250000)
-
+class Serial(SimulatedPort):
     def __init__(self, *args, **kwargs):
         self.board = None
         super().__init__(*args, **kwargs)
@@ -44,13 +43,6 @@ class Serial(SerialBase):
         if self.is_open and self.board is not None:
             self.board.close()
         self.is_open = False
-
-    def _reconfigure_port(self, *args, **kwargs):
-        pass
-
-    def _check(self):
-        if not self.is_open:
-            raise PortNotOpenError()
 
     @property
     def in_waiting(self):
@@ -82,35 +74,3 @@ class Serial(SerialBase):
     def reset_input_buffer(self):
         self._check()
         self.board.reset_input(self.board.clock.now())
-
-    def reset_output_buffer(self):
-        self._check()
-
-    @property
-    def out_waiting(self):
-        return 0
-
-    def _update_dtr_state(self):
-        pass
-
-    def _update_rts_state(self):
-        pass
-
-    def _update_break_state(self):
-        pass
-
-    @property
-    def cts(self):
-        return True
-
-    @property
-    def dsr(self):
-        return True
-
-    @property
-    def ri(self):
-        return False
-
-    @property
-    def cd(self):
-        return True
