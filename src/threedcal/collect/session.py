@@ -7,6 +7,7 @@ only when complete, so a failed run never deletes what it captured: the next run
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import shutil
@@ -108,8 +109,7 @@ def collect_scene(
         )
     runs = list(store.group.attrs.get("runs", []))
     if scene["port"] == "sim":
-        simulate = _collect_simulated_reskin if is_magnetic(prepared.sensor) else _collect_simulated
-        result, truth = simulate(scene, prepared, store, progress)
+        result, truth = _collect_simulated(scene, prepared, store, progress)
         if truth_path is not None:
             truth.write(truth_path)
     else:
@@ -148,61 +148,40 @@ def _sample_layout(prepared: ScenePlan):
     return (image["height_px"], image["width_px"], 3), IMAGE_LAYOUT
 
 
-def _collect_simulated_reskin(scene, prepared: ScenePlan, store: RawStore, progress: bool):
-    """The simulated ReSkin bench: fake printer and board, each behind its own serial URL."""
-    from threedcal.hardware.printer import MarlinHost
-    from threedcal.hardware.reskin import ReSkinReader
-    from threedcal.sim.reskin import ReSkinBench
-
-    bench_settings = scene["bench"]
-    with (
-        ReSkinBench(
-            prepared.sensor,
-            scene["probe"]["radius_mm"],
-            bench_settings,
-            scene["seed"],
-            printer=prepared.printer,
-            faults=bench_settings.get("faults", ""),
-            fault_rate=bench_settings.get("fault_rate", 0.0),
-        ) as bench,
-        MarlinHost(bench.url, prepared.printer) as host,
-        ReSkinReader(prepared.sensor, bench.sensor_url) as reader,
-    ):
-        result = collect(
-            store,
-            prepared.sensor,
-            host,
-            reader,
-            prepared.settings,
-            hardware_clock=bench.firmware.clock.now,
-            clock=_BenchClock(bench.firmware),
-            progress=progress,
-        )
-        return result, bench.truth
-
-
 def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bool):
+    """The simulated bench: fake printer and simulated sensor — the gel camera, or the ReSkin board
+    behind its own serial URL — coupled through the head pose."""
     from threedcal.hardware.printer import MarlinHost
-    from threedcal.sim.bench import SimBench
 
+    if is_magnetic(prepared.sensor):
+        from threedcal.sim.reskin import ReSkinBench as Bench
+    else:
+        from threedcal.sim.bench import SimBench as Bench
     bench_settings = scene["bench"]
-    with (
-        SimBench(
-            prepared.sensor,
-            scene["probe"]["radius_mm"],
-            bench_settings,
-            scene["seed"],
-            printer=prepared.printer,
-            faults=bench_settings.get("faults", ""),
-            fault_rate=bench_settings.get("fault_rate", 0.0),
-        ) as bench,
-        MarlinHost(bench.url, prepared.printer) as host,
-    ):
+    with contextlib.ExitStack() as stack:
+        bench = stack.enter_context(
+            Bench(
+                prepared.sensor,
+                scene["probe"]["radius_mm"],
+                bench_settings,
+                scene["seed"],
+                printer=prepared.printer,
+                faults=bench_settings.get("faults", ""),
+                fault_rate=bench_settings.get("fault_rate", 0.0),
+            )
+        )
+        host = stack.enter_context(MarlinHost(bench.url, prepared.printer))
+        if is_magnetic(prepared.sensor):
+            from threedcal.hardware.reskin import ReSkinReader
+
+            source = stack.enter_context(ReSkinReader(prepared.sensor, bench.sensor_url))
+        else:
+            source = bench.camera
         result = collect(
             store,
             prepared.sensor,
             host,
-            bench.camera,
+            source,
             prepared.settings,
             hardware_clock=bench.firmware.clock.now,
             clock=_BenchClock(bench.firmware),
