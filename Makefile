@@ -32,7 +32,16 @@ lint: $(STAMP)
 	$(BIN)/snakemake --lint --cores 1
 
 # Benchmarks print figures and ratios against a baseline measured in the same run; they are not tests.
-bench: $(STAMP)
+# bench_integrate times the authors' own fast_poisson: their wheel (py3DCal 1.1.0, from the package
+# registry) is unpacked into .cache/ once; without it the bench says so and uses a re-expression.
+PY3DCAL_DIR := .cache/py3dcal
+export PY3DCAL_FAST_POISSON := $(CURDIR)/$(PY3DCAL_DIR)/py3DCal/model_training/lib/fast_poisson.py
+
+$(PY3DCAL_FAST_POISSON): | $(STAMP)
+	-$(BIN)/python -m pip download --quiet --no-deps py3dcal==1.1.0 -d $(PY3DCAL_DIR) && \
+	  $(BIN)/python -m zipfile -e $(PY3DCAL_DIR)/py3dcal-1.1.0-py3-none-any.whl $(PY3DCAL_DIR)
+
+bench: $(STAMP) $(PY3DCAL_FAST_POISSON)
 	@set -e; for b in benchmarks/bench_*.py; do \
 	  [ -e "$$b" ] || { echo "no benchmarks yet"; break; }; \
 	  echo "== $$b"; $(BIN)/python "$$b"; \

@@ -280,6 +280,19 @@ def test_sanitize_counts_and_clamps_keeping_direction():
     assert untouched.n_changed == 0
 
 
+@pytest.mark.parametrize("max_angle_deg", [None, 89.0])
+def test_sanitize_huge_finite_float32_is_not_called_nonfinite(max_angle_deg):
+    # 1e20 squared overflows float32: the one-pass clean check fails, the exact path must decide.
+    gx = np.array([[1e20, 0.5, np.inf]], dtype=np.float32)
+    gy = np.zeros_like(gx)
+    sx, sy, report = sanitize_gradients(gx, gy, max_angle_deg=max_angle_deg)
+    assert report.n_nonfinite == 1 and report.nonfinite.tolist() == [[False, False, True]]
+    assert report.n_clamped == (0 if max_angle_deg is None else 1)
+    expected_first = 1e20 if max_angle_deg is None else np.tan(np.radians(89.0))
+    assert sx[0, 0] == pytest.approx(expected_first, rel=1e-6) and sx[0, 1] == np.float32(0.5)
+    assert sx.dtype == np.float32 and sx[0, 2] == 0
+
+
 @pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (2, 2)])
 def test_tiny_grids(shape):
     gx = np.ones(shape) * 0.1
@@ -323,8 +336,10 @@ def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
     from threedcal.depth.spectral import _dst1_2d, _dst1_matrix
 
     x = np.random.default_rng(3).normal(size=shape)
-    forward = _dst1_2d(x.copy(), inverse=False, workers=None)
+    forward = _dst1_2d(x.copy(), workers=None)
     np.testing.assert_allclose(forward, sfft.dstn(x, type=1), rtol=1e-12, atol=1e-10)
-    np.testing.assert_allclose(_dst1_2d(forward.copy(), inverse=True, workers=None), x, atol=1e-12)
+    # Applied twice it is the identity times 2(h+1) * 2(w+1), the factor the solve folds away.
+    twice = _dst1_2d(forward.copy(), workers=None) / (4.0 * (shape[0] + 1) * (shape[1] + 1))
+    np.testing.assert_allclose(twice, x, atol=1e-12)
     # 238 + 1 = 239 is prime: that axis goes through the matrix; 11 and 13 stay with the FFT.
     assert (_dst1_matrix(238, "float64") is not None) and _dst1_matrix(10, "float64") is None

@@ -52,6 +52,17 @@ def sanitize_gradients(
     """
     gx, gy = check_pair(gx, gy, "sanitize_gradients")
     max_angle = check_max_angle(max_angle_deg)
+    # Fast path for the common clean field: NaN, Inf (and overflow, rechecked below) fail the test.
+    with np.errstate(over="ignore", invalid="ignore"):
+        slope2 = gx * gx
+        slope2 += gy * gy
+        if max_angle is None:
+            clean = bool(np.isfinite(slope2).all())
+        else:
+            limit = math.tan(math.radians(max_angle))
+            clean = bool((slope2 <= limit * limit).all())
+    if clean:
+        return gx, gy, SanitizeReport(0, 0, np.zeros(gx.shape, dtype=bool))
     finite = np.isfinite(gx) & np.isfinite(gy)
     nonfinite = ~finite
     n_nonfinite = int(nonfinite.sum())
@@ -60,7 +71,6 @@ def sanitize_gradients(
         gy = np.where(finite, gy, gy.dtype.type(0))
     n_clamped = 0
     if max_angle is not None:
-        limit = math.tan(math.radians(max_angle))
         with np.errstate(over="ignore"):
             steep = (gx * gx + gy * gy) > limit * limit  # overflow to inf counts as steep
         n_clamped = int(steep.sum())

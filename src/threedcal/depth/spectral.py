@@ -52,18 +52,18 @@ def _dst1_matrix(n: int, dtype: str) -> np.ndarray | None:
     return _readonly((2.0 * np.sin(np.pi * np.outer(k, k) / (n + 1))).astype(dtype))
 
 
-def _dst1_2d(x: np.ndarray, inverse: bool, workers: int | None) -> np.ndarray:
-    """2-D DST-I (or its inverse) of `x`, each axis by matrix product or FFT, whichever is faster."""
+def _dst1_2d(x: np.ndarray, workers: int | None) -> np.ndarray:
+    """Unnormalised 2-D DST-I of `x`, each axis by matrix product or FFT, whichever is faster.
+
+    The DST-I is its own inverse up to a factor 2(n + 1) per axis, so the solve applies this twice
+    and folds that factor into `_dst_multiplier`.
+    """
     for axis in (0, 1):
-        n = x.shape[axis]
-        matrix = _dst1_matrix(n, str(x.dtype))
+        matrix = _dst1_matrix(x.shape[axis], str(x.dtype))
         if matrix is None:
-            transform = sfft.idst if inverse else sfft.dst
-            x = transform(x, type=1, axis=axis, overwrite_x=True, workers=workers)
-            continue
-        x = matrix @ x if axis == 0 else x @ matrix  # the DST-I matrix is symmetric
-        if inverse:
-            x *= x.dtype.type(1.0 / (2 * (n + 1)))
+            x = sfft.dst(x, type=1, axis=axis, overwrite_x=True, workers=workers)
+        else:
+            x = matrix @ x if axis == 0 else x @ matrix  # the DST-I matrix is symmetric
     return x
 
 
@@ -75,6 +75,15 @@ def _dst_denominator(h: int, w: int, dtype: str) -> np.ndarray:
     lam_y = 2.0 * np.cos(np.pi * ky / (h - 1)) - 2.0
     lam_x = 2.0 * np.cos(np.pi * kx / (w - 1)) - 2.0
     return _readonly((lam_y[:, None] + lam_x[None, :]).astype(dtype))
+
+
+@lru_cache(maxsize=16)
+def _dst_multiplier(h: int, w: int, dtype: str, px_per_mm: float) -> np.ndarray:
+    """Everything the spectrum is scaled by, in one array: 1 / DST-I eigenvalues of the interior
+    (h-2, w-2) Dirichlet Laplacian, the 1/2 of the central-difference divergence, the inverse
+    transform's 1 / (2(h-1) * 2(w-1)) and the pixel -> mm scale."""
+    constant = 0.5 / (4.0 * (h - 1) * (w - 1) * px_per_mm)
+    return _readonly((constant / _dst_denominator(h, w, "float64")).astype(dtype))
 
 
 @lru_cache(maxsize=16)
@@ -106,23 +115,25 @@ def _fc_multipliers(h: int, w: int, dtype: str) -> tuple[np.ndarray, np.ndarray]
     return _readonly(mx), _readonly(my)
 
 
-def dirichlet_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> np.ndarray:
-    """Depth in pixel units, border ring 0, from clean pixel-centre gradients."""
+def dirichlet_px(
+    gx: np.ndarray, gy: np.ndarray, workers: int | None = None, px_per_mm: float = 1.0
+) -> np.ndarray:
+    """Depth (pixel units, or mm given px_per_mm), border ring 0, from clean pixel-centre gradients."""
     h, w = gx.shape
     if h < 3 or w < 3:
         raise ConfigError(
             f"poisson_dst needs at least 3x3 pixels (a zero border around one unknown), got {h}x{w}; "
             "use poisson_dct or lstsq_sparse for thinner fields"
         )
-    # Interior divergence of the edge means: central differences of the pixel-centre gradients.
+    # Interior divergence of the edge means: central differences of the pixel-centre gradients
+    # (their 1/2 lives in the multiplier).
     rhs = gx[1:-1, 2:] - gx[1:-1, :-2]
     rhs += gy[2:, 1:-1]
     rhs -= gy[:-2, 1:-1]
-    rhs *= gx.dtype.type(0.5)
-    spec = _dst1_2d(rhs, inverse=False, workers=workers)
-    spec /= _dst_denominator(h, w, str(gx.dtype))
+    spec = _dst1_2d(rhs, workers)
+    spec *= _dst_multiplier(h, w, str(gx.dtype), float(px_per_mm))
     z = np.zeros((h, w), dtype=gx.dtype)
-    z[1:-1, 1:-1] = _dst1_2d(spec, inverse=True, workers=workers)
+    z[1:-1, 1:-1] = _dst1_2d(spec, workers)
     return z
 
 
@@ -173,7 +184,10 @@ def poisson_dst(
     workers: int | None = None,
 ) -> np.ndarray:
     """Depth (mm) with the outermost pixel ring held at 0: DST-I Poisson solve. Needs H, W >= 3."""
-    return _run(dirichlet_px, "poisson_dst", gx, gy, px_per_mm, offset, max_angle_deg, workers)
+    gx, gy, scale, _ = prepare(gx, gy, "poisson_dst", px_per_mm, offset, max_angle_deg)
+    z = dirichlet_px(gx, gy, workers, px_per_mm=scale)
+    # The ring is exactly 0, so the "border" offset (its median) has nothing to shift.
+    return z if offset == "border" else apply_offset(z, offset)
 
 
 def poisson_dct(
