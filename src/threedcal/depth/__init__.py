@@ -8,8 +8,6 @@ depth in mm out through px_per_mm, and an explicit offset policy.
 
 from __future__ import annotations
 
-import numpy as np
-
 from threedcal.depth.convention import OFFSETS, apply_offset, consistent_gradients, edge_gradients
 from threedcal.depth.py3dcal import py3dcal, py3dcal_fast_poisson
 from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, SanitizeReport, sanitize_gradients
@@ -51,19 +49,13 @@ def integrate(
         )
     if (mask is not None or weights is not None) and method != "lstsq_sparse":
         raise ConfigError(f"integrate: mask/weights need method 'lstsq_sparse', not {method!r}")
-    gx, gy, report = sanitize_gradients(gx, gy, max_angle_deg)
-    kwargs = dict(px_per_mm=px_per_mm, offset=offset, max_angle_deg=None, workers=workers)
-    if method == "lstsq_sparse":
-        if report.n_nonfinite:  # invalid, not flat: leave them out of the fit
-            valid = (
-                ~report.nonfinite
-                if mask is None
-                else (np.asarray(mask, dtype=bool) & ~report.nonfinite)
-            )
-            mask = valid
+    kwargs = dict(px_per_mm=px_per_mm, offset=offset, max_angle_deg=max_angle_deg, workers=workers)
+    if method == "lstsq_sparse":  # it leaves non-finite pixels out of the fit by itself
         kwargs.update(mask=mask, weights=weights)
     depth = METHODS[method](gx, gy, **kwargs)
-    return (depth, report) if return_report else depth
+    if not return_report:
+        return depth
+    return depth, sanitize_gradients(gx, gy, max_angle_deg)[2]
 
 
 __all__ = [

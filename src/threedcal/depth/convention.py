@@ -112,6 +112,13 @@ def border_ring(shape: tuple[int, int]) -> np.ndarray:
     return ring
 
 
+def _ring_values(z: np.ndarray) -> np.ndarray:
+    """The outermost ring's values, each pixel once."""
+    if z.shape[0] <= 2 or z.shape[1] <= 2:
+        return z.ravel()
+    return np.concatenate([z[0], z[-1], z[1:-1, 0], z[1:-1, -1]])
+
+
 def apply_offset(z: np.ndarray, offset: str, valid: np.ndarray | None = None) -> np.ndarray:
     """Fix the constant of integration, in place, from the (valid) pixels.
 
@@ -121,11 +128,15 @@ def apply_offset(z: np.ndarray, offset: str, valid: np.ndarray | None = None) ->
     """
     if offset == "none":
         return z
-    pick = np.ones(z.shape, dtype=bool) if valid is None else valid.copy()
-    if offset == "border":
-        ring = pick & border_ring(z.shape)
-        pick = ring if ring.any() else pick
-    values = z[pick]
+    if valid is None:
+        # every pixel valid: the ring by slices, not by two full-size masks (a hot path)
+        values = _ring_values(z) if offset == "border" else z.ravel()
+    else:
+        pick = valid.copy()
+        if offset == "border":
+            ring = pick & border_ring(z.shape)
+            pick = ring if ring.any() else pick
+        values = z[pick]
     values = values[np.isfinite(values)]
     if values.size == 0:
         return z

@@ -68,37 +68,31 @@ def _dst1_2d(x: np.ndarray, workers: int | None) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _dst_denominator(h: int, w: int, dtype: str) -> np.ndarray:
-    """DST-I eigenvalues of the interior (h-2, w-2) Dirichlet Laplacian, summed over both axes."""
-    ky = np.arange(1, h - 1)
-    kx = np.arange(1, w - 1)
-    lam_y = 2.0 * np.cos(np.pi * ky / (h - 1)) - 2.0
-    lam_x = 2.0 * np.cos(np.pi * kx / (w - 1)) - 2.0
-    return _readonly((lam_y[:, None] + lam_x[None, :]).astype(dtype))
-
-
-@lru_cache(maxsize=16)
 def _dst_multiplier(h: int, w: int, dtype: str, px_per_mm: float) -> np.ndarray:
-    """Everything the spectrum is scaled by, in one array: 1 / DST-I eigenvalues of the interior
-    (h-2, w-2) Dirichlet Laplacian, the 1/2 of the central-difference divergence, the inverse
-    transform's 1 / (2(h-1) * 2(w-1)) and the pixel -> mm scale."""
+    """Everything the Dirichlet spectrum is scaled by, in one array: 1 / the DST-I eigenvalues
+    2 cos(pi k / (n - 1)) - 2 of the interior (h-2, w-2) Laplacian summed over both axes, the 1/2 of
+    the central-difference divergence, the inverse transform's 1 / (2(h-1) * 2(w-1)) and 1 / px_per_mm."""
+    lam_y = 2.0 * np.cos(np.pi * np.arange(1, h - 1) / (h - 1)) - 2.0
+    lam_x = 2.0 * np.cos(np.pi * np.arange(1, w - 1) / (w - 1)) - 2.0
     constant = 0.5 / (4.0 * (h - 1) * (w - 1) * px_per_mm)
-    return _readonly((constant / _dst_denominator(h, w, "float64")).astype(dtype))
+    return _readonly((constant / (lam_y[:, None] + lam_x[None, :])).astype(dtype))
 
 
 @lru_cache(maxsize=16)
-def _dct_denominator(h: int, w: int, dtype: str) -> np.ndarray:
-    """DCT-II eigenvalues of the Neumann grid Laplacian; the constant mode gets inf (depth mean 0)."""
+def _dct_multiplier(h: int, w: int, dtype: str, px_per_mm: float) -> np.ndarray:
+    """1 / (DCT-II eigenvalues of the Neumann grid Laplacian * px_per_mm); the constant mode gets 0
+    (depth mean 0)."""
     lam_y = 2.0 * np.cos(np.pi * np.arange(h) / h) - 2.0
     lam_x = 2.0 * np.cos(np.pi * np.arange(w) / w) - 2.0
-    denom = lam_y[:, None] + lam_x[None, :]
+    denom = (lam_y[:, None] + lam_x[None, :]) * px_per_mm
     denom[0, 0] = np.inf
-    return _readonly(denom.astype(dtype))
+    return _readonly((1.0 / denom).astype(dtype))
 
 
 @lru_cache(maxsize=16)
-def _fc_multipliers(h: int, w: int, dtype: str) -> tuple[np.ndarray, np.ndarray]:
-    """Z = Mx Gx + My Gy with M = -i omega / |omega|^2 (rfft layout); constant and Nyquist modes 0."""
+def _fc_multipliers(h: int, w: int, dtype: str, px_per_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Z = Mx Gx + My Gy with M = -i omega / (|omega|^2 px_per_mm) (rfft layout); constant and
+    Nyquist modes 0."""
     wy = 2.0 * np.pi * np.fft.fftfreq(h)[:, None]
     wx = 2.0 * np.pi * np.fft.rfftfreq(w)[None, :]
     wy = np.broadcast_to(wy, (h, wx.shape[1])).copy()
@@ -107,7 +101,7 @@ def _fc_multipliers(h: int, w: int, dtype: str) -> tuple[np.ndarray, np.ndarray]
         wy[h // 2, :] = 0.0  # a Nyquist gradient has no unambiguous integral
     if w % 2 == 0:
         wx[:, -1] = 0.0
-    denom = wx**2 + wy**2
+    denom = (wx**2 + wy**2) * px_per_mm
     denom[denom == 0] = np.inf
     ctype = np.complex64 if dtype == "float32" else np.complex128
     mx = (-1j * wx / denom).astype(ctype)
@@ -115,10 +109,14 @@ def _fc_multipliers(h: int, w: int, dtype: str) -> tuple[np.ndarray, np.ndarray]
     return _readonly(mx), _readonly(my)
 
 
-def dirichlet_px(
-    gx: np.ndarray, gy: np.ndarray, workers: int | None = None, px_per_mm: float = 1.0
+# Each solver takes clean pixel-centre gradients and returns depth in mm: px/mm is folded into its
+# cached spectral multiplier rather than spent as one more pass over the result.
+
+
+def dirichlet_mm(
+    gx: np.ndarray, gy: np.ndarray, px_per_mm: float, workers: int | None
 ) -> np.ndarray:
-    """Depth (pixel units, or mm given px_per_mm), border ring 0, from clean pixel-centre gradients."""
+    """Border ring exactly 0."""
     h, w = gx.shape
     if h < 3 or w < 3:
         raise ConfigError(
@@ -130,35 +128,39 @@ def dirichlet_px(
     rhs = gx[1:-1, 2:] - gx[1:-1, :-2]
     rhs += gy[2:, 1:-1]
     rhs -= gy[:-2, 1:-1]
-    spec = _dst1_2d(rhs, workers)
-    spec *= _dst_multiplier(h, w, str(gx.dtype), float(px_per_mm))
-    z = np.zeros((h, w), dtype=gx.dtype)
+    return _dirichlet_solve(rhs, px_per_mm, workers)
+
+
+def _dirichlet_solve(twice_div: np.ndarray, px_per_mm: float, workers: int | None) -> np.ndarray:
+    """(h, w) depth, ring 0, from twice the interior divergence (h-2, w-2)."""
+    h, w = twice_div.shape[0] + 2, twice_div.shape[1] + 2
+    spec = _dst1_2d(twice_div, workers)
+    spec *= _dst_multiplier(h, w, str(twice_div.dtype), px_per_mm)
+    z = np.zeros((h, w), dtype=twice_div.dtype)
     z[1:-1, 1:-1] = _dst1_2d(spec, workers)
     return z
 
 
 def dirichlet_edges_px(ex: np.ndarray, ey: np.ndarray, workers: int | None = None) -> np.ndarray:
-    """The same Dirichlet solve from edge differences (ex: (H, W-1), ey: (H-1, W)); for tests."""
-    h, w = ey.shape[0] + 1, ex.shape[1] + 1
-    rhs = divergence(ex, ey)[1:-1, 1:-1]
-    spec = sfft.dstn(rhs, type=1, workers=workers) / _dst_denominator(h, w, str(rhs.dtype))
-    z = np.zeros((h, w), dtype=rhs.dtype)
-    z[1:-1, 1:-1] = sfft.idstn(spec, type=1, workers=workers)
-    return z
+    """The same Dirichlet solve from edge differences (ex: (H, W-1), ey: (H-1, W)), in pixel units:
+    the discrete-exact check of the authors' forward-difference model (tests)."""
+    return _dirichlet_solve(2.0 * divergence(ex, ey)[1:-1, 1:-1], 1.0, workers)
 
 
-def neumann_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> np.ndarray:
-    """Least-squares depth in pixel units (mean 0) from clean pixel-centre gradients."""
+def neumann_mm(gx: np.ndarray, gy: np.ndarray, px_per_mm: float, workers: int | None) -> np.ndarray:
+    """Least squares over every edge, mean 0."""
     h, w = gx.shape
     div = divergence(*edge_gradients(gx, gy))
     spec = sfft.dctn(div, type=2, overwrite_x=True, workers=workers)
-    spec /= _dct_denominator(h, w, str(gx.dtype))
+    spec *= _dct_multiplier(h, w, str(gx.dtype), px_per_mm)
     return sfft.idctn(spec, type=2, overwrite_x=True, workers=workers)
 
 
-def frankot_chellappa_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = None) -> np.ndarray:
+def frankot_chellappa_mm(
+    gx: np.ndarray, gy: np.ndarray, px_per_mm: float, workers: int | None
+) -> np.ndarray:
     h, w = gx.shape
-    mx, my = _fc_multipliers(h, w, str(gx.dtype))
+    mx, my = _fc_multipliers(h, w, str(gx.dtype), px_per_mm)
     spec = sfft.rfft2(gx, workers=workers)
     spec *= mx
     spec += sfft.rfft2(gy, workers=workers) * my
@@ -169,9 +171,7 @@ def frankot_chellappa_px(gx: np.ndarray, gy: np.ndarray, workers: int | None = N
 
 def _run(solver, name, gx, gy, px_per_mm, offset, max_angle_deg, workers) -> np.ndarray:
     gx, gy, scale, _ = prepare(gx, gy, name, px_per_mm, offset, max_angle_deg)
-    z = solver(gx, gy, workers)
-    z /= z.dtype.type(scale)
-    return apply_offset(z, offset)
+    return apply_offset(solver(gx, gy, scale, workers), offset)
 
 
 def poisson_dst(
@@ -184,10 +184,7 @@ def poisson_dst(
     workers: int | None = None,
 ) -> np.ndarray:
     """Depth (mm) with the outermost pixel ring held at 0: DST-I Poisson solve. Needs H, W >= 3."""
-    gx, gy, scale, _ = prepare(gx, gy, "poisson_dst", px_per_mm, offset, max_angle_deg)
-    z = dirichlet_px(gx, gy, workers, px_per_mm=scale)
-    # The ring is exactly 0, so the "border" offset (its median) has nothing to shift.
-    return z if offset == "border" else apply_offset(z, offset)
+    return _run(dirichlet_mm, "poisson_dst", gx, gy, px_per_mm, offset, max_angle_deg, workers)
 
 
 def poisson_dct(
@@ -200,7 +197,7 @@ def poisson_dct(
     workers: int | None = None,
 ) -> np.ndarray:
     """Depth (mm), least squares over all edges (Neumann): DCT-II Poisson solve. Any H, W >= 1."""
-    return _run(neumann_px, "poisson_dct", gx, gy, px_per_mm, offset, max_angle_deg, workers)
+    return _run(neumann_mm, "poisson_dct", gx, gy, px_per_mm, offset, max_angle_deg, workers)
 
 
 def frankot_chellappa(
@@ -214,5 +211,5 @@ def frankot_chellappa(
 ) -> np.ndarray:
     """Depth (mm) by Frankot-Chellappa (periodic FFT projection). Any H, W >= 1."""
     return _run(
-        frankot_chellappa_px, "frankot_chellappa", gx, gy, px_per_mm, offset, max_angle_deg, workers
+        frankot_chellappa_mm, "frankot_chellappa", gx, gy, px_per_mm, offset, max_angle_deg, workers
     )
