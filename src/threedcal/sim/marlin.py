@@ -194,8 +194,13 @@ class SimMarlin:
         self._last_due = due
         self._out.append((due, data + b"\n"))
 
-    def next_due(self) -> float | None:
+    def next_due(self, now: float) -> float | None:
+        """When the next queued output will have reached the host; None when nothing is queued."""
         return self._out[0][0] if self._out else None
+
+    def reset_input(self, now: float) -> None:
+        """Drop the output that has reached the host by `now`."""
+        self.take(1 << 30, now)
 
     def waiting(self, now: float) -> int:
         return sum(len(data) for due, data in self._out if due <= now)

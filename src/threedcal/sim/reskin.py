@@ -261,6 +261,12 @@ class SimReSkin:
     def close(self) -> None:
         self.connected = False
 
+    # A ReSkin board cannot be unplugged mid-run in the simulation; it ignores what the host sends.
+    disconnected = False
+
+    def receive(self, data: bytes) -> None:
+        pass
+
     def _skip_overrun(self, now: float) -> None:
         oldest = math.ceil((now - _BUFFER_S - self._t0) / self.period)
         if oldest > self._next:
