@@ -23,12 +23,6 @@ from threedcal.profiles import load_profile
 from threedcal.sim.optics import GelSimulator
 
 
-def as_hw2(g: np.ndarray) -> np.ndarray:
-    g = np.asarray(g)
-    g = g[0] if g.ndim == 4 else g
-    return np.moveaxis(g, 0, -1) if g.shape[0] == 2 else g
-
-
 def main(scene_name: str, p: int = 80) -> None:
     root = Path("results") / scene_name
     scene = json.loads((root / "scene.json").read_text())["config"]
@@ -62,8 +56,8 @@ def main(scene_name: str, p: int = 80) -> None:
     ts = TrainingSet.load(root / "dataset" / "trainset")
     sums: dict[int, np.ndarray] = {}
     for i in ts.indices("val")[::10]:
-        g = as_hw2(est.gradients(np.asarray(ts.frames[i])))
-        lab = as_hw2(ts.labels(i))
+        g = est.gradients(np.asarray(ts.frames[i]))  # (H, W, 2)
+        lab = ts.labels(i).transpose(1, 2, 0)  # (2, H, W) -> (H, W, 2)
         cx, cy = ts.center_px[i]
         yy, xx = np.mgrid[0 : g.shape[0], 0 : g.shape[1]]
         r = np.hypot(xx - cx, yy - cy)
