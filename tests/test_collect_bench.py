@@ -173,7 +173,7 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
                 "s": {
                     "sensor": "gelsight_mini",
                     "printer": "ender3",
-                    "plan": {"spacing_mm": 1.5, "depth_mm": 1.0, "frames": 1},
+                    "plan": {"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1},
                     "bench": {
                         "seating_offset_mm": 0.5,
                         "seating_rotation_deg": 2.0,
@@ -197,8 +197,11 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
         progress=False,
     )
     truth = json.loads((tmp_path / "truth.json").read_text())
-    # Goal 0.3 px; the Mini's position-dependent lighting leaves ~0.4 px (a 0.5 % scale bias in y).
-    assert record["error_px"] <= 0.6, record
-    assert record["residual_px"] <= 0.5, record
+    # The goal is 0.3 px. The rim locator's centres drift with the LEDs across the Mini's flat
+    # gel (~0.45 px); mirror symmetry does not, and its affine residual shows it.
+    assert record["locator"] == "symmetry", record
+    assert record["residual_px_by_locator"]["symmetry"] < record["residual_px_by_locator"]["rim"]
+    assert record["error_px"] <= 0.3, record
+    assert record["residual_px"] <= 0.2, record
     assert abs(record["rotation_deg"] - truth["seating_rotation_deg"]) < 0.2
     assert abs(record["touch_offset_error_mm"]) < 0.12

@@ -10,6 +10,8 @@ from threedcal.dataset.registration import (
     find_contact,
     fit_affine,
     locate_contact,
+    refine_by_symmetry,
+    register,
 )
 
 PPM = 19.0
@@ -102,3 +104,90 @@ def test_touch_offset_recovered_from_contact_radii():
     assert estimate_touch_offset_mm(commanded, a, R) == pytest.approx(delta, abs=1e-9)
     with pytest.raises(RegistrationError):
         estimate_touch_offset_mm(commanded, np.zeros(5), R)
+
+
+def sim_contacts(sensor, n=3, seed=1, margin=50):
+    """Frames (mean of 3) of a 2 mm sphere 1 mm deep on an n x n grid of known sub-pixel centres."""
+    from threedcal.profiles import load_profile
+    from threedcal.sim.indenters import Sphere
+    from threedcal.sim.optics import GelSimulator
+
+    sim = GelSimulator(load_profile("sensor", sensor), seed=seed)
+    blank = np.mean([sim.blank(i).astype(np.float32) for i in range(10)], axis=0)
+    rng = np.random.default_rng(seed)
+    centres, frames = [], []
+    for cx in np.linspace(margin, sim.width - 1 - margin, n):
+        for cy in np.linspace(margin, sim.height - 1 - margin, n):
+            centre = (cx + rng.uniform(-0.5, 0.5), cy + rng.uniform(-0.5, 0.5))
+            shots = [sim.render(Sphere(2.0), centre, 0, 1.0, frame_index=k) for k in range(3)]
+            mean = np.mean(np.asarray(shots, dtype=np.float32), axis=0)
+            frames.append(np.clip(mean + 0.5, 0, 255).astype(np.uint8))
+            centres.append(centre)
+    return sim, np.array(centres), frames, blank
+
+
+@pytest.fixture(scope="module")
+def mini_contacts():
+    return sim_contacts("gelsight_mini")
+
+
+def test_symmetry_finds_centres_the_rim_misses_and_unmixes_the_leds(mini_contacts):
+    sim, centres, frames, blank = mini_contacts
+    rim = [locate_contact(f, blank) for f in frames]
+    refined = refine_by_symmetry(frames, blank, rim)
+    assert all(c is not None for c in refined.contacts)
+    found = np.array([(c.x_px, c.y_px) for c in refined.contacts])
+    rim_xy = np.array([(c.x_px, c.y_px) for c in rim])
+    symmetry_error = np.linalg.norm(found - centres, axis=1)
+    rim_error = np.linalg.norm(rim_xy - centres, axis=1)
+    assert symmetry_error.max() < 0.35, symmetry_error
+    assert np.sqrt(np.mean(symmetry_error**2)) < 0.5 * np.sqrt(np.mean(rim_error**2))
+    # The unmixing matches the inverse of the simulator's LED colour matrix (diagonal scaled to 1).
+    inverse = np.linalg.inv(sim._col).T
+    np.testing.assert_allclose(refined.unmixing, inverse / np.diag(inverse)[:, None], atol=0.03)
+
+
+def test_saturated_pixels_take_no_part_in_the_symmetric_centre(mini_contacts):
+    sim, centres, frames, blank = mini_contacts
+    # Overexposed by 20 %: about a third of every frame clips at 255, through the contacts too.
+    frames = [np.clip(f.astype(np.float32) * 1.2, 0, 255).astype(np.uint8) for f in frames]
+    blank = np.clip(blank * 1.2, 0, 255)
+    assert np.mean([(f == 255).any(axis=-1).mean() for f in frames]) > 0.3
+    rim = [locate_contact(f, blank) for f in frames]
+    refined = refine_by_symmetry(frames, blank, rim)
+    kept = [i for i, c in enumerate(refined.contacts) if c is not None]
+    assert len(kept) >= 5  # contacts with too few unclipped mirror pairs are dropped, not guessed
+    found = np.array([(refined.contacts[i].x_px, refined.contacts[i].y_px) for i in kept])
+    error = np.linalg.norm(found - centres[kept], axis=1)
+    rim_error = np.linalg.norm(
+        np.array([(rim[i].x_px, rim[i].y_px) for i in kept]) - centres[kept], axis=1
+    )
+    assert error.max() < 0.3, error
+    assert np.sqrt(np.mean(error**2)) < 0.5 * np.sqrt(np.mean(rim_error**2))
+
+
+def test_register_keeps_the_locator_an_affine_explains_better(mini_contacts):
+    sim, centres, frames, blank = mini_contacts
+    truth = np.array([[15.7, 0.4], [0.4, -15.7]])
+    xy_mm = (centres - [160, 120]) @ np.linalg.inv(truth).T
+    result = register(xy_mm, frames, blank)
+    assert result.locator == "symmetry"
+    assert result.residual_px["symmetry"] < result.residual_px["rim"]
+    error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
+    assert error.max() < 0.2
+    # Grey frames carry one channel: no symmetry in 2D from one LED axis, the rim is used.
+    grey = [f.mean(axis=-1) for f in frames]
+    result = register(xy_mm, grey, blank.mean(axis=-1))
+    assert result.locator == "rim" and result.unmixing is None
+    assert set(result.residual_px) == {"rim"}
+
+
+def test_register_uses_only_the_rim_on_a_domed_gel():
+    # The DIGIT's domed blank is shaded on a slope, which breaks each LED image's symmetry.
+    sim, centres, frames, blank = sim_contacts("digit", margin=60)
+    xy_mm = (centres - [120, 160]) / 19.5
+    result = register(xy_mm, frames, blank, flat_gel=False)
+    assert result.locator == "rim" and set(result.residual_px) == {"rim"}
+    assert result.unmixing is None
+    error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
+    assert error.max() < 0.5

@@ -105,13 +105,21 @@ def test_vertical_walls_and_full_depth_stay_finite_and_clipped(sim, indenter):
     assert bright.min() == 255 and dark.max() == 0
 
 
-def test_steep_walls_cast_shadows_away_from_the_light():
+def toward_led(light, contact_mm):
+    dx, dy = light["P"][0] - contact_mm[0], light["P"][1] - contact_mm[1]
+    return dx / math.hypot(dx, dy), dy / math.hypot(dx, dy)
+
+
+@pytest.mark.parametrize("contact_mm", [(0.0, 0.0), (-8.0, 0.0), (8.0, 5.0)])
+def test_steep_walls_cast_shadows_away_from_the_light(contact_mm):
+    # The LED is a point at a finite distance: its shadows point away from it, so their direction
+    # changes across the frame (by ~15 degrees 8 mm off the centre for the Mini's red LED).
     sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
     light = sim._lights[0]
     z = np.zeros((40, 40), np.float32)
     z[15:25, 15:25] = 2.0  # a 2 mm block toward the camera
-    lit = sim._lit(z, light)
-    ux, uy = light["dir"]
+    lit = sim._lit(z, light, contact_mm)
+    ux, uy = toward_led(light, contact_mm)
     behind = (int(round(20 - 8 * uy)), int(round(20 - 8 * ux)))  # row, col on the far side
     toward = (int(round(20 + 10 * uy)), int(round(20 + 10 * ux)))
     # A shadow removes `shadow_strength` of the directional light (scattered light fills the rest).
@@ -119,13 +127,32 @@ def test_steep_walls_cast_shadows_away_from_the_light():
     assert lit[toward] == 1 and lit[20, 20] == 1
 
 
+def test_shadow_direction_follows_the_led_position():
+    sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
+    light = sim._lights[0]
+    z = np.zeros((60, 60), np.float32)
+    z[28:32, 28:32] = 2.0  # a thin post: its shadow is a narrow streak
+    streaks = []
+    for contact_mm in [(-8.0, 0.0), (8.0, 0.0)]:
+        shadow = np.argwhere(sim._lit(z, light, contact_mm) < 1) - 29.5  # (row, col) from the post
+        streaks.append(math.atan2(shadow[:, 0].mean(), shadow[:, 1].mean()))
+        expected = toward_led(light, contact_mm)
+        assert (
+            math.degrees(
+                abs(math.remainder(streaks[-1] - math.atan2(-expected[1], -expected[0]), math.tau))
+            )
+            < 6
+        )
+    assert abs(math.degrees(math.remainder(streaks[0] - streaks[1], math.tau))) > 15
+
+
 def test_cast_shadows_end_at_their_reach():
     sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
     light = sim._lights[0]
     z = np.zeros((80, 80), np.float32)
     z[35:45, 35:45] = 2.0  # 2 mm high: an unbounded shadow at 14 degrees would run 8 mm
-    lit = sim._lit(z, light)
-    ux, uy = light["dir"]
+    lit = sim._lit(z, light, (0.0, 0.0))
+    ux, uy = toward_led(light, (0.0, 0.0))
     reach_px = sim.shadow_reach_mm * sim.px_per_mm
     far = 5 + reach_px + 3  # from the block's centre: past its wall and the shadow's reach
     beyond = (int(round(40 - far * uy)), int(round(40 - far * ux)))

@@ -75,13 +75,11 @@ def build_collected(
     """
     import json
 
-    from tqdm import tqdm
-
     from threedcal.collect.plan import dome_sag_mm
     from threedcal.collect.store import open_raw
     from threedcal.config import training_fractions
     from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.registration import estimate_touch_offset_mm, fit_affine, locate_contact
+    from threedcal.dataset.registration import estimate_touch_offset_mm, register
     from threedcal.dataset.splits import in_field_of_view, split_points
     from threedcal.profiles import load_profile
 
@@ -99,24 +97,30 @@ def build_collected(
     # One contact per point, from the mean of its frames (less noise than any single frame).
     first = np.searchsorted(point_of_frame, np.arange(n_points))
     last = np.searchsorted(point_of_frame, np.arange(n_points), side="right")
-    found = np.full((n_points, 3), np.nan)
-    for p in tqdm(range(n_points), desc="register", unit="pt", disable=not progress):
-        mean = frames[first[p] : last[p]].values.astype(np.float32).mean(axis=0)
-        contact = locate_contact(np.clip(mean + 0.5, 0, 255).astype(np.uint8), blank)
-        if contact is None:
-            continue
+    means = [
+        np.clip(
+            frames[first[p] : last[p]].values.astype(np.float32).mean(axis=0) + 0.5, 0, 255
+        ).astype(np.uint8)
+        for p in range(n_points)
+    ]
+
+    def whole(contact) -> bool:  # the rim and a margin inside the image
         margin = contact.radius_px + 5
-        if (
+        return (
             margin <= contact.x_px <= width - 1 - margin
             and margin <= contact.y_px <= height - 1 - margin
-        ):
-            found[p] = contact.x_px, contact.y_px, contact.radius_px
-    usable = np.isfinite(found[:, 0])
-    fit = fit_affine(cmd_xy[first][usable], found[usable, :2])
-    inlier_points = np.flatnonzero(usable)[fit.inliers[: usable.sum()]]
+        )
+
+    flat = sensor["gel"].get("dome") is None
+    registration = register(
+        cmd_xy[first], means, blank, accept=whole, flat_gel=flat, progress=progress
+    )
+    fit = registration.fit
+    inlier_points = np.flatnonzero(fit.inliers)
     touch = estimate_touch_offset_mm(
         nominal_depth[first][inlier_points],
-        found[inlier_points, 2] / np.mean(fit.px_per_mm),
+        np.array([registration.contacts[p].radius_px for p in inlier_points])
+        / np.mean(fit.px_per_mm),
         radius_mm,
     )
     # Labels for every frame whose probe centre the registration puts inside the image.
@@ -161,8 +165,13 @@ def build_collected(
         "residual_px": round(fit.residual_px, 4),
         "px_per_mm": [round(v, 5) for v in fit.px_per_mm],
         "rotation_deg": round(float(np.degrees(np.arctan2(linear[1, 0], linear[0, 0]))), 4),
-        "contacts_found": int(usable.sum()),
+        "contacts_found": int(sum(c is not None for c in registration.contacts)),
         "contacts_used": int(fit.inliers.sum()),
+        "locator": registration.locator,
+        "residual_px_by_locator": {k: round(v, 4) for k, v in registration.residual_px.items()},
+        "channel_unmixing": None
+        if registration.unmixing is None
+        else registration.unmixing.round(4).tolist(),
         "touch_offset_mm": round(touch, 4),
         "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + touch, 4),
         "frames_in_view": int(len(keep)),

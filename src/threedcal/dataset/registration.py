@@ -4,6 +4,14 @@ The authors register by hand (1 px steps, one isotropic scale, no rotation). Her
 votes: its contact centre is found on |frame − blank|, and a full 2×3 affine (translation, rotation,
 per-axis scale, shear) is fitted to (printer x, y) → (column, row) by least squares with iterative
 outlier rejection. The first-touch Z is estimated from the contact radius against commanded depth.
+
+Contact centres come in two steps. The rim (`locate_contact`) gives a first centre and the radius.
+Its centre drifts with the LED geometry: the shading's nonlinearity moves the rim's edge peak by an
+amount that changes across the frame, which an affine absorbs as a wrong scale. `refine_by_symmetry`
+then uses the one property that holds for any shading response: a point LED lights a pressed sphere
+mirror-symmetrically about the line from the LED through the sphere's centre. Each LED's image
+(the colour channels unmixed by a matrix fitted to the same frames) fixes the centre across its axis;
+two or more LEDs at different azimuths fix it in 2D. Saturated pixels take no part.
 """
 
 from __future__ import annotations
@@ -12,7 +20,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, optimize
+from tqdm import tqdm
 
 from threedcal.errors import ThreedcalError
 
@@ -138,6 +147,207 @@ def locate_contact(frame: np.ndarray, blank: np.ndarray) -> Contact | None:
     return None if coarse is None else refine_contact(frame, blank, coarse)
 
 
+# Saturated pixels (or pixels saturated in the blank) carry no shading: they are left out of the fit.
+SATURATED_DN = 250
+
+
+@dataclass(frozen=True)
+class _Window:
+    """One contact's colour change and its usable-pixel mask, per channel, smoothed once."""
+
+    diff: np.ndarray  # (C, H, W) float32: frame − blank
+    valid: np.ndarray  # (H, W) float32: 1 where no channel is saturated in frame or blank
+
+    @classmethod
+    def of(cls, frame: np.ndarray, blank: np.ndarray, smooth_px: float) -> _Window:
+        if frame.shape != blank.shape:
+            raise RegistrationError(
+                f"frame shape {frame.shape} differs from blank shape {blank.shape}"
+            )
+        diff = frame.astype(np.float32) - blank.astype(np.float32)
+        diff = np.stack([ndimage.gaussian_filter(diff[..., c], smooth_px) for c in range(3)])
+        saturated = ((frame >= SATURATED_DN) | (blank >= SATURATED_DN)).any(axis=-1)
+        valid = ndimage.binary_erosion(~saturated, iterations=2, border_value=1)
+        return cls(diff=diff, valid=valid.astype(np.float32))
+
+
+def _disk_offsets(reach_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Integer offsets (x, y) within `reach_px` of the origin."""
+    g = np.arange(-math.ceil(reach_px), math.ceil(reach_px) + 1, dtype=np.float64)
+    qx, qy = np.meshgrid(g, g)
+    inside = qx * qx + qy * qy <= reach_px * reach_px
+    return qx[inside], qy[inside]
+
+
+def _sample(window: _Window, rows: np.ndarray, cols: np.ndarray):
+    """Bilinear colour change (C, Q) and usability (Q,) at points; off-image points are unusable."""
+    _, height, width = window.diff.shape
+    on = (rows >= 0) & (rows <= height - 1) & (cols >= 0) & (cols <= width - 1)
+    values = np.stack([ndimage.map_coordinates(ch, [rows, cols], order=1) for ch in window.diff])
+    return values, ndimage.map_coordinates(window.valid, [rows, cols], order=1) * on
+
+
+def _mirror_pairs(window: _Window, reach_px: float, centre, axes):
+    """Per axis k: the colour change at offsets q from `centre` and at q mirrored about axis k.
+
+    Returns (a, b, weight): a (C, Q), b (K, C, Q), weight (K, Q) — 0 where either point of a pair
+    is saturated or off the image.
+    """
+    qx, qy = _disk_offsets(reach_px)
+    cx, cy = centre
+    a, usable_a = _sample(window, cy + qy, cx + qx)
+    out_b, weights = [], []
+    for theta in axes:
+        ux, uy = math.cos(theta), math.sin(theta)
+        along = qx * ux + qy * uy
+        b, usable_b = _sample(window, cy + 2 * along * uy - qy, cx + 2 * along * ux - qx)
+        out_b.append(b)
+        weights.append(usable_a * usable_b)
+    return a, np.stack(out_b), np.stack(weights)
+
+
+def _dipole_axes(window: _Window, unmixing: np.ndarray, centre, reach_px: float) -> np.ndarray:
+    """Each unmixed channel's first moment about `centre`: the azimuth of its LED, roughly."""
+    qx, qy = _disk_offsets(reach_px)
+    values, _ = _sample(window, centre[1] + qy, centre[0] + qx)
+    unmixed = unmixing @ values
+    return np.arctan2(unmixed @ qy, unmixed @ qx)
+
+
+def _without_ramps(
+    differences: np.ndarray, weight: np.ndarray, theta: float, reach_px: float, radius_px: float
+) -> np.ndarray:
+    """Weighted mirror differences (..., Q) about axis `theta`, less their best-fitting ramps.
+
+    A domed gel's blank is shaded on a slope, so frame − blank holds that slope's shading as a
+    ramp wherever the contact flattened the gel: inside the contact, fading over the skirt around
+    it. A ramp's mirror difference is proportional to the distance from the axis; one such term
+    inside the contact and one outside it are fitted and removed (zero for a flat gel).
+    """
+    qx, qy = _disk_offsets(reach_px)
+    across = -qx * math.sin(theta) + qy * math.cos(theta)
+    inner = np.hypot(qx, qy) <= radius_px
+    basis = np.stack([across * inner, across * ~inner], axis=-1) * weight[:, None]  # (Q, 2)
+    weighted = differences * weight
+    coefficients, *_ = np.linalg.lstsq(basis, np.moveaxis(weighted, -1, 0), rcond=None)
+    return weighted - np.moveaxis(basis @ coefficients, 0, -1)
+
+
+def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach: float):
+    """(centre x, centre y, axes) that make every unmixed channel mirror-symmetric, or None."""
+    reach_px = reach * coarse.radius_px
+    start = np.array([coarse.x_px, coarse.y_px])
+    axes0 = _dipole_axes(window, unmixing, start, reach_px)
+
+    def residuals(params):
+        a, b, w = _mirror_pairs(window, reach_px, params[:2], params[2:])
+        unmixed_a = np.einsum("kc,cq->kq", unmixing, a)
+        unmixed_b = np.einsum("kc,kcq->kq", unmixing, b)
+        # Per pair usable: the mean, not the sum, so that pushing pairs onto saturated pixels
+        # (weight 0) does not pay.
+        return np.concatenate(
+            [
+                _without_ramps(unmixed_a[k] - unmixed_b[k], w[k], theta, reach_px, coarse.radius_px)
+                / math.sqrt(max(float(w[k].sum()), 1e-9))
+                for k, theta in enumerate(params[2:])
+            ]
+        )
+
+    try:
+        solution = optimize.least_squares(
+            residuals,
+            np.concatenate([start, axes0]),
+            x_scale=np.concatenate([[1.0, 1.0], np.full(len(axes0), 0.05)]),
+            xtol=1e-5,  # last step under ~0.003 px at these centres: far below the noise
+            ftol=1e-5,
+        )
+    except ValueError:  # non-finite residuals: nothing to fit
+        return None
+    cx, cy = solution.x[:2]
+    _, _, w = _mirror_pairs(window, reach_px, (cx, cy), solution.x[2:])
+    usable = float(w.mean())
+    moved = math.hypot(cx - coarse.x_px, cy - coarse.y_px)
+    if not solution.success or usable < 0.1 or moved > 0.5 * coarse.radius_px:
+        return None
+    return float(cx), float(cy), solution.x[2:]
+
+
+def _fit_unmixing(windows, fits, contacts, reach: float) -> np.ndarray:
+    """Rows w_k (w_kk = 1) that make channel mix w_k · ΔI mirror-symmetric about LED k's axes."""
+    rows = []
+    for k in range(3):
+        differences = []
+        for window, (cx, cy, axes), contact in zip(windows, fits, contacts, strict=True):
+            reach_px = reach * contact.radius_px
+            a, b, w = _mirror_pairs(window, reach_px, (cx, cy), [axes[k]])
+            differences.append(
+                _without_ramps(a - b[0], w[0], axes[k], reach_px, contact.radius_px).T
+            )
+        d = np.concatenate(differences)  # (pairs, C)
+        others = [c for c in range(3) if c != k]
+        solution, *_ = np.linalg.lstsq(d[:, others], -d[:, k], rcond=None)
+        row = np.zeros(3)
+        row[k], row[others] = 1.0, solution
+        rows.append(row)
+    return np.asarray(rows)
+
+
+@dataclass(frozen=True)
+class SymmetryRefinement:
+    contacts: list[Contact | None]  # the refined contact of each input (None: no usable fit)
+    unmixing: np.ndarray  # (3, 3): row k mixes the colour channels into LED k's image
+
+
+def refine_by_symmetry(
+    frames,
+    blank: np.ndarray,
+    coarse: list[Contact | None],
+    rounds: int = 2,
+    reach: float = 1.4,
+    smooth_px: float = 1.0,
+    calibration_contacts: int = 40,
+    progress: bool = False,
+) -> SymmetryRefinement:
+    """Contact centres from the mirror symmetry of each LED's image (see the module docstring).
+
+    `frames[i]` is an (H, W, 3) frame with contact `coarse[i]` (from `locate_contact`; None is
+    passed through). The unmixing starts as the identity and is refitted `rounds` times on up to
+    `calibration_contacts` contacts spread over the list; the radius stays the rim's.
+    """
+    if np.ndim(blank) != 3 or np.shape(blank)[2] != 3:
+        raise RegistrationError(
+            f"symmetry refinement needs RGB frames (H, W, 3), got shape {np.shape(blank)}"
+        )
+    present = [i for i, c in enumerate(coarse) if c is not None]
+    unmixing = np.eye(3)
+    calibration = (
+        [present[j] for j in np.linspace(0, len(present) - 1, calibration_contacts).astype(int)]
+        if len(present) > calibration_contacts
+        else present
+    )
+    windows = {i: _Window.of(np.asarray(frames[i]), blank, smooth_px) for i in calibration}
+    for _ in range(rounds):
+        fits, used = [], []
+        for i in calibration:
+            fit = _symmetry_fit(windows[i], unmixing, coarse[i], reach)
+            if fit is not None:
+                fits.append(fit)
+                used.append(i)
+        if len(used) < 3:
+            break
+        unmixing = _fit_unmixing([windows[i] for i in used], fits, [coarse[i] for i in used], reach)
+    contacts: list[Contact | None] = [None] * len(coarse)
+    for i in tqdm(present, desc="symmetric centres", unit="contact", disable=not progress):
+        window = windows.get(i) or _Window.of(np.asarray(frames[i]), blank, smooth_px)
+        fit = _symmetry_fit(window, unmixing, coarse[i], reach)
+        if fit is not None:
+            c = coarse[i]
+            contacts[i] = Contact(
+                x_px=fit[0], y_px=fit[1], radius_px=c.radius_px, strength=c.strength
+            )
+    return SymmetryRefinement(contacts=contacts, unmixing=unmixing)
+
+
 @dataclass(frozen=True)
 class AffineFit:
     matrix: np.ndarray  # (2, 3): [col, row]ᵀ = M[:, :2] @ [x_mm, y_mm]ᵀ + M[:, 2]
@@ -185,6 +395,73 @@ def fit_affine(
     matrix = solution.T  # (2, 3)
     rms = float(np.sqrt(np.mean(residuals[inliers] ** 2)))
     return AffineFit(matrix=matrix, residual_px=rms, inliers=inliers)
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The affine of the chosen contact locator, and what the choice rested on."""
+
+    fit: AffineFit
+    contacts: list[Contact | None]  # per input frame, from the chosen locator
+    locator: str  # "rim" or "symmetry"
+    residual_px: dict[str, float]  # affine RMS residual of each locator that produced a fit
+    unmixing: np.ndarray | None  # the symmetry locator's channel unmixing (None: not run)
+
+
+def register(
+    xy_mm: np.ndarray,
+    frames,
+    blank: np.ndarray,
+    accept=lambda contact: True,
+    flat_gel: bool = True,
+    progress: bool = False,
+) -> Registration:
+    """Locate the contact in every frame by rim and, on a flat gel, by symmetry; fit the affine.
+
+    The rim locator's bias drifts across the frame and the affine absorbs it as a scale. The
+    symmetry locator has no such drift on a flat gel; on a domed gel (`flat_gel=False`) the
+    blank is shaded on a slope, which shifts symmetric centres toward the apex by up to a pixel —
+    a radial bias an affine absorbs unseen — so there only the rim is used. Where both run, the
+    locator whose centres an affine maps with the smaller RMS residual is kept (a failing
+    unmixing or a clipped sensor shows there). `accept(contact)` drops contacts (e.g. too near
+    the image edge) before fitting.
+    """
+    rim = [
+        locate_contact(np.asarray(f), blank)
+        for f in tqdm(frames, desc="rim centres", unit="frame", disable=not progress)
+    ]
+    rim = [c if c is not None and accept(c) else None for c in rim]
+    candidates: dict[str, tuple[list, AffineFit]] = {"rim": (rim, _fit_contacts(xy_mm, rim))}
+    unmixing = None
+    if flat_gel and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
+        refined = refine_by_symmetry(frames, blank, rim, progress=progress)
+        unmixing = refined.unmixing
+        symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]
+        if sum(c is not None for c in symmetric) >= 3:
+            candidates["symmetry"] = (symmetric, _fit_contacts(xy_mm, symmetric))
+    locator = min(candidates, key=lambda name: candidates[name][1].residual_px)
+    contacts, fit = candidates[locator]
+    return Registration(
+        fit=fit,
+        contacts=contacts,
+        locator=locator,
+        residual_px={name: fit.residual_px for name, (_, fit) in candidates.items()},
+        unmixing=unmixing,
+    )
+
+
+def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None]) -> AffineFit:
+    """fit_affine on the frames with a contact; `inliers` indexes all frames (False: no contact)."""
+    found = np.array([c is not None for c in contacts])
+    if found.sum() < 3:
+        raise RegistrationError(
+            f"registration needs >= 3 contacts not on one line; {int(found.sum())} found"
+        )
+    xy_px = np.array([(c.x_px, c.y_px) for c in contacts if c is not None])
+    fit = fit_affine(np.asarray(xy_mm, dtype=float)[found], xy_px)
+    inliers = np.zeros(len(contacts), dtype=bool)
+    inliers[found] = fit.inliers
+    return AffineFit(matrix=fit.matrix, residual_px=fit.residual_px, inliers=inliers)
 
 
 def estimate_touch_offset_mm(

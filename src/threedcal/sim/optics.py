@@ -13,7 +13,8 @@ What it models, and why (every constant comes from the sensor profile):
   irradiance (1/r^2) depend on the pixel and on the local surface height: the position-dependent
   illumination the paper's xy inputs exist for. A diffuse (scattered) part lights the background
   independently of the normal; the directional part follows max(n.L, 0) plus a small quadratic term.
-  Steep walls cast shadows on their far side from each light (horizon test along the light's azimuth).
+  Steep walls cast shadows on their far side from each light (horizon test along the line from the
+  LED through the contact).
 - Background and camera. Vignetting, LED hot spots, a fixed paint texture, optional markers; a
   Gaussian camera blur, per-frame gain flicker, per-pixel noise, and 8-bit rounding with clipping.
 
@@ -137,7 +138,6 @@ class GelSimulator:
                     "scatter": np.asarray(li["scatter_dn"], dtype=np.float32)
                     if isinstance(li["scatter_dn"], list)
                     else float(li["scatter_dn"]) * np.asarray(li["color_rgb"], dtype=np.float32),
-                    "dir": (math.cos(az), math.sin(az)),
                     "tan_el": math.tan(el),
                 }
             )
@@ -340,10 +340,11 @@ class GelSimulator:
         vig = self._vig[y0:y1, x0:x1]
         change = np.zeros(z.shape + (len(self._lights),), dtype=np.float32)
         scatter_change = np.zeros_like(change)
+        contact_mm = ((center_px[0] - self._cx) / s, (center_px[1] - self._cy) / s)
         for i, (li, (resp, irr)) in enumerate(
             zip(self._lights, self._shading(X, Y, z, n, vig), strict=True)
         ):
-            resp = resp * self._lit(z, li)
+            resp = resp * self._lit(z, li, contact_mm)
             resp0 = self._resp0[i][y0:y1, x0:x1]
             irr0 = self._irr0(i, win)
             change[..., i] = li["gain"] * (irr * resp - irr0 * resp0)
@@ -360,8 +361,12 @@ class GelSimulator:
         r2 = (P[0] - X) ** 2 + (P[1] - Y) ** 2 + (P[2] - Z) ** 2
         return (li["ref2"] / r2) * self._vig[y0:y1, x0:x1]
 
-    def _lit(self, z: np.ndarray, li) -> np.ndarray:
+    def _lit(self, z: np.ndarray, li, contact_mm: tuple[float, float]) -> np.ndarray:
         """1 where the light reaches the surface, less in the cast shadow of a wall toward the light.
+
+        The LED is a point at a finite distance, so its shadows fall along the line from the LED
+        through the contact (`contact_mm`, from the image centre), as its shading does — not along
+        one azimuth for the whole frame.
 
         Light in the gel scatters: a shadow only darkens the directional term by `shadow_strength`,
         and only within `shadow_reach_mm` of its wall (real gels show short, soft shadows).
@@ -375,7 +380,8 @@ class GelSimulator:
         h, w = z.shape
         pad = int(math.ceil(reach_px)) + 1
         zp = np.pad(z, pad, mode="edge")
-        ux, uy = li["dir"]
+        toward = (li["P"][0] - contact_mm[0], li["P"][1] - contact_mm[1])
+        ux, uy = (v / math.hypot(*toward) for v in toward)
         occl = np.full(z.shape, -np.inf, dtype=np.float32)
         for k in range(1, steps + 1):
             dist = reach_px * k / steps
