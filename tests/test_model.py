@@ -245,6 +245,21 @@ def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):
         )
 
 
+@pytest.mark.parametrize(("preset", "reach_px"), [("compact", 3), ("context", 33)])
+def test_a_preset_sees_exactly_its_receptive_field(preset, reach_px):
+    # `context` exists to see where in the contact a pixel lies: ±33 px (7x7 stem, dilations 2..16).
+    torch.manual_seed(0)
+    model = build_model(preset).eval()
+    x = torch.zeros(1, 5, 81, 81)
+    bumped = x.clone()
+    bumped[0, :3, 40, 40] = 1.0
+    with torch.no_grad():
+        changed = (model(bumped) - model(x)).abs().amax(dim=(0, 1)) > 0
+    rows, cols = torch.nonzero(changed, as_tuple=True)
+    assert int((rows - 40).abs().max()) == reach_px
+    assert int((cols - 40).abs().max()) == reach_px
+
+
 def test_compact_net_overfits_one_batch():
     ts = synthetic_set()
     windows = [(i, (slice(0, 40), slice(0, 48))) for i in range(4)]

@@ -48,7 +48,7 @@ def test_bad_config_fails_at_parse_time_naming_the_key(tmp_path):
     assert result.returncode != 0
     output = result.stdout + result.stderr
     assert (
-        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, lookup)"
+        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, context, lookup)"
         in output
     )
     assert not (tmp_path / "results").exists()

@@ -88,7 +88,7 @@ def plot_depth_sections(
     if not (0 <= row < gt.shape[0] and 0 <= col < gt.shape[1]):
         raise ConfigError(f"section row {row} / column {col} outside the image {gt.shape}")
     plt = _pyplot()
-    fig, axes = plt.subplots(2, 2, figsize=(8.5, 6.5))
+    fig, axes = plt.subplots(2, 2, figsize=(8.5, 6.8), layout="constrained")  # no label overlaps
     vmax = max(float(np.nanmax(gt)), float(np.nanmax(pred)), 1e-6)
     h, w = gt.shape
     extent = (-0.5 / px_per_mm, (w - 0.5) / px_per_mm, (h - 0.5) / px_per_mm, -0.5 / px_per_mm)

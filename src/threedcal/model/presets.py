@@ -74,6 +74,30 @@ class PixelNet(nn.Module):
         return self.body(x)
 
 
+class ContextNet(nn.Module):
+    """PixelNet's 7×7 colour+position layer, then residual dilated 3×3 layers that see the contact.
+
+    A per-pixel regressor cannot tell a mid-contact slope from a steeper one whose shading has
+    saturated; where in the contact a pixel lies can. Dilations 2, 4, 8, 16 reach ±33 px.
+    """
+
+    def __init__(self, hidden: int = 16, kernel: int = 7, dilations=(2, 4, 8, 16)) -> None:
+        super().__init__()
+        self.stem = nn.Conv2d(INPUT_CHANNELS, hidden, kernel, padding=kernel // 2)
+        self.context = nn.ModuleList(
+            nn.Conv2d(hidden, hidden, 3, padding=d, dilation=d) for d in dilations
+        )
+        self.head = nn.Sequential(
+            nn.Conv2d(hidden, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, OUTPUT_CHANNELS, 1)
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = F.relu(self.stem(x))
+        for layer in self.context:
+            x = x + F.relu(layer(x))
+        return self.head(x)
+
+
 # Preset name → (constructor, keyword arguments stored in the checkpoint).
 PIXELNET_ARGS = {
     "compact": {"hidden": 16, "depth": 2, "kernel": 7},
@@ -91,6 +115,8 @@ def build_model(preset: str, **overrides) -> nn.Module:
         from threedcal.model.lookup import LookupTable
 
         return LookupTable(**overrides)
+    if preset == "context":
+        return ContextNet(**overrides)
     return PixelNet(**{**PIXELNET_ARGS[preset], **overrides})
 
 
