@@ -385,3 +385,29 @@ def test_real_printer_with_the_simulated_board_is_refused_before_anything_opens(
     with pytest.raises(ConfigError, match="set the scene's `camera` to the ReSkin board"):
         collect_scene("rs", config["scenes"]["rs"], tmp_path / "raw.zarr", progress=False)
     assert not any(tmp_path.iterdir())
+
+
+def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
+    tmp_path, monkeypatch
+):
+    # The hardware path (serial printer + ReSkin reader), with both serial ends simulated.
+    from threedcal.collect.session import collect_scene
+    from threedcal.collect.store import open_raw
+
+    monkeypatch.setattr("builtins.input", lambda prompt="": "")  # "attach the probe, press Enter"
+    with ReSkinBench(PROFILE, 2.0, {}, 0) as bench:
+        scene = {
+            "sensor": "reskin",
+            "printer": "ender3",
+            "port": bench.url,
+            "camera": bench.sensor_url,
+            "plan": {"pattern": "cross", "spacing_mm": 2.0, "depths_mm": [1.0], "frames": 2},
+        }
+        scene = validate_config({"scenes": {"rs": scene}})["scenes"]["rs"]
+        collect_scene("rs", scene, tmp_path / "raw.zarr", progress=False)
+    raw = open_raw(tmp_path / "raw.zarr")
+    readings = raw["readings"].values
+    assert readings.shape[1] == N_VALUES and len(readings) == 2 * (raw["point"].values.max() + 1)
+    bz0 = value_names(PROFILE).index("bz0")
+    rest = raw["blank_readings"].values[:, bz0].mean()
+    assert np.abs(readings[:, bz0] - rest).max() > 20  # the presses show in the field

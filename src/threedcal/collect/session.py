@@ -204,28 +204,15 @@ def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: boo
     if is_magnetic(prepared.sensor):
         from threedcal.hardware.reskin import ReSkinReader
 
-        with (
-            ReSkinReader(prepared.sensor, str(scene["camera"])) as reader,
-            MarlinHost(scene["port"], prepared.printer) as host,
-        ):
-            return collect(
-                store,
-                prepared.sensor,
-                host,
-                reader,
-                prepared.settings,
-                attach_probe=attach_probe,
-                progress=progress,
-            )
-    with (
-        OpenCVCamera(prepared.sensor, device) as camera,
-        MarlinHost(scene["port"], prepared.printer) as host,
-    ):
+        reader = ReSkinReader(prepared.sensor, str(scene["camera"]))
+    else:
+        reader = OpenCVCamera(prepared.sensor, device)
+    with reader, MarlinHost(scene["port"], prepared.printer) as host:
         return collect(
             store,
             prepared.sensor,
             host,
-            camera,
+            reader,
             prepared.settings,
             attach_probe=attach_probe,
             progress=progress,

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import math
-import uuid
 import zlib
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from threedcal.sim.marlin import SimMarlin, forget, register
+from threedcal.sim.marlin import FirmwareBench
 
 
 @dataclass(frozen=True)
@@ -110,7 +109,7 @@ class SimCamera:
         return np.stack(frames), np.asarray(stamps)
 
 
-class SimBench:
+class SimBench(FirmwareBench):
     """Fake printer + simulated sensor + hidden truth, opened at `bench.url` like a serial port."""
 
     def __init__(
@@ -135,22 +134,10 @@ class SimBench:
         self._z_touch = float(sensor["mount"]["z_touch_mm"]) + self.truth.touch_offset_mm
         self.gel = GelSimulator(sensor, seed=seed)
         self.ball = Sphere(probe_radius_mm)
-        self.firmware = SimMarlin(
-            printer, seed=seed, faults=faults, rate=fault_rate, speedup=speedup
+        super().__init__(
+            "bench", printer, seed=seed, faults=faults, fault_rate=fault_rate, speedup=speedup
         )
-        self.name = f"bench-{uuid.uuid4().hex[:10]}"
-        register(self.name, self.firmware)
-        self.url = f"simmarlin://{self.name}"
         self.camera = SimCamera(self)
-
-    def close(self) -> None:
-        forget(self.name)
-
-    def __enter__(self) -> SimBench:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def pose_px(self, x_mm: float, y_mm: float) -> tuple[float, float]:
         col, row = self._affine[:, :2] @ np.array([x_mm, y_mm]) + self._affine[:, 2]

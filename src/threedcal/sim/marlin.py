@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import random
 import re
+import uuid
 from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -488,3 +489,36 @@ def firmware_for_url(port_url: str) -> SimMarlin:
         raise ConfigError(f"{port_url}: {exc}") from exc
     firmware.url_query = parts.query
     return register(name, firmware)
+
+
+class FirmwareBench:
+    """A SimMarlin registered under a fresh name, reachable at `url`; `close` (or `with`) forgets it.
+
+    The simulated benches (gel camera, ReSkin board) build on it: each adds its sensor.
+    """
+
+    def __init__(
+        self,
+        prefix: str,
+        printer: str | Mapping = "ender3",
+        *,
+        seed: int,
+        faults: str = "",
+        fault_rate: float = 0.0,
+        speedup: float = math.inf,
+    ):
+        self.firmware = SimMarlin(
+            printer, seed=seed, faults=faults, rate=fault_rate, speedup=speedup
+        )
+        self.name = f"{prefix}-{uuid.uuid4().hex[:10]}"
+        register(self.name, self.firmware)
+        self.url = f"simmarlin://{self.name}"
+
+    def close(self) -> None:
+        forget(self.name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import json
 import math
-import uuid
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -39,6 +38,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.sim.marlin import FirmwareBench
 
 _BUFFER_S = 1.0  # the OS keeps about this much of the stream; older lines are lost (overrun)
 
@@ -362,7 +362,7 @@ def board_for_url(port_url: str) -> SimReSkin:
         raise ConfigError(str(exc.args[0])) from None
 
 
-class ReSkinBench:
+class ReSkinBench(FirmwareBench):
     """Fake printer + simulated ReSkin + hidden truth: `url` for the printer, `sensor_url` for the board."""
 
     def __init__(
@@ -377,30 +377,21 @@ class ReSkinBench:
         fault_rate: float = 0.0,
         speedup: float = math.inf,
     ):
-        from threedcal.sim.marlin import SimMarlin
-        from threedcal.sim.marlin import register as register_firmware
-
         self.truth = draw_reskin_truth(settings, seed)
-        self.firmware = SimMarlin(
-            printer, seed=seed, faults=faults, rate=fault_rate, speedup=speedup
+        super().__init__(
+            "reskin-bench",
+            printer,
+            seed=seed,
+            faults=faults,
+            fault_rate=fault_rate,
+            speedup=speedup,
         )
         self.board = SimReSkin(
             sensor, self.firmware, probe_radius_mm=probe_radius_mm, seed=seed, truth=self.truth
         )
-        self.name = f"reskin-bench-{uuid.uuid4().hex[:10]}"
-        register_firmware(self.name, self.firmware)
         register(self.name, self.board)
-        self.url = f"simmarlin://{self.name}"
         self.sensor_url = f"simreskin://{self.name}"
 
     def close(self) -> None:
-        from threedcal.sim.marlin import forget as forget_firmware
-
-        forget_firmware(self.name)
+        super().close()
         forget(self.name)
-
-    def __enter__(self) -> ReSkinBench:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
