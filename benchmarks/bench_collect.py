@@ -39,7 +39,7 @@ def authors_open_loop_s(plan, sensor) -> float:
 def main() -> None:
     sensor = load_profile("sensor", "digit")
     printer = load_profile("printer", "ender3")
-    plan = grid_plan(sensor, spacing_mm=0.5, depth_mm=2.0, frames=30)
+    plan = grid_plan(sensor, spacing_mm=0.5, depths_mm=2.0, frames=30)
     start = time.perf_counter()
     ours = estimate_hardware_s(sensor, printer, plan)
     seconds = time.perf_counter() - start

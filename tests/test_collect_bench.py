@@ -205,3 +205,29 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
     assert record["residual_px"] <= 0.2, record
     assert abs(record["rotation_deg"] - truth["seating_rotation_deg"]) < 0.2
     assert abs(record["touch_offset_error_mm"]) < 0.12
+
+
+def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_path):
+    """One depth: the rim's edge offset reads as 0.09 mm of extra depth (README, registration).
+    Several: both are fitted, and the touch height comes out within 0.05 mm."""
+    scene = validate_config(
+        {
+            "seed": 3,
+            "scenes": {
+                "s": {
+                    "sensor": "digit",
+                    "printer": "ender3",
+                    "plan": {"spacing_mm": 2.0, "depths_mm": [0.5, 1.0, 1.5], "frames": 1},
+                    "bench": {"touch_offset_mm": 0.1},
+                }
+            },
+        }
+    )["scenes"]["s"]
+    collect_scene(
+        "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
+    )
+    paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
+    record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
+    assert abs(record["touch_offset_error_mm"]) < 0.05, record
+    # the located rim sits outside the true edge by about a pixel (19.5 px/mm)
+    assert 0.02 < record["rim_edge_offset_mm"] < 0.1, record

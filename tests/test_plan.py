@@ -62,7 +62,7 @@ def test_empty_plan_is_refused(tmp_path):
 
 
 def test_grid_reproduces_the_authors_digit_plan_shape_and_dome_rule():
-    plan = grid_plan(SENSOR, spacing_mm=0.5, depth_mm=2.0, frames=30)
+    plan = grid_plan(SENSOR, spacing_mm=0.5, depths_mm=2.0, frames=30)
     assert len(plan) == 33 * 37
     corner = plan[(plan.x_mm == 0) & (plan.y_mm == 0)].depth_mm.item()
     apex = plan[(plan.x_mm == 8) & (plan.y_mm == 9)].depth_mm.item()
@@ -75,7 +75,7 @@ def test_grid_reproduces_the_authors_digit_plan_shape_and_dome_rule():
 
 def test_serpentine_alternates_direction_per_row():
     plan = grid_plan(
-        {**SENSOR, "probing": {"plan_area_mm": [2.0, 1.0]}}, spacing_mm=1.0, depth_mm=1.0, frames=1
+        {**SENSOR, "probing": {"plan_area_mm": [2.0, 1.0]}}, spacing_mm=1.0, depths_mm=1.0, frames=1
     )
     assert list(zip(plan.x_mm, plan.y_mm, strict=True)) == [
         (0, 0),
@@ -87,6 +87,23 @@ def test_serpentine_alternates_direction_per_row():
     ]
     shuffled = plan.sample(frac=1, random_state=3)
     pd.testing.assert_frame_equal(serpentine(shuffled), plan)
+
+
+def test_grid_presses_each_point_at_every_depth_before_moving_on():
+    flat = {**SENSOR, "gel": {}, "probing": {"plan_area_mm": [1.0, 1.0]}}
+    plan = grid_plan(flat, spacing_mm=1.0, depths_mm=[1.5, 0.5, 1.0], frames=1)
+    assert list(zip(plan.x_mm, plan.y_mm, plan.depth_mm, strict=True)) == [
+        (x, y, d) for x, y in [(0, 0), (1, 0), (1, 1), (0, 1)] for d in (1.5, 0.5, 1.0)
+    ]
+    domed = grid_plan(SENSOR, spacing_mm=0.5, depths_mm=[0.5, 1.0], frames=1)
+    sag = domed.depth_mm.to_numpy()[1::2] - domed.depth_mm.to_numpy()[::2]
+    np.testing.assert_allclose(sag, 0.5, atol=1e-4)  # the dome rule holds at every depth
+
+
+@pytest.mark.parametrize("depths", [[], [1.0, float("nan")], [0.0], [1.0, -0.5]])
+def test_grid_rejects_missing_or_non_positive_depths(depths):
+    with pytest.raises(ConfigError, match="depth"):
+        grid_plan(SENSOR, spacing_mm=1.0, depths_mm=depths, frames=1)
 
 
 def plan_of(*rows):

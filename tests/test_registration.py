@@ -6,7 +6,7 @@ import pytest
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import (
     RegistrationError,
-    estimate_touch_offset_mm,
+    estimate_touch,
     find_contact,
     fit_affine,
     locate_contact,
@@ -101,9 +101,31 @@ def test_touch_offset_recovered_from_contact_radii():
     commanded = np.array([0.3, 0.5, 0.8, 1.0, 1.2])
     true = commanded + delta
     a = np.sqrt(2 * R * true - true**2)
-    assert estimate_touch_offset_mm(commanded, a, R) == pytest.approx(delta, abs=1e-9)
+    estimate = estimate_touch(commanded, a, R)
+    assert estimate.offset_mm == pytest.approx(delta, abs=1e-9)
     with pytest.raises(RegistrationError):
-        estimate_touch_offset_mm(commanded, np.zeros(5), R)
+        estimate_touch(commanded, np.zeros(5), R)
+
+
+def test_one_depth_takes_an_edge_offset_for_depth_several_depths_separate_them():
+    R, delta, edge = 2.0, -0.05, 0.05  # the rim located 1 px (at 20 px/mm) outside the edge
+    rng = np.random.default_rng(4)
+
+    def radii(commanded):
+        true = commanded + delta
+        return np.sqrt(2 * R * true - true**2) + edge + rng.normal(0, 0.003, commanded.shape)
+
+    one = np.full(40, 1.0)
+    single = estimate_touch(one, radii(one), R)
+    assert single.edge_mm is None
+    # the median reads e / (da/dd) = 0.05 / ((R - d) / a) ≈ 0.08 mm of extra depth
+    assert single.offset_mm - delta == pytest.approx(0.08, abs=0.02)
+    several = np.repeat([0.5, 1.0, 1.5], 40)
+    a = radii(several)
+    a[:3] = 0.3  # a few halo-shrunk radii: the robust loss shrugs them off
+    both = estimate_touch(several, a, R)
+    assert both.offset_mm == pytest.approx(delta, abs=0.01)
+    assert both.edge_mm == pytest.approx(edge, abs=0.005)
 
 
 def sim_contacts(sensor, n=3, seed=1, margin=50):

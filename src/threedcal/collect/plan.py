@@ -91,25 +91,39 @@ def _is_number(text: str) -> bool:
 def grid_plan(
     sensor: Mapping,
     spacing_mm: float,
-    depth_mm: float,
+    depths_mm,
     frames: int,
     dome_compensation: bool = True,
 ) -> pd.DataFrame:
-    """A regular grid over the sensor's probe area (profile `probing.plan_area_mm`), serpentine ordered."""
+    """A regular grid over the sensor's probe area (profile `probing.plan_area_mm`), serpentine ordered.
+
+    With several depths each point is pressed at every one in the order listed before the
+    gantry moves on: a model trained on one depth learns that depth's contact size as a shape prior
+    and misjudges shallower or deeper objects."""
+    depths = _depths(depths_mm)
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
         raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
     width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
     ys = np.arange(0.0, height + 1e-9, spacing_mm)
     gx, gy = np.meshgrid(xs, ys)
-    x, y = gx.ravel(), gy.ravel()
-    depth = np.full(x.shape, float(depth_mm))
+    x, y = np.repeat(gx.ravel(), len(depths)), np.repeat(gy.ravel(), len(depths))
+    depth = np.tile(depths, gx.size)
     if dome_compensation:
         depth = depth + dome_sag_mm(sensor, x, y)
     plan = pd.DataFrame(
         {"x_mm": x, "y_mm": y, "depth_mm": np.round(depth, 4), "frames": int(frames)}
     )
-    return serpentine(plan)
+    return serpentine(plan)  # stable: a point's depths keep their order
+
+
+def _depths(depths_mm) -> np.ndarray:
+    depths = np.atleast_1d(np.asarray(depths_mm, dtype=float))
+    if depths.size == 0:
+        raise ConfigError("plan depths_mm must list at least one depth")
+    if not np.all(np.isfinite(depths) & (depths > 0)):
+        raise ConfigError(f"plan depths must be positive numbers, got {list(depths)}")
+    return depths
 
 
 def cross_plan(
@@ -126,9 +140,7 @@ def cross_plan(
         raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
     if arm_width_mm < 0 or not np.isfinite(arm_width_mm):
         raise ConfigError(f"plan arm_width_mm must be >= 0, got {arm_width_mm!r}")
-    depths = [float(d) for d in np.atleast_1d(depths_mm)]
-    if not depths:
-        raise ConfigError("plan depths_mm must list at least one depth")
+    depths = _depths(depths_mm)
     width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
     ys = np.arange(0.0, height + 1e-9, spacing_mm)
@@ -137,7 +149,7 @@ def cross_plan(
     keep = (np.abs(gx - width / 2) <= half) | (np.abs(gy - height / 2) <= half)
     x, y = gx[keep], gy[keep]
     passes = []
-    for depth in depths:
+    for depth in depths.tolist():
         one = pd.DataFrame(
             {
                 "x_mm": x,
@@ -239,6 +251,6 @@ def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     return grid_plan(
         sensor,
         spacing_mm=plan_config["spacing_mm"],
-        depth_mm=plan_config["depth_mm"],
+        depths_mm=plan_config.get("depths_mm") or [plan_config["depth_mm"]],
         frames=plan_config["frames"],
     )

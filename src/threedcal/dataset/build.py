@@ -79,7 +79,7 @@ def build_collected(
     from threedcal.collect.store import open_raw
     from threedcal.config import training_fractions
     from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.registration import estimate_touch_offset_mm, register
+    from threedcal.dataset.registration import estimate_touch, register
     from threedcal.dataset.splits import in_field_of_view, split_points
     from threedcal.profiles import load_profile
 
@@ -117,12 +117,13 @@ def build_collected(
     )
     fit = registration.fit
     inlier_points = np.flatnonzero(fit.inliers)
-    touch = estimate_touch_offset_mm(
+    estimate = estimate_touch(
         nominal_depth[first][inlier_points],
         np.array([registration.contacts[p].radius_px for p in inlier_points])
         / np.mean(fit.px_per_mm),
         radius_mm,
     )
+    touch = estimate.offset_mm
     # Labels for every frame whose probe centre the registration puts inside the image.
     centres = fit.apply(cmd_xy)
     depth = np.clip(nominal_depth + touch, 0.0, None)
@@ -174,6 +175,7 @@ def build_collected(
         else registration.unmixing.round(4).tolist(),
         "touch_offset_mm": round(touch, 4),
         "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + touch, 4),
+        "rim_edge_offset_mm": None if estimate.edge_mm is None else round(estimate.edge_mm, 4),
         "frames_in_view": int(len(keep)),
         "probe_points_in_view": int(len(unique)),
     }

@@ -464,18 +464,48 @@ def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None]) -> AffineFi
     return fit_affine(xy_mm, xy_px.reshape(-1, 2))
 
 
-def estimate_touch_offset_mm(
+@dataclass(frozen=True)
+class TouchEstimate:
+    """First-touch offset δ (true depth = commanded + δ) and the rim's edge offset e (None: not fitted)."""
+
+    offset_mm: float
+    edge_mm: float | None
+
+
+# Commanded depths must span this much before a constant edge offset can be told from δ.
+MIN_DEPTH_SPREAD_MM = 0.2
+
+
+def estimate_touch(
     commanded_depth_mm: np.ndarray, contact_radius_mm: np.ndarray, sphere_radius_mm: float
-) -> float:
-    """Offset δ with true depth = commanded + δ, from contact radii a: d_true = R − sqrt(R² − a²).
+) -> TouchEstimate:
+    """δ with true depth = commanded + δ, from contact radii a: d_true = R − sqrt(R² − a²).
 
     A positive δ means the gel surface sits higher than the plan assumed (the probe touches earlier).
-    The median over all contacts is robust to the few whose radius a halo or a clipped edge biased.
+    At one depth the median over all contacts is used (robust to the few whose radius a halo or a
+    clipped edge biased). The located rim, though, sits a near-constant distance e outside the true
+    edge (blur, the gel's skirt), which that median takes for extra depth: by e / (da/dd), growing
+    with depth as the contact's edge steepens. Probed at depths that span `MIN_DEPTH_SPREAD_MM` or
+    more, a = sqrt(2R(d + δ) − (d + δ)²) + e is fitted for δ and e together (robust loss).
     """
     depth = np.asarray(commanded_depth_mm, dtype=float)
     a = np.asarray(contact_radius_mm, dtype=float)
-    ok = np.isfinite(depth) & np.isfinite(a) & (a > 0) & (a < sphere_radius_mm)
+    R = float(sphere_radius_mm)
+    ok = np.isfinite(depth) & np.isfinite(a) & (a > 0) & (a < R)
     if not ok.any():
         raise RegistrationError("no contact with a usable radius to estimate the touch height")
-    true_depth = sphere_radius_mm - np.sqrt(sphere_radius_mm**2 - a[ok] ** 2)
-    return float(np.median(true_depth - depth[ok]))
+    depth, a = depth[ok], a[ok]
+    median = float(np.median(R - np.sqrt(R**2 - a**2) - depth))
+    if np.ptp(depth) < MIN_DEPTH_SPREAD_MM:
+        return TouchEstimate(median, None)
+
+    def residual(params: np.ndarray) -> np.ndarray:
+        d = np.clip(depth + params[0], 0.0, R)
+        return np.sqrt(2 * R * d - d**2) + params[1] - a
+
+    low = -float(depth.min()) + 1e-6  # every contact stays a contact
+    start = np.array([max(median, low + 1e-6), 0.0])
+    fit = optimize.least_squares(
+        residual, start, bounds=([low, -R / 2], [R, R / 2]), loss="soft_l1", f_scale=0.02
+    )
+    return TouchEstimate(float(fit.x[0]), float(fit.x[1]))
