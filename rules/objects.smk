@@ -8,6 +8,7 @@ rule objects:
     output:
         errors="results/{scene}/objects/errors.csv",
         integrators="results/{scene}/objects/integrators.csv",
+        presses="results/{scene}/objects/presses.csv",
         violins=report(
             "results/{scene}/objects/violins.png",
             caption="../workflow/report/objects_violins.rst",

@@ -28,6 +28,16 @@ def test_presses_are_seeded_off_centre_turned_and_jittered():
         assert abs(press.rotation_deg) <= 20 and 0.9 <= press.depth_mm <= 1.1
 
 
+def test_more_presses_come_in_rounds_and_keep_the_earlier_ones():
+    one = plan_presses(["pill", "pawn"], (240, 320), PRESSING, seed=3)
+    three = plan_presses(["pill", "pawn"], (240, 320), {**PRESSING, "presses": 3}, seed=3)
+    assert three[:2] == one
+    assert [(p.name, p.number) for p in three] == [
+        (name, n) for n in range(3) for name in ("pill", "pawn")
+    ]
+    assert len({p.center_px for p in three}) == 6  # each press its own pose
+
+
 def test_relief_indenter_is_the_gel_facing_surface():
     mesh = load_object("pill")
     indenter = relief_indenter(mesh, 15.77, 0.0)

@@ -2,6 +2,7 @@
 
 import json
 
+import pandas as pd
 import pytest
 import yaml
 from conftest import scheduled_jobs, snakemake, tiny_study_config, write_config
@@ -92,6 +93,14 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         "models/inference.json",
     ):
         assert (tmp_path / f"results/{collected}/{leaf}").exists(), leaf
+    # errors.csv: per object and P, the mean over the object's presses (two pill presses here)
+    objects = tmp_path / f"results/{collected}/objects"
+    presses = pd.read_csv(objects / "presses.csv")
+    assert sorted(presses["press"].unique()) == [0, 1]
+    assert presses["center_x_px"].nunique() == 2
+    errors = pd.read_csv(objects / "errors.csv").set_index(["object", "P"])
+    means = presses.groupby(["object", "P"])[["overall_um", "type1_um", "type2_um"]].mean()
+    pd.testing.assert_frame_equal(errors.sort_index(), means.sort_index())
     for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
         assert (tmp_path / f"results/{leaf}").is_file(), leaf
     assert collected in (tmp_path / "results/summary.md").read_text()

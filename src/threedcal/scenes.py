@@ -35,7 +35,7 @@ STATS_FILES = (
     "error_vs_cost.png",
 )
 # Outputs of the objects stage (rules/objects.smk).
-OBJECT_FILES = ("errors.csv", "integrators.csv", "violins.png", "figures")
+OBJECT_FILES = ("errors.csv", "presses.csv", "integrators.csv", "violins.png", "figures")
 # Versions recorded with every scene: the packages whose behaviour changes numbers.
 RECORDED_PACKAGES = (
     "threedcal",

@@ -31,28 +31,33 @@ class Press:
     rotation_deg: float
     depth_mm: float
     nominal_depth_mm: float
+    number: int = 0  # which of the object's presses (0 first)
 
 
 def plan_presses(
     objects: Sequence[str], shape: tuple[int, int], pressing: Mapping, seed: int
 ) -> list[Press]:
-    """Each object pressed off-centre (up to `offset_fraction` of the frame), turned up to
-    `rotation_deg`, to the nominal depth ± `depth_jitter` (a fraction)."""
+    """Each object pressed `presses` times, each off-centre (up to `offset_fraction` of the frame),
+    turned up to `rotation_deg`, to the nominal depth ± `depth_jitter` (a fraction).
+
+    Round by round (every object once, then again): more presses keep the earlier ones."""
     rng = np.random.default_rng([seed, 0x0B1EC7])
     height, width = shape
     presses = []
-    for ref in objects:
-        dx, dy = rng.uniform(-1, 1, 2) * pressing["offset_fraction"] * np.array([width, height])
-        nominal = float(pressing["depth_mm"])
-        presses.append(
-            Press(
-                name=str(ref),
-                center_px=((width - 1) / 2 + float(dx), (height - 1) / 2 + float(dy)),
-                rotation_deg=float(rng.uniform(-1, 1) * pressing["rotation_deg"]),
-                depth_mm=nominal * (1 + float(rng.uniform(-1, 1)) * pressing["depth_jitter"]),
-                nominal_depth_mm=nominal,
+    for number in range(int(pressing.get("presses", 1))):
+        for ref in objects:
+            dx, dy = rng.uniform(-1, 1, 2) * pressing["offset_fraction"] * np.array([width, height])
+            nominal = float(pressing["depth_mm"])
+            presses.append(
+                Press(
+                    name=str(ref),
+                    center_px=((width - 1) / 2 + float(dx), (height - 1) / 2 + float(dy)),
+                    rotation_deg=float(rng.uniform(-1, 1) * pressing["rotation_deg"]),
+                    depth_mm=nominal * (1 + float(rng.uniform(-1, 1)) * pressing["depth_jitter"]),
+                    nominal_depth_mm=nominal,
+                    number=number,
+                )
             )
-        )
     return presses
 
 
@@ -95,12 +100,13 @@ def evaluate_objects(
 ) -> pd.DataFrame:
     """Render every press, predict with every model, score; write tables and figures into `out_dir`.
 
-    errors.csv has a row per object and P; the integrator comparison, the sections (Fig. 5) and the
-    violins (Fig. 6) use the P = 80 model, Fig. 3C the pill at every P.
+    errors.csv has a row per object and P: the mean over the object's presses (presses.csv has
+    each). The integrator comparison and the violins (Fig. 6) use the P = 80 model and every
+    press; the sections (Fig. 5) and Fig. 3C (the pill at every P) the first press.
     """
     from tqdm import tqdm
 
-    from threedcal.evaluate.object_errors import evaluate_press, pixel_errors_um
+    from threedcal.evaluate.object_errors import ERROR_COLUMNS, evaluate_press, pixel_errors_um
     from threedcal.evaluate.object_figures import plot_depth_sections, plot_error_violins
     from threedcal.model.inference import DepthEstimator
     from threedcal.profiles import load_profile
@@ -148,27 +154,28 @@ def evaluate_objects(
                     rotation_deg=press.rotation_deg,
                 )
                 errors = evaluation.errors
-                comparison.append(
-                    {
-                        "object": label,
-                        "P": p,
-                        "integrator": method,
-                        **{m: errors[m] for m in ("overall_um", "type1_um", "type2_um")},
-                        "fitted_depth_mm": evaluation.indentation_mm,
-                        "true_depth_mm": press.depth_mm,
-                    }
-                )
+                row = {
+                    "object": label,
+                    "press": press.number,
+                    "P": p,
+                    **{m: errors[m] for m in ERROR_COLUMNS[2:]},
+                    "fitted_depth_mm": evaluation.indentation_mm,
+                    "true_depth_mm": press.depth_mm,
+                }
+                comparison.append({**row, "integrator": method})
                 if k > 0:
                     continue
                 rows.append(
                     {
-                        "object": label,
-                        "P": p,
-                        **{m: errors[m] for m in ("overall_um", "type1_um", "type2_um")},
+                        **row,
+                        "center_x_px": press.center_px[0],
+                        "center_y_px": press.center_px[1],
+                        "rotation_deg": press.rotation_deg,
                     }
                 )
                 if p == full:
                     pixel_tables.append(pixel_errors_um(label, depth, evaluation.gt_mm))
+                if p == full and press.number == 0:
                     plot_depth_sections(
                         depth,
                         evaluation.gt_mm,
@@ -176,9 +183,15 @@ def evaluate_objects(
                         px_per_mm=estimator.px_per_mm,
                         title=f"{label}: P = {p} %, {method}",
                     )
-                if label == "pill":
+                if label == "pill" and press.number == 0:
                     pill_maps[p] = depth
-    errors = pd.DataFrame(rows, columns=["object", "P", "overall_um", "type1_um", "type2_um"])
+    per_press = pd.DataFrame(rows)
+    per_press.to_csv(out_dir / "presses.csv", index=False)
+    errors = (
+        per_press.groupby(["object", "P"], sort=False)[list(ERROR_COLUMNS[2:])]
+        .mean()
+        .reset_index()[list(ERROR_COLUMNS)]
+    )
     errors.to_csv(out_dir / "errors.csv", index=False)
     pd.DataFrame(comparison).to_csv(out_dir / "integrators.csv", index=False)
     if pixel_tables:
