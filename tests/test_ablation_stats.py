@@ -50,6 +50,15 @@ def test_recommendation_is_the_smallest_not_worse_fraction():
     assert line.startswith("probe at least 80 points (P = 20 %")
 
 
+def test_when_every_smaller_fraction_is_worse_the_reference_is_recommended_and_says_why():
+    rng = np.random.default_rng(2)
+    table = compare_fractions(
+        {p: rng.normal(mean, 0.1, 60) for p, mean in ((5, 0.2), (40, 0.15), (80, 0.1))}
+    )
+    line = recommend(table, {5: 20, 40: 160, 80: 320})
+    assert line.startswith("probe at least 320 points (P = 80 %: P = 40 % is already significantly")
+
+
 def test_a_better_small_fraction_is_not_significant_one_sided():
     rng = np.random.default_rng(1)
     table = compare_fractions({10: rng.normal(0.0, 1, 50), 80: rng.normal(2.0, 1, 50)})

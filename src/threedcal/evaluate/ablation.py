@@ -88,6 +88,12 @@ def recommend(
             best = p
         else:
             break
+    smaller = [p for p in candidates if p < best]
+    if best == reference and smaller:
+        return (
+            f"probe at least {n_points_by_p[best]} points (P = {reference} %: P = {smaller[-1]} % "
+            f"is already significantly worse at alpha = {ALPHA}, Bonferroni-corrected)"
+        )
     return (
         f"probe at least {n_points_by_p[best]} points (P = {best} % is not significantly worse than "
         f"P = {reference} % at alpha = {ALPHA}, Bonferroni-corrected)"
