@@ -8,7 +8,13 @@ from threedcal.evaluate.pressing import Press, plan_presses, relief_indenter, re
 from threedcal.profiles import load_profile
 from threedcal.sim.optics import GelSimulator
 
-PRESSING = {"depth_mm": 1.0, "depth_jitter": 0.1, "offset_fraction": 0.12, "rotation_deg": 20}
+PRESSING = {
+    "presses": 1,
+    "depth_mm": 1.0,
+    "depth_jitter": 0.1,
+    "offset_fraction": 0.12,
+    "rotation_deg": 20,
+}
 
 
 @pytest.fixture(scope="module")

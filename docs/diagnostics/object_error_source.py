@@ -4,7 +4,8 @@
 
 For every object press of the scene it scores, with the same protocol as the `objects` stage:
 the simulator's own gel surface (exact in contact: the limit of ground truth, alignment and depth
-fit), and the P = 80 model's prediction. Then, on validation frames of the scene's training set, the
+fit), and the P = 80 model's prediction, with the model's signed error by true depth (where in
+the contact it sits). Then, on validation frames of the scene's training set, the
 mean predicted slope magnitude against the label in rings around the probe centre.
 """
 
@@ -50,9 +51,23 @@ def main(scene_name: str, p: int = 80) -> None:
             rotation_deg=press.rotation_deg,
         )
         frame = render_press(sim, press, frame_index=index)
+        name = f"{press.name} #{press.number}"
         for label, depth in (("simulator surface", surface), (f"model P{p}", est.depth(frame))):
-            e = evaluate_press(depth, mesh, **kwargs).errors
-            print(f"  {press.name:12s} {label:18s} {e['type2_um']:7.1f} / {e['type1_um']:6.1f}")
+            evaluation = evaluate_press(depth, mesh, **kwargs)
+            e = evaluation.errors
+            print(
+                f"  {name:15s} {label:18s} {e['type2_um']:7.1f} / {e['type1_um']:6.1f}"
+                f"   fitted depth {evaluation.indentation_mm:.2f} mm"
+            )
+        # where the model's Type 2 error sits: signed mean (prediction - truth) by true depth
+        gt, err = evaluation.gt_mm, (depth - evaluation.gt_mm) * 1000
+        bands = [(0.0, 0.1), (0.1, 0.3), (0.3, 0.6), (0.6, np.inf)]
+        cells = [
+            f"{lo:g}-{hi:g} mm: {err[(gt > lo) & (gt <= hi)].mean():+.0f}"
+            for lo, hi in bands
+            if ((gt > lo) & (gt <= hi)).any()
+        ]
+        print(f"  {'':15s} signed error (um) by true depth: {', '.join(cells)}")
     ts = TrainingSet.load(root / "dataset" / "trainset")
     sums: dict[int, np.ndarray] = {}
     for i in ts.indices("val")[::10]:

@@ -149,7 +149,7 @@ def cross_plan(
     keep = (np.abs(gx - width / 2) <= half) | (np.abs(gy - height / 2) <= half)
     x, y = gx[keep], gy[keep]
     passes = []
-    for depth in depths.tolist():
+    for depth in depths:
         one = pd.DataFrame(
             {
                 "x_mm": x,
@@ -240,17 +240,15 @@ def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     """The plan a scene's `plan:` section describes (CSV, grid or cross)."""
     if plan_config.get("csv"):
         return read_plan_csv(plan_config["csv"])
+    depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
     if plan_config.get("pattern", "grid") == "cross":
         return cross_plan(
             sensor,
             spacing_mm=plan_config["spacing_mm"],
-            depths_mm=plan_config.get("depths_mm") or [plan_config["depth_mm"]],
+            depths_mm=depths,
             frames=plan_config["frames"],
             arm_width_mm=plan_config.get("arm_width_mm", 6.0),
         )
     return grid_plan(
-        sensor,
-        spacing_mm=plan_config["spacing_mm"],
-        depths_mm=plan_config.get("depths_mm") or [plan_config["depth_mm"]],
-        frames=plan_config["frames"],
+        sensor, spacing_mm=plan_config["spacing_mm"], depths_mm=depths, frames=plan_config["frames"]
     )

@@ -44,7 +44,7 @@ def plan_presses(
     rng = np.random.default_rng([seed, 0x0B1EC7])
     height, width = shape
     presses = []
-    for number in range(int(pressing.get("presses", 1))):
+    for number in range(int(pressing["presses"])):
         for ref in objects:
             dx, dy = rng.uniform(-1, 1, 2) * pressing["offset_fraction"] * np.array([width, height])
             nominal = float(pressing["depth_mm"])
