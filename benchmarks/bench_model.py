@@ -5,7 +5,7 @@ preset is ≥ 30 frames/s and ≥ 100× TouchNet. Weights are freshly initialise
 on their values). Each figure is the median time of single-frame calls, which a busy shared machine
 disturbs less than a mean.
 
-With --accuracy FOLDER (a ball_folder dataset, e.g. ../shared/data/gelsight_ball_fots) it also trains
+With --accuracy FOLDER (a ball_folder dataset, e.g. data/gelsight_ball_fots) it also trains
 every CPU preset there with BALL_SETTINGS on the seeded 80/20 image split and prints the accuracy per
 millisecond table (held-out gradient RMSE and cap depth MAE, threedcal.model.ball_eval).
 

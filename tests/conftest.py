@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+DATA = REPO / "data"
 SNAKEMAKE = Path(sys.executable).with_name("snakemake")
 
 
@@ -21,12 +21,11 @@ def repo() -> Path:
 
 
 @pytest.fixture
-def shared_data() -> Path:
-    if not SHARED_DATA.is_dir():
-        pytest.fail(
-            f"{SHARED_DATA} is missing: the real data must sit in ../shared/data beside the repo"
-        )
-    return SHARED_DATA
+def real_data() -> Path:
+    """The real sensor data vendored in the repository (data/, each folder with its licence)."""
+    if not DATA.is_dir():
+        pytest.fail(f"{DATA} is missing: the vendored real data belongs in the repository")
+    return DATA
 
 
 def write_config(directory: Path, config: dict, name: str = "config.yaml") -> Path:

@@ -117,8 +117,8 @@ def test_unknown_format_lists_allowed():
         load_imported("zip", "x")
 
 
-def test_shared_real_dataset_loads(shared_data):
-    data = load_ball_folder(shared_data / "gelsight_ball_fots")
+def test_vendored_real_dataset_loads(real_data):
+    data = load_ball_folder(real_data / "gelsight_ball_fots")
     assert data.frames.shape == (42, 320, 240, 3)
     assert data.px_per_mm == pytest.approx(19.58) and data.sphere_radius_mm == pytest.approx(2.35)
     assert np.all((data.depth_mm > 0) & (data.depth_mm < 2.35))

@@ -9,15 +9,15 @@ from threedcal.sim.optics import sphere_normals
 from threedcal.sim.realism import BallLabel, compare, image_figures, load_ball_dataset
 
 
-def test_realism_passes_on_the_shared_real_data(shared_data, capsys):
-    code = main(["sim", "realism", "--real", str(shared_data / "gelsight_ball_fots")])
+def test_realism_passes_on_the_vendored_real_data(real_data, capsys):
+    code = main(["sim", "realism", "--real", str(real_data / "gelsight_ball_fots")])
     out = capsys.readouterr().out
     assert "bg_lowfreq_std" in out and "r2_G" in out and "hf_noise_std" in out
     assert code == 0, out
 
 
-def test_realism_fails_when_the_simulator_is_too_noisy(shared_data):
-    data = load_ball_dataset(shared_data / "gelsight_ball_fots")
+def test_realism_fails_when_the_simulator_is_too_noisy(real_data):
+    data = load_ball_dataset(real_data / "gelsight_ball_fots")
     data = type(data)(
         data.root,
         data.px_per_mm,

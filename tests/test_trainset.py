@@ -80,9 +80,9 @@ def test_downscale_keeps_the_sphere_where_it_was():
     assert (rows_h.mean() + 0.5) * 2 - 0.5 == pytest.approx(rows.mean(), abs=0.6)
 
 
-def test_build_imported_real_folder(tmp_path, shared_data):
+def test_build_imported_real_folder(tmp_path, real_data):
     scene = {
-        "import": {"format": "ball_folder", "path": str(shared_data / "gelsight_ball_fots")},
+        "import": {"format": "ball_folder", "path": str(real_data / "gelsight_ball_fots")},
         "seed": 4,
         "dataset": {"downscale": 2, "max_slope_deg": 70},
     }

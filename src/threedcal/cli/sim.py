@@ -11,7 +11,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--real",
         required=True,
-        help="real ball-image folder (e.g. ../shared/data/gelsight_ball_fots)",
+        help="real ball-image folder (e.g. data/gelsight_ball_fots)",
     )
     parser.add_argument(
         "--sensor",

@@ -165,7 +165,7 @@ def collect(
 
 
 def summary(store: RawStore, runs: list[RunResult], estimated_hardware_s: float) -> dict[str, Any]:
-    """results/{scene}/collect/summary.json content (DESIGN.md results layout)."""
+    """results/{scene}/collect/summary.json content (the results layout in the README)."""
     frames = int(store.offsets[-1])
     duration = sum(r.duration_s for r in runs)
     return {

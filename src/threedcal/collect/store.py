@@ -1,6 +1,6 @@
 """The raw collection store: one Zarr v3 group per scene, readable with ``xr.open_zarr``.
 
-Layout (DESIGN.md, Data)::
+Layout::
 
     frames   (frame, y, x, channel) uint8   one chunk per frame; coordinates per frame:
              point, rep, x_mm, y_mm, depth_mm (plan-relative, commanded),

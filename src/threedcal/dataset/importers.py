@@ -1,6 +1,6 @@
 """Importers: existing datasets become scenes with no collection stage.
 
-- ball folder (DESIGN.md, Data): images, background.png, labels.csv
+- ball folder: images, background.png, labels.csv
   (image,center_x_px,center_y_px,radius_px), dataset.yaml (px_per_mm, ball_radius_mm, ...);
 - py3DCal folder: annotations/{probe_data.csv,annotations.csv,metadata.json}, blank_images/blank.png,
   probe_images/*.png — what the authors' tool writes.

@@ -1,7 +1,7 @@
 """Lighting drift between the blank and a frame: the per-channel median colour change of the frame.
 
 LEDs and camera exposure drift between the blank (no-contact) capture and later frames. On the real
-GelSight ball set (shared/data/gelsight_ball_fots) the whole background of a frame is offset from
+GelSight ball set (data/gelsight_ball_fots) the whole background of a frame is offset from
 the blank by up to 30 grey levels in one channel, while the residual after removing one offset per
 channel is 2-4 levels; the contact covers under 10 % of the frame. The median of (frame - blank)
 over the frame ignores any contact that covers less than half of it, so it estimates that global

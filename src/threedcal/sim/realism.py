@@ -68,7 +68,7 @@ class BallLabel:
 
 @dataclass(frozen=True)
 class BallDataset:
-    """A real ball-image folder (DESIGN.md: images, background.png, labels.csv, dataset.yaml)."""
+    """A real ball-image folder: images, background.png, labels.csv, dataset.yaml."""
 
     root: Path
     px_per_mm: float
