@@ -144,11 +144,41 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp
     assert open_raw(store).attrs["complete"] is True
 
 
-def test_complete_store_is_never_overwritten(reference, tmp_path):
-    from threedcal.errors import ConfigError
+def snapshot(path):
+    """Every file under `path` with its size, mtime and content hash: a store left untouched."""
+    import hashlib
 
-    with pytest.raises(ConfigError, match="refusing to overwrite"):
-        collect_scene("s", scene_config()["scenes"]["s"], reference[0], staging_path=tmp_path / "x")
+    return {
+        str(p.relative_to(path)): (
+            p.stat().st_size,
+            p.stat().st_mtime_ns,
+            hashlib.sha1(p.read_bytes()).hexdigest(),
+        )
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_complete_store_is_never_overwritten(reference, tmp_path):
+    from threedcal.collect.store import SettingsMismatch
+
+    before = snapshot(reference[0])
+    # Same settings: nothing is collected, the store's summary comes back.
+    summary = collect_scene(
+        "s", scene_config()["scenes"]["s"], reference[0], staging_path=tmp_path / "x"
+    )
+    assert summary["points"] == 42 and summary["frame_digest"] == reference[1]["frame_digest"]
+    assert not (tmp_path / "x").exists()
+    # Other settings: refused, naming the key (old → new) and how to recollect.
+    other = scene_config()
+    other["scenes"]["s"]["seed"] = 6
+    other["scenes"]["s"]["probe"]["radius_mm"] = 3.0
+    with pytest.raises(SettingsMismatch) as exc:
+        collect_scene("s", other["scenes"]["s"], reference[0], staging_path=tmp_path / "x")
+    message = str(exc.value)
+    assert "seed: 5 → 6" in message and "probe.radius_mm: 2.0 → 3.0" in message
+    assert f"mv {reference[0]} {reference[0]}.old" in message
+    assert snapshot(reference[0]) == before
 
 
 def test_invalid_plan_fails_before_any_motion(tmp_path):

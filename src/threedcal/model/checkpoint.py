@@ -9,6 +9,8 @@ authors' normalisation (coordinate channels 1…W and 1…H; gradients of the op
 
 from __future__ import annotations
 
+import pickle
+import re
 from pathlib import Path
 from typing import Any
 
@@ -41,20 +43,39 @@ def save_checkpoint(path: str | Path, checkpoint: dict[str, Any]) -> None:
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load with weights_only=True; wrap an authors' bare TouchNet state_dict as a touchnet checkpoint."""
+    """Load with weights_only=True; wrap an authors' bare TouchNet state_dict as a touchnet checkpoint.
+
+    Every way a file can be unusable is a CheckpointError naming the file: missing, empty,
+    truncated or not a torch file, holding pickled Python objects (refused, never run), or a
+    threedcal checkpoint without the keys inference needs."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: checkpoint missing")
+    if path.stat().st_size == 0:
+        raise CheckpointError(
+            f"{path}: is empty (0 bytes), not a checkpoint; an interrupted copy? copy it again or retrain"
+        )
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # an unsafe pickle raises UnpicklingError; a corrupt file others
+    except pickle.UnpicklingError as exc:
+        found = _UNSAFE_GLOBAL.search(str(exc))
+        what = f" ({found.group(1)})" if found else ""
         raise CheckpointError(
-            f"{path}: refused to load (only tensors, numbers and strings are allowed): "
-            f"{str(exc).splitlines()[0]}"
-        ) from exc
+            f"{path}: refused to load: it holds pickled Python objects{what} besides tensors, "
+            "numbers and strings, and loading them could run code; threedcal loads only plain "
+            "checkpoints (as `threedcal` training writes them)"
+        ) from None
+    except Exception as exc:  # truncated, corrupt, or not a torch.save file at all
+        raise CheckpointError(
+            f"{path}: refused to load: not a readable checkpoint ({_first_line(exc)})"
+        ) from None
     if isinstance(data, dict) and data.get("format") == FORMAT:
         if data.get("format_version") != FORMAT_VERSION:
-            raise CheckpointError(f"{path}: checkpoint format version {data.get('format_version')}")
+            raise CheckpointError(
+                f"{path}: checkpoint format version {data.get('format_version')!r}; this "
+                f"threedcal reads version {FORMAT_VERSION}"
+            )
+        _check_keys(path, data)
         return data
     if isinstance(data, dict) and "conv1.weight" in data and "conv9.weight" in data:
         return {
@@ -72,14 +93,51 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     )
 
 
+# What a threedcal checkpoint must hold, and of which type (training writes all of them).
+REQUIRED_KEYS = {"preset": str, "state_dict": dict, "normalisation": dict}
+_UNSAFE_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
+
+
+def _check_keys(path: Path, data: dict) -> None:
+    missing = [key for key in REQUIRED_KEYS if key not in data]
+    if missing:
+        raise CheckpointError(
+            f"{path}: threedcal checkpoint without {', '.join(map(repr, missing))} "
+            "(written by another version, or damaged); retrain it"
+        )
+    for key, kind in REQUIRED_KEYS.items():
+        if not isinstance(data[key], kind):
+            raise CheckpointError(
+                f"{path}: {key!r} must be a {kind.__name__}, got {type(data[key]).__name__}"
+            )
+    if "resume_key" in data:
+        return  # a training state (checkpoint.pt): what inference needs is not required
+    sign = data["normalisation"].get("gradient_sign")
+    if not isinstance(sign, int | float) or sign not in (1, -1):
+        raise CheckpointError(f"{path}: normalisation.gradient_sign must be 1 or -1, got {sign!r}")
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
 def model_from_checkpoint(checkpoint: dict[str, Any]) -> torch.nn.Module:
-    model = build_model(checkpoint["preset"], **checkpoint.get("preset_args", {}))
+    args = checkpoint.get("preset_args", {})
+    if not isinstance(args, dict):
+        raise CheckpointError(f"preset_args must be a dict, got {type(args).__name__}")
+    try:
+        model = build_model(checkpoint["preset"], **args)
+    except TypeError as exc:
+        raise CheckpointError(
+            f"preset_args do not fit preset {checkpoint['preset']!r}: {_first_line(exc)}"
+        ) from None
     try:
         model.load_state_dict(checkpoint["state_dict"])
-    except RuntimeError as exc:
+    except (RuntimeError, TypeError, AttributeError, ValueError) as exc:
         raise CheckpointError(
-            f"weights do not fit preset {checkpoint['preset']!r}: {str(exc).splitlines()[0]}"
-        ) from exc
+            f"weights do not fit preset {checkpoint['preset']!r}: {_first_line(exc)}"
+        ) from None
     return model
 
 
