@@ -216,7 +216,8 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
 
     try:
         plan = plan_from_config(scene["plan"], sensor)
-        validate_plan(plan, sensor, printer, source="plan")
+        csv = scene["plan"].get("csv")
+        validate_plan(plan, sensor, printer, source=f"plan ({csv})" if csv else "plan")
     except ConfigError as exc:
         text = str(exc)
         problems.append(text if text.startswith("plan") else f"plan: {text}")

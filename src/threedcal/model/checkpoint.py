@@ -58,12 +58,17 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
+        # PyTorch's own text advises loading unsafely; it is never quoted. What it found is.
         found = _UNSAFE_GLOBAL.search(str(exc))
-        what = f" ({found.group(1)})" if found else ""
+        if found is None:
+            raise CheckpointError(
+                f"{path}: refused to load: not a readable checkpoint (a damaged or foreign file: "
+                f"{_unpickler_reason(exc)})"
+            ) from None
         raise CheckpointError(
-            f"{path}: refused to load: it holds pickled Python objects{what} besides tensors, "
-            "numbers and strings, and loading them could run code; threedcal loads only plain "
-            "checkpoints (as `threedcal` training writes them)"
+            f"{path}: refused to load: it holds a pickled Python object ({found.group(1)}) "
+            "besides tensors, numbers and strings, and loading it could run code; threedcal loads "
+            "only plain checkpoints (as its training writes them)"
         ) from None
     except Exception as exc:  # truncated, corrupt, or not a torch.save file at all
         raise CheckpointError(
@@ -96,6 +101,13 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 # What a threedcal checkpoint must hold, and of which type (training writes all of them).
 REQUIRED_KEYS = {"preset": str, "state_dict": dict, "normalisation": dict}
 _UNSAFE_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
+_UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(.+)")
+
+
+def _unpickler_reason(exc: BaseException) -> str:
+    """The unpickler's own reason from PyTorch's message (not its advice), e.g. `Unsupported operand 0`."""
+    found = _UNPICKLER_ERROR.search(str(exc))
+    return found.group(1).strip() if found else "not a pickle"
 
 
 def _check_keys(path: Path, data: dict) -> None:
@@ -115,6 +127,34 @@ def _check_keys(path: Path, data: dict) -> None:
     sign = data["normalisation"].get("gradient_sign")
     if not isinstance(sign, int | float) or sign not in (1, -1):
         raise CheckpointError(f"{path}: normalisation.gradient_sign must be 1 or -1, got {sign!r}")
+    problem = _inference_problem(data)
+    if problem:
+        raise CheckpointError(f"{path}: {problem}")
+
+
+def _inference_problem(data: dict) -> str | None:
+    """What inference would trip over in the optional keys (None: nothing)."""
+    if not isinstance(data.get("preset_args", {}), dict):
+        return f"'preset_args' must be a dict, got {type(data['preset_args']).__name__}"
+    blank = data.get("blank")
+    if blank is not None and not (
+        isinstance(blank, torch.Tensor) and blank.ndim == 3 and blank.shape[2] == 3
+    ):
+        shape = tuple(blank.shape) if isinstance(blank, torch.Tensor) else type(blank).__name__
+        return f"'blank' must be an (H, W, 3) tensor, got {shape}"
+    scale = data.get("px_per_mm")
+    if scale is not None and not (
+        isinstance(scale, int | float) and not isinstance(scale, bool) and 0 < scale < float("inf")
+    ):
+        return f"'px_per_mm' must be a positive number, got {scale!r}"
+    shape = data.get("image_shape")
+    if shape is not None and not (
+        isinstance(shape, list | tuple)
+        and len(shape) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape)
+    ):
+        return f"'image_shape' must be [height, width] in pixels, got {shape!r}"
+    return None
 
 
 def _first_line(exc: BaseException) -> str:
