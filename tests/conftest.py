@@ -45,10 +45,8 @@ def tiny_study_config(tmp_path: Path) -> dict:
     return config
 
 
-def snakemake(
-    workdir: Path, configfile: Path, *args: str, check: bool = True
-) -> subprocess.CompletedProcess:
-    cmd = [
+def snakemake_command(workdir: Path, configfile: Path, *args: str, cores: int = 2) -> list[str]:
+    return [
         str(SNAKEMAKE),
         "-s",
         str(REPO / "Snakefile"),
@@ -57,9 +55,30 @@ def snakemake(
         "--configfile",
         str(configfile),
         "--cores",
-        "2",
+        str(cores),
         *args,
     ]
+
+
+def snapshot(path: Path) -> dict[str, tuple[int, int, str]]:
+    """Every file under `path` with its size, mtime and content hash: a store left untouched."""
+    import hashlib
+
+    return {
+        str(p.relative_to(path)): (
+            p.stat().st_size,
+            p.stat().st_mtime_ns,
+            hashlib.sha1(p.read_bytes()).hexdigest(),
+        )
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
+
+
+def snakemake(
+    workdir: Path, configfile: Path, *args: str, check: bool = True
+) -> subprocess.CompletedProcess:
+    cmd = snakemake_command(workdir, configfile, *args)
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir)
     if check and result.returncode != 0:
         raise AssertionError(

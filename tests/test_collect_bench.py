@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO
+from conftest import REPO, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -142,21 +142,6 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp
     assert kills >= 3, "the runs finished before the kills: make the plan longer"
     assert_same_store(reference[0], store)
     assert open_raw(store).attrs["complete"] is True
-
-
-def snapshot(path):
-    """Every file under `path` with its size, mtime and content hash: a store left untouched."""
-    import hashlib
-
-    return {
-        str(p.relative_to(path)): (
-            p.stat().st_size,
-            p.stat().st_mtime_ns,
-            hashlib.sha1(p.read_bytes()).hexdigest(),
-        )
-        for p in sorted(path.rglob("*"))
-        if p.is_file()
-    }
 
 
 def test_complete_store_is_never_overwritten(reference, tmp_path):

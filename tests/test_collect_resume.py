@@ -5,6 +5,7 @@ import shutil
 
 import numpy as np
 import pytest
+from test_collect_bench import LABELS as BENCH_LABELS
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import RawStore, SettingsMismatch, StoreError, open_raw
@@ -12,21 +13,7 @@ from threedcal.config import validate_config
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
 
-LABELS = (
-    "point",
-    "rep",
-    "x_mm",
-    "y_mm",
-    "depth_mm",
-    "cmd_x_mm",
-    "cmd_y_mm",
-    "cmd_z_mm",
-    "reported_x_mm",
-    "reported_y_mm",
-    "reported_z_mm",
-    "t_s",
-    "hardware_s",
-)
+LABELS = (*BENCH_LABELS, "t_s", "hardware_s")  # a replayed resume keeps the timeline too
 
 
 def scene(sensor="gelsight_mini", seed=4, **overrides):

@@ -71,17 +71,22 @@ def bench():
 
 def run(store, url, firmware, **kwargs):
     with MarlinHost(url) as host:
-        return collect(
-            store,
-            SENSOR,
-            host,
-            PositionCamera(firmware),
-            SETTINGS,
-            hardware_clock=firmware.clock.now,
-            clock=FirmwareClock(firmware),
-            progress=False,
-            **kwargs,
-        )
+        return run_on(host, store, firmware, **kwargs)
+
+
+def run_on(host, store, firmware, camera=None, **kwargs):
+    """collect() on an open host, on the firmware's clock, with a camera that sees the head."""
+    return collect(
+        store,
+        SENSOR,
+        host,
+        camera or PositionCamera(firmware),
+        SETTINGS,
+        hardware_clock=firmware.clock.now,
+        clock=FirmwareClock(firmware),
+        progress=False,
+        **kwargs,
+    )
 
 
 def test_frames_are_taken_at_rest_at_the_commanded_press(tmp_path, bench):
@@ -195,16 +200,7 @@ def test_stop_while_pressed_lifts_to_the_safe_height_and_releases(tmp_path, benc
         else KeyboardInterrupt
     )
     with MarlinHost(url) as host, pytest.raises(expected):
-        collect(
-            store,
-            SENSOR,
-            host,
-            camera,
-            SETTINGS,
-            hardware_clock=firmware.clock.now,
-            clock=FirmwareClock(firmware),
-            progress=False,
-        )
+        run_on(host, store, firmware, camera)
     assert camera.pressed_z == pytest.approx(20.0 - 1.5, abs=0.01)  # it was pressed
     assert firmware.position()[2] == pytest.approx(clearance_z(SENSOR))  # now at the safe height
     assert firmware.executed_commands()[-3:] == ["G1 Z22.000 F300.0", "M400", "M84"]
@@ -232,16 +228,7 @@ def test_a_signal_during_an_exchange_waits_for_the_line_to_settle(tmp_path, benc
 
         host._readline = readline
         with pytest.raises(CollectionInterrupted):
-            collect(
-                store,
-                SENSOR,
-                host,
-                PositionCamera(firmware),
-                SETTINGS,
-                hardware_clock=firmware.clock.now,
-                clock=FirmwareClock(firmware),
-                progress=False,
-            )
+            run_on(host, store, firmware, PositionCamera(firmware))
         acked = [(n, c) for n, c in host.acked if n >= 1]
     assert sent["done"]
     assert acked == numbered_log(firmware)  # host and firmware in step: each line once, in order
@@ -260,16 +247,7 @@ def test_an_unrecoverable_printer_error_sends_m112(tmp_path, bench):
             return super().capture(count)
 
     with MarlinHost(url, retries=1) as host, pytest.raises(PrinterTimeout):
-        collect(
-            store,
-            SENSOR,
-            host,
-            SilencingCamera(firmware),
-            SETTINGS,
-            hardware_clock=firmware.clock.now,
-            clock=FirmwareClock(firmware),
-            progress=False,
-        )
+        run_on(host, store, firmware, SilencingCamera(firmware))
     assert firmware.halted and firmware.executed[-1] == (None, "M112")
 
 
@@ -280,15 +258,6 @@ def test_the_end_of_a_run_releases_as_the_profile_says(tmp_path, bench):
     profile["safe_stop"] = {"release": "idle_timeout", "idle_timeout_s": 60}
     store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
     with MarlinHost(url, profile) as host:
-        collect(
-            store,
-            SENSOR,
-            host,
-            PositionCamera(firmware),
-            SETTINGS,
-            hardware_clock=firmware.clock.now,
-            clock=FirmwareClock(firmware),
-            progress=False,
-        )
+        run_on(host, store, firmware, PositionCamera(firmware))
     assert firmware.executed_commands()[-1] == "M84 S60" and firmware.idle_timeout_s == 60
     assert firmware.position()[2] == pytest.approx(clearance_z(SENSOR))

@@ -175,6 +175,11 @@ def image_files(draw):
     return data.tobytes()
 
 
+def descriptions(*keys):
+    """A dataset description: the keys it needs with odd values, or anything at all."""
+    return st.one_of(st.fixed_dictionaries({k: st.one_of(numbers, texts) for k in keys}), values)
+
+
 NAMES = st.sampled_from(["0.png", "1.png", "2.png", "../0.png", "/etc/hosts", "missing.png", ""])
 cells = st.one_of(numbers, texts)
 
@@ -182,17 +187,7 @@ cells = st.one_of(numbers, texts)
 @st.composite
 def ball_folders(draw):
     files: dict[str, bytes] = {}
-    meta = draw(
-        st.one_of(
-            st.fixed_dictionaries(
-                {
-                    "px_per_mm": st.one_of(numbers, texts),
-                    "ball_radius_mm": st.one_of(numbers, texts),
-                }
-            ),
-            values,
-        )
-    )
+    meta = draw(descriptions("px_per_mm", "ball_radius_mm"))
     files["dataset.yaml"] = yaml.safe_dump(meta).encode()
     files["background.png"] = draw(image_files())
     for name in ("0.png", "1.png", "2.png"):
@@ -209,17 +204,7 @@ def ball_folders(draw):
 @st.composite
 def py3dcal_folders(draw):
     files: dict[str, bytes] = {}
-    meta = draw(
-        st.one_of(
-            st.fixed_dictionaries(
-                {
-                    "px_per_mm": st.one_of(numbers, texts),
-                    "probe_radius_mm": st.one_of(numbers, texts),
-                }
-            ),
-            values,
-        )
-    )
+    meta = draw(descriptions("px_per_mm", "probe_radius_mm"))
     files["annotations/metadata.json"] = json.dumps(meta).encode()
     files["blank_images/blank.png"] = draw(image_files())
     for name in ("0.png", "1.png"):
@@ -235,32 +220,28 @@ def py3dcal_folders(draw):
     return files
 
 
-def materialise(folder: Path, files: dict[str, bytes]) -> None:
-    for name, data in files.items():
-        (folder / name).parent.mkdir(parents=True, exist_ok=True)
-        (folder / name).write_bytes(data)
+def loads_or_names_without_writing(files: dict[str, bytes], loader) -> None:
+    """Write the generated folder, load it, and check nothing else was written."""
+    with sandbox() as root:
+        folder = root / "set"
+        for name, data in files.items():
+            (folder / name).parent.mkdir(parents=True, exist_ok=True)
+            (folder / name).write_bytes(data)
+        before = listing(root)
+        answers_or_names_the_problem(lambda: loader(folder))
+        assert listing(root) == before
 
 
 @FAST
 @given(files=ball_folders())
 def test_fuzzed_ball_folders_load_or_are_named_and_nothing_is_written(files):
-    with sandbox() as root:
-        folder = root / "set"
-        materialise(folder, files)
-        before = listing(root)
-        answers_or_names_the_problem(lambda: load_ball_folder(folder))
-        assert listing(root) == before
+    loads_or_names_without_writing(files, load_ball_folder)
 
 
 @FAST
 @given(files=py3dcal_folders())
 def test_fuzzed_py3dcal_folders_load_or_are_named_and_nothing_is_written(files):
-    with sandbox() as root:
-        folder = root / "set"
-        materialise(folder, files)
-        before = listing(root)
-        answers_or_names_the_problem(lambda: load_py3dcal_folder(folder))
-        assert listing(root) == before
+    loads_or_names_without_writing(files, load_py3dcal_folder)
 
 
 # ---- checkpoints -------------------------------------------------------------------------------

@@ -6,18 +6,16 @@ and `--rerun-incomplete` — the store is never touched, and a real change stops
 """
 
 import copy
-import hashlib
 import os
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 import yaml
 import zarr
-from conftest import REPO, snakemake
+from conftest import snakemake, snakemake_command, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -45,19 +43,6 @@ def write(workdir, config):
     return path
 
 
-def snapshot(path):
-    """Every file of a store with its size, mtime and content hash."""
-    return {
-        str(p.relative_to(path)): (
-            p.stat().st_size,
-            p.stat().st_mtime_ns,
-            hashlib.sha1(p.read_bytes()).hexdigest(),
-        )
-        for p in sorted(path.rglob("*"))
-        if p.is_file()
-    }
-
-
 def captured(store) -> int:
     try:
         return int(zarr.open_group(str(store), mode="r")["captured"][:].sum())
@@ -68,19 +53,7 @@ def captured(store) -> int:
 def interrupt(workdir, configfile, ready, *args, timeout=120.0):
     """Run Snakemake in its own process group and press Ctrl-C (SIGINT to the group, as a
     terminal does) as soon as `ready()` holds; returns Snakemake's exit code."""
-    cmd = [
-        str(sys.executable).replace("python", "snakemake"),
-        "-s",
-        str(REPO / "Snakefile"),
-        "-d",
-        str(workdir),
-        "--configfile",
-        str(configfile),
-        "--cores",
-        "1",
-        SUMMARY,
-        *args,
-    ]
+    cmd = snakemake_command(workdir, configfile, SUMMARY, *args, cores=1)
     process = subprocess.Popen(
         cmd,
         cwd=workdir,

@@ -180,35 +180,13 @@ def collect(
     uninterrupted run, so a resumed store is byte-identical to one collected in one go.
     """
     clock = clock or WallClock()
-    hardware_clock = hardware_clock or clock.now
-    plan: pd.DataFrame = store.plan
-    start = store.first_uncaptured()
-    started_wall, started_clock, started_hw = time.monotonic(), clock.now(), hardware_clock()
-    if start is None:
-        return RunResult(0, 0, 0.0, 0.0, len(plan))
-    done = np.asarray(store.captured, dtype=bool)
-    first = 0 if replay else start
-    safe_z = clearance_z(sensor)
-    tally = {"points": 0, "frames": 0}
-
-    def record(new: bool = False, **extra: Any) -> None:
-        store.record_run(
-            {
-                "resumed_at": start,
-                "replayed": replay or start == 0,
-                "points": tally["points"],
-                "frames": tally["frames"],
-                "duration_s": round(time.monotonic() - started_wall, 3),
-                "hardware_s": round(hardware_clock() - started_hw, 3),
-                **extra,
-            },
-            new=new,
-        )
-
-    record(new=True)
+    run = _Run(store, sensor, printer, camera, settings, clock, hardware_clock or clock.now, replay)
+    if run.start is None:
+        return RunResult(0, 0, 0.0, 0.0, len(store.plan))
+    run.record(new=True)
     bar = tqdm(
-        total=len(plan),
-        initial=start,
+        total=len(store.plan),
+        initial=run.start,
         desc="collect",
         unit="pt",
         disable=not progress,
@@ -220,60 +198,145 @@ def collect(
             printer.hold_motors()
             if attach_probe is not None:
                 attach_probe()
-            if replay or not store.has_blank():
-                cx, cy = (v / 2 for v in plan_area_mm(sensor))
-                x, y, _ = plan_to_printer(sensor, cx, cy, 0.0)
-                printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
-                printer.move_to(x=x, y=y, feed_mm_s=settings.travel_feed_mm_s)
-                printer.wait_until_idle()
-                clock.sleep(settings.settle_s)
-                camera.flush()
-                if store.has_blank():
-                    _pass_over(camera, settings.n_blank)
-                else:
-                    blank, _ = camera.capture(settings.n_blank)
-                    store.write_blank(blank)
-            _probe(
-                store,
-                sensor,
-                printer,
-                camera,
-                settings,
-                clock,
-                hardware_clock,
-                plan,
-                done,
-                first,
-                started_clock,
-                started_hw,
-                safe_z,
-                tally,
-                record,
-                bar,
-            )
-            printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
+            run.blank()
+            run.probe(bar)
+            printer.move_to(z=run.safe_z, feed_mm_s=settings.plunge_feed_mm_s)
             printer.wait_until_idle()
             release = getattr(printer, "release_motors", None)
             if release is not None:
                 release()
         except BaseException as exc:
-            outcome = make_safe(printer, safe_z, settings.plunge_feed_mm_s, exc)
-            record(stopped=f"{type(exc).__name__}: {exc}".strip(": "), safe_stop=outcome)
+            outcome = make_safe(printer, run.safe_z, settings.plunge_feed_mm_s, exc)
+            run.record(stopped=f"{type(exc).__name__}: {exc}".strip(": "), safe_stop=outcome)
             bar.close()
             logging.getLogger("threedcal").warning(
                 "collection stopped (%s); %s", type(exc).__name__, outcome
             )
             raise
     bar.close()
-    record()
-    return RunResult(
-        points=tally["points"],
-        frames=tally["frames"],
-        duration_s=time.monotonic() - started_wall,
-        hardware_s=hardware_clock() - started_hw,
-        resumed_at=start,
-        replayed=replay,
-    )
+    run.record()
+    return run.result()
+
+
+class _Run:
+    """One collection run's state: where it started, what it has written, its clocks."""
+
+    def __init__(self, store, sensor, printer, camera, settings, clock, hardware_clock, replay):
+        self.store, self.sensor, self.printer, self.camera = store, sensor, printer, camera
+        self.settings, self.clock, self.hardware_clock, self.replay = (
+            settings,
+            clock,
+            hardware_clock,
+            replay,
+        )
+        self.plan: pd.DataFrame = store.plan
+        self.start = store.first_uncaptured()
+        self.started_wall = time.monotonic()
+        self.started_clock, self.started_hw = clock.now(), hardware_clock()
+        self.done = np.asarray(store.captured, dtype=bool)
+        self.safe_z = clearance_z(sensor)
+        self.points = self.frames = 0
+
+    def record(self, new: bool = False, **extra: Any) -> None:
+        """Keep this run's record in the store up to date (a killed run still counts)."""
+        self.store.record_run(
+            {
+                "resumed_at": self.start,
+                "replayed": self.replay or self.start == 0,
+                "points": self.points,
+                "frames": self.frames,
+                "duration_s": round(time.monotonic() - self.started_wall, 3),
+                "hardware_s": round(self.hardware_clock() - self.started_hw, 3),
+                **extra,
+            },
+            new=new,
+        )
+
+    def result(self) -> RunResult:
+        return RunResult(
+            points=self.points,
+            frames=self.frames,
+            duration_s=time.monotonic() - self.started_wall,
+            hardware_s=self.hardware_clock() - self.started_hw,
+            resumed_at=self.start,
+            replayed=self.replay,
+        )
+
+    def blank(self) -> None:
+        """No-contact frames at the clearance height over the plan's centre (passed over when
+        stored already, on a replay)."""
+        store, settings, printer = self.store, self.settings, self.printer
+        if not (self.replay or not store.has_blank()):
+            return
+        cx, cy = (v / 2 for v in plan_area_mm(self.sensor))
+        x, y, _ = plan_to_printer(self.sensor, cx, cy, 0.0)
+        printer.move_to(z=self.safe_z, feed_mm_s=settings.plunge_feed_mm_s)
+        printer.move_to(x=x, y=y, feed_mm_s=settings.travel_feed_mm_s)
+        printer.wait_until_idle()
+        self.clock.sleep(settings.settle_s)
+        self.camera.flush()
+        if store.has_blank():
+            _pass_over(self.camera, settings.n_blank)
+        else:
+            blank, _ = self.camera.capture(settings.n_blank)
+            store.write_blank(blank)
+
+    def probe(self, bar) -> None:
+        store, sensor, printer, settings, plan = (
+            self.store,
+            self.sensor,
+            self.printer,
+            self.settings,
+            self.plan,
+        )
+        offsets = store.offsets
+        first = 0 if self.replay else self.start
+        # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed
+        # gel sits lower away from its apex), never above the clearance height.
+        surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
+        for point in range(first, len(plan)):
+            row = plan.iloc[point]
+            target = plan_to_printer(sensor, row.x_mm, row.y_mm, row.depth_mm)
+            previous = surface_z[point - 1] if point > first else np.inf
+            hop_z = min(self.safe_z, max(previous, surface_z[point]) + settings.hop_mm)
+            printer.move_to(z=hop_z, feed_mm_s=settings.plunge_feed_mm_s)
+            printer.move_to(x=target[0], y=target[1], feed_mm_s=settings.travel_feed_mm_s)
+            printer.move_to(z=target[2], feed_mm_s=settings.plunge_feed_mm_s)
+            printer.wait_until_idle()
+            self.clock.sleep(settings.settle_s)
+            reported = tuple(printer.position())
+            self.camera.flush()
+            count = int(offsets[point + 1] - offsets[point])
+            if self.done[point]:
+                samples = _pass_over(self.camera, count)
+            else:
+                frames, stamps = self.camera.capture(count)
+            hw_now = self.hardware_clock() - self.started_hw
+            lift_to = surface_z[point + 1] if point + 1 < len(plan) else np.inf
+            lift_z = min(self.safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
+            printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
+            if self.done[point]:
+                if samples is not None and not np.array_equal(samples, store.read_point(point)):
+                    raise StoreError(
+                        f"{store.path}: replaying point {point} of the simulated bench did not "
+                        "give the samples stored for it (was the simulator changed since?); move "
+                        "the store away to collect it anew"
+                    )
+                continue
+            store.write_point(
+                point,
+                PointRecord(
+                    frames=frames,
+                    cmd_xyz=target,
+                    reported_xyz=reported,
+                    t_s=np.asarray(stamps, dtype=float) - self.started_clock,
+                    hardware_s=np.full(count, hw_now),
+                ),
+            )
+            self.points += 1
+            self.frames += count
+            self.record()
+            bar.update(1)
 
 
 def _pass_over(camera, count: int):
@@ -285,70 +348,3 @@ def _pass_over(camera, count: int):
         return None
     samples, _ = camera.capture(count)
     return samples
-
-
-def _probe(
-    store,
-    sensor,
-    printer,
-    camera,
-    settings,
-    clock,
-    hardware_clock,
-    plan,
-    done,
-    first,
-    started_clock,
-    started_hw,
-    safe_z,
-    tally,
-    record,
-    bar,
-) -> None:
-    offsets = store.offsets
-    # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed gel
-    # sits lower away from its apex), never above the clearance height.
-    surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
-    for point in range(first, len(plan)):
-        row = plan.iloc[point]
-        target = plan_to_printer(sensor, row.x_mm, row.y_mm, row.depth_mm)
-        previous = surface_z[point - 1] if point > first else np.inf
-        hop_z = min(safe_z, max(previous, surface_z[point]) + settings.hop_mm)
-        printer.move_to(z=hop_z, feed_mm_s=settings.plunge_feed_mm_s)
-        printer.move_to(x=target[0], y=target[1], feed_mm_s=settings.travel_feed_mm_s)
-        printer.move_to(z=target[2], feed_mm_s=settings.plunge_feed_mm_s)
-        printer.wait_until_idle()
-        clock.sleep(settings.settle_s)
-        reported = tuple(printer.position())
-        camera.flush()
-        count = int(offsets[point + 1] - offsets[point])
-        if done[point]:
-            samples = _pass_over(camera, count)
-        else:
-            frames, stamps = camera.capture(count)
-        hw_now = hardware_clock() - started_hw
-        lift_to = surface_z[point + 1] if point + 1 < len(plan) else np.inf
-        lift_z = min(safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
-        printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
-        if done[point]:
-            if samples is not None and not np.array_equal(samples, store.read_point(point)):
-                raise StoreError(
-                    f"{store.path}: replaying point {point} of the simulated bench did not give "
-                    "the samples stored for it (was the simulator changed since?); move the store "
-                    "away to collect it anew"
-                )
-            continue
-        store.write_point(
-            point,
-            PointRecord(
-                frames=frames,
-                cmd_xyz=target,
-                reported_xyz=reported,
-                t_s=np.asarray(stamps, dtype=float) - started_clock,
-                hardware_s=np.full(count, hw_now),
-            ),
-        )
-        tally["points"] += 1
-        tally["frames"] += count
-        record()
-        bar.update(1)
