@@ -125,9 +125,14 @@ def frame_settings(scene: Mapping, prepared: ScenePlan) -> dict[str, Any]:
     return json.loads(canonical_json(settings))
 
 
+# Profile keys no frame depends on: where the file was read from, words, and how the host talks to
+# the printer and stops it. Changing them never blocks a resume or a rerun.
+NOT_FRAME_SETTINGS = ("source", "description", "timeouts_s", "safe_stop")
+
+
 def _profile_content(profile: Mapping) -> dict:
-    """A profile without where it was read from (a machine-specific path)."""
-    return {k: v for k, v in profile.items() if k != "source"}
+    """A profile's content that frames can depend on."""
+    return {k: v for k, v in profile.items() if k not in NOT_FRAME_SETTINGS}
 
 
 def _refuse_foreign(path: Path) -> None:

@@ -93,7 +93,8 @@ def compare_logs(
         if item not in seen:
             seen.add(item)
             order.append(item)
-    reordered = [i for i in order if i in set(sent)] != [i for i in sent if counts[i]]
+    known = set(sent)
+    reordered = [i for i in order if i in known] != [i for i in sent if counts[i]]
     return lost, duplicated, reordered
 
 
