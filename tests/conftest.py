@@ -16,6 +16,19 @@ SNAKEMAKE = Path(sys.executable).with_name("snakemake")
 
 
 @pytest.fixture
+def sim_firmware():
+    """A fault-free fake Marlin (no pacing) behind a fresh simmarlin:// name: (url, firmware)."""
+    import uuid
+
+    from threedcal.sim.marlin import SimMarlin, forget, register
+
+    name = f"f{uuid.uuid4().hex[:8]}"
+    firmware = register(name, SimMarlin("ender3", speedup=float("inf")))
+    yield f"simmarlin://{name}", firmware
+    forget(name)
+
+
+@pytest.fixture
 def repo() -> Path:
     return REPO
 

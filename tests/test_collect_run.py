@@ -2,7 +2,6 @@
 
 import os
 import signal
-import uuid
 
 import numpy as np
 import pandas as pd
@@ -12,7 +11,7 @@ from threedcal.collect.plan import clearance_z, grid_plan, plan_to_printer
 from threedcal.collect.run import CollectionInterrupted, MotionSettings, collect
 from threedcal.collect.store import RawStore, open_raw
 from threedcal.hardware.printer import MarlinHost, PrinterTimeout, printer_profile
-from threedcal.sim.marlin import SimMarlin, forget, register
+from threedcal.sim.marlin import SimMarlin
 
 SENSOR = {
     "probing": {"plan_area_mm": [2.0, 1.0]},
@@ -62,11 +61,8 @@ class FirmwareClock:
 
 
 @pytest.fixture
-def bench():
-    name = f"c{uuid.uuid4().hex[:8]}"
-    firmware = register(name, SimMarlin("ender3", speedup=float("inf")))
-    yield f"simmarlin://{name}", firmware
-    forget(name)
+def bench(sim_firmware):
+    return sim_firmware
 
 
 def run(store, url, firmware, **kwargs):

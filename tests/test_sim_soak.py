@@ -1,21 +1,17 @@
 import re
-import uuid
 
 import pytest
 
 from threedcal.cli import main
 from threedcal.hardware.printer import MarlinHost
-from threedcal.sim.marlin import RECOVERABLE_FAULTS, SimMarlin, forget, register
+from threedcal.sim.marlin import RECOVERABLE_FAULTS
 from threedcal.sim.soak import acknowledged_early, compare_logs, run_soak, soak_table
 
 
 @pytest.fixture
-def firmware():
-    """A fault-free fake firmware behind a fresh simmarlin:// name (faults are scheduled)."""
-    name = f"s{uuid.uuid4().hex[:8]}"
-    board = register(name, SimMarlin("ender3", speedup=float("inf")))
-    yield f"simmarlin://{name}", board
-    forget(name)
+def firmware(sim_firmware):
+    """A fault-free fake firmware (faults are scheduled line by line)."""
+    return sim_firmware
 
 
 def numbered(board):
