@@ -58,6 +58,7 @@ class _Payload:
         return (print, ("never",))
 
 
+@pytest.mark.filterwarnings("ignore:Detected pickle protocol")
 def test_unsafe_checkpoint_refusal_does_not_advise_unsafe_loading(tmp_path):
     """Repro: the refusal quoted PyTorch's advice to load with weights_only=False."""
     path = tmp_path / "model.pt"
