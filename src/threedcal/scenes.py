@@ -71,7 +71,9 @@ RESKIN_FILES = (
     "reskin_eval.json",
     "reskin_eval.png",
 )
-COLLECT_FILES = ("raw.zarr", "collect/summary.json", "collect/coverage.png", "collect/frames.png")
+# The store (raw.zarr) is not among them: it is a source the collect stage keeps beside its outputs,
+# never a product Snakemake may delete (rules/collect.smk).
+COLLECT_FILES = ("collect/summary.json", "collect/coverage.png", "collect/frames.png")
 
 
 def is_magnetic_scene(scene: Mapping) -> bool:

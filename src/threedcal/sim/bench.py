@@ -98,6 +98,13 @@ class SimCamera:
     def flush(self) -> None:
         self._rep = 0  # a fresh hold: creep and noise restart for the frames that follow
 
+    def skip(self, count: int) -> None:
+        """Spend the time of `count` frames without rendering them (a replayed resume: those
+        frames are stored already, and a render depends only on the pose and the repetition)."""
+        for _ in range(count):
+            self.bench.firmware.clock.advance(1.0 / self.fps)
+            self._rep += 1
+
     def capture(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         frames, stamps = [], []
         clock = self.bench.firmware.clock
