@@ -20,7 +20,6 @@ import numpy as np
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.evaluate.groundtruth import surface_height
-from threedcal.evaluate.object_errors import evaluate_press, printer_press
 from threedcal.evaluate.pressing import (
     PrinterFrame,
     head_position,
@@ -29,6 +28,7 @@ from threedcal.evaluate.pressing import (
     read_registration,
     relief_indenter,
     scene_mount,
+    score_press,
 )
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
@@ -69,17 +69,10 @@ def main(scene_name: str, p: int = 80) -> None:
             ("simulator surface", gel),
             (f"model P{p}", est.depth(frames[press.frame])),
         ):
-            printer = printer_press(depth, surface_gt, placed.depth_mm, max_penetration_mm=limit)
-            paper = evaluate_press(
-                depth,
-                mesh,
-                px_per_mm=est.px_per_mm,
-                nominal_indentation_mm=min(max(placed.depth_mm, 0.0), limit),
-                max_penetration_mm=limit,
-                center_px=placed.center_px,
-                linear_px_per_mm=placed.linear_px_per_mm,
-                surface=surface_gt,
+            scored = score_press(
+                depth, mesh, placed, surface_gt, px_per_mm=est.px_per_mm, max_penetration_mm=limit
             )
+            printer, paper = scored["printer"], scored["paper"]
             e, f = printer.errors, paper.errors
             print(
                 f"  {name:15s} {label:18s} printer {e['type2_um']:7.1f} / {e['type1_um']:6.1f}"

@@ -298,17 +298,6 @@ def relief_indenter(mesh, px_per_mm: float, rotation_deg: float = 0.0):
     return Relief(relief, px_per_mm)
 
 
-class _FirmwareClock:
-    def __init__(self, firmware):
-        self.firmware = firmware
-
-    def now(self) -> float:
-        return self.firmware.clock.now()
-
-    def sleep(self, seconds: float) -> None:
-        self.firmware.clock.advance(seconds)
-
-
 @dataclass
 class SessionResult:
     blank: np.ndarray  # float32 (H, W, 3): mean of the session's blank frames
@@ -512,7 +501,7 @@ def _press_on_bench(scene, sensor, printer, frame, presses, seed, progress):
                 results[name] = run_session(
                     host,
                     bench.camera,
-                    _FirmwareClock(bench.firmware),
+                    bench.firmware.clock,
                     [p for p in presses if p.set == name],
                     frame,
                     settings,
@@ -622,7 +611,7 @@ def evaluate_objects(
     """
     from tqdm import tqdm
 
-    from threedcal.evaluate.object_errors import evaluate_press, pixel_errors_um, printer_press
+    from threedcal.evaluate.object_errors import pixel_errors_um
     from threedcal.evaluate.object_figures import plot_depth_sections, plot_error_violins
     from threedcal.profiles import load_profile
 
@@ -668,21 +657,15 @@ def evaluate_objects(
                 )
             for k, method in enumerate(integrators if p == full else integrators[:1]):
                 depth = est.depth(image, method=method)
-                printer = printer_press(
-                    depth, truths[key], placed.depth_mm, max_penetration_mm=limit
+                results = score_press(
+                    depth,
+                    mesh,
+                    pose,
+                    truths[key],
+                    px_per_mm=est.px_per_mm,
+                    max_penetration_mm=limit,
+                    paper=k == 0,  # the integrators are compared under the printer protocol
                 )
-                results = {"printer": printer}
-                if k == 0:  # the integrators are compared under the printer protocol only
-                    results["paper"] = evaluate_press(
-                        depth,
-                        mesh,
-                        px_per_mm=est.px_per_mm,
-                        nominal_indentation_mm=min(max(placed.depth_mm, 0.0), limit),
-                        max_penetration_mm=limit,
-                        center_px=pose.center_px,
-                        linear_px_per_mm=pose.linear_px_per_mm,
-                        surface=truths[key],
-                    )
                 for protocol, result in results.items():
                     row = {
                         "object": object_label(press.object),
@@ -707,11 +690,11 @@ def evaluate_objects(
                     continue
                 label = object_label(press.object)
                 if p == full:
-                    pixel_tables.append(pixel_errors_um(label, depth, printer.gt_mm))
+                    pixel_tables.append(pixel_errors_um(label, depth, results["printer"].gt_mm))
                     if press.frame == first_reporting[press.object]:
                         plot_depth_sections(
                             depth,
-                            printer.gt_mm,
+                            results["printer"].gt_mm,
                             figures / f"{label}_sections.png",
                             px_per_mm=est.px_per_mm,
                             title=f"{label}: P = {p} %, {method}, printer protocol",
@@ -733,6 +716,40 @@ def evaluate_objects(
     if pill_maps:
         pill_figure(pill_maps, figures / "pill_by_P.png")
     return errors
+
+
+def score_press(
+    depth: np.ndarray,
+    mesh,
+    pose: Placement,
+    surface: HeightMap,
+    *,
+    px_per_mm: float,
+    max_penetration_mm: float,
+    paper: bool = True,
+) -> dict:
+    """One predicted depth map under each protocol: {"printer": ..., "paper": ...}.
+
+    `pose` and `surface`: where the printer put the object, on the prediction's pixel grid."""
+    from threedcal.evaluate.object_errors import evaluate_press, printer_press
+
+    results = {
+        "printer": printer_press(
+            depth, surface, pose.depth_mm, max_penetration_mm=max_penetration_mm
+        )
+    }
+    if paper:
+        results["paper"] = evaluate_press(
+            depth,
+            mesh,
+            px_per_mm=px_per_mm,
+            nominal_indentation_mm=min(max(pose.depth_mm, 0.0), max_penetration_mm),
+            max_penetration_mm=max_penetration_mm,
+            center_px=pose.center_px,
+            linear_px_per_mm=pose.linear_px_per_mm,
+            surface=surface,
+        )
+    return results
 
 
 def head_position(press) -> tuple[float, float, float]:
