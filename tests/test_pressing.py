@@ -281,3 +281,7 @@ def test_bad_input_is_refused_before_any_motion(tmp_path):
         press_objects(scene, registration, tmp_path / "out", name="rig", progress=False)
     with_mount = {**raw, "pressing": {"mount": {"x_mm": 0, "y_mm": 0, "z_mm": -3}}}
     validate_config({"scenes": {"s": with_mount}})  # accepted
+    scene["pressing"]["mount"], scene["camera"] = with_mount["pressing"]["mount"], "sim"
+    with pytest.raises(ConfigError, match=r"scenes.rig.camera: .*real printer"):
+        press_objects(scene, registration, tmp_path / "out", name="rig", progress=False)
+    assert not (tmp_path / "out").exists()
