@@ -143,6 +143,7 @@ def evaluate_press(
     surface: HeightMap | None = None,
     max_shift_px: float | None = None,
     iterations: int = 3,
+    min_shift_px: float = 0.05,
 ) -> PressEvaluation:
     """The paper's protocol on one predicted depth map: align in x, y, fit the depth, score.
 
@@ -151,7 +152,9 @@ def evaluate_press(
     cross-correlation (sub-pixel); the mesh is re-rasterised at the corrected pose (exact, no image
     interpolation); the indentation is fitted; and the alignment is repeated with the fitted depth,
     keeping the pose and depth with the least squared error. Rotation is never changed.
-    `surface`: the ground truth already rasterised at that starting pose (saves one raster).
+    `surface`: the ground truth already rasterised at that starting pose (saves one raster). A
+    shift under `min_shift_px` in x and y (below the sub-pixel peak's precision) counts as none:
+    the alignment has converged and the mesh is not rasterised again.
     """
     pred = np.asarray(pred, dtype=np.float64)
     check_indentation(nominal_indentation_mm, max_penetration_mm)
@@ -172,7 +175,8 @@ def evaluate_press(
     best = None
     for _ in range(max(1, iterations)):
         (dx, dy), _ = align_xy(pred, surface.depth(depth), max_shift_px=max_shift_px, subpixel=True)
-        if dx or dy:
+        moved = max(abs(dx), abs(dy)) >= min_shift_px
+        if moved:
             total = total + (dx, dy)
             surface = raster(center + total)
         depth = fit_indentation(pred, surface, bounds=(0.0, max_penetration_mm))
@@ -181,7 +185,7 @@ def evaluate_press(
         # refinement is kept only if it fits better
         if best is None or sse < best[0]:
             best = (sse, surface, depth, total.copy())
-        elif not (dx or dy):
+        elif not moved:
             break
     _, surface, depth, total = best
     gt = surface.depth(depth)

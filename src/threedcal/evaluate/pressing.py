@@ -613,7 +613,8 @@ def evaluate_objects(
     `depth(frame, method=)` (a DepthEstimator by default). `plots=False` skips the figures. Every press is rendered once (by the
     object_presses rule); the printer protocol's ground truth is rasterised once per press and
     frame size. errors.csv: reporting presses only, per object, P and protocol, the mean with its
-    95 % t interval over presses; tuning.csv: the same over the tuning presses.
+    95 % t interval over presses; tuning.csv: the same over the tuning presses, under the printer
+    protocol only (the one settings are chosen on).
     """
     from tqdm import tqdm
 
@@ -671,7 +672,9 @@ def evaluate_objects(
                     truths[key],
                     px_per_mm=est.px_per_mm,
                     max_penetration_mm=limit,
-                    paper=k == 0,  # the integrators are compared under the printer protocol
+                    # the paper's protocol for comparison on the reporting presses; the
+                    # integrators are compared, and settings chosen, under the printer protocol
+                    paper=k == 0 and press.set == "reporting",
                 )
                 for protocol, result in results.items():
                     row = {
