@@ -8,7 +8,6 @@ import pytest
 from scipy import ndimage
 
 from threedcal.config import validate_config
-from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import surface_height
 from threedcal.evaluate.mesh import write_stl
@@ -18,6 +17,7 @@ from threedcal.evaluate.pressing import (
     SETS,
     Mount,
     PrinterFrame,
+    TruthGradients,
     evaluate_objects,
     plan_presses,
     press_objects,
@@ -49,34 +49,6 @@ def perfect_registration(scene, path):
     record = {"affine_px_per_mm": truth.affine_px_per_mm, "touch_offset_mm": truth.touch_offset_mm}
     path.write_text(json.dumps(record))
     return path
-
-
-class ExactGradients:
-    """A perfect model: the gradients of the true surface of each rendered press (from the bench's
-    record of where it put the object), integrated with the scene's integrator."""
-
-    def __init__(self, pressing_dir, px_per_mm):
-        plan, frames, _, truth = read_presses(pressing_dir)
-        self.px_per_mm, self.image_shape = px_per_mm, frames.shape[1:3]
-        self.gradients = {}
-        for row, frame, true in zip(plan.itertuples(), frames, truth["presses"], strict=True):
-            mesh, (cx, cy) = load_object(row.object), true["center_px"]
-
-            def depth(dx, dy, mesh=mesh, cx=cx, cy=cy, true=true):
-                at = (cx - dx, cy - dy)  # the surface sampled at x + dx, y + dy
-                surface = surface_height(
-                    mesh, self.image_shape, px_per_mm, at, true["rotation_deg"]
-                )
-                return surface.depth(true["depth_mm"])
-
-            step = 0.05  # px: central differences well inside every facet
-            gx = (depth(step, 0) - depth(-step, 0)) / (2 * step) * px_per_mm
-            gy = (depth(0, step) - depth(0, -step)) / (2 * step) * px_per_mm
-            self.gradients[frame.tobytes()] = (gx, gy)
-
-    def depth(self, frame, method="poisson_dst"):
-        gx, gy = self.gradients[frame.tobytes()]
-        return integrate(gx, gy, method=method, px_per_mm=self.px_per_mm)
 
 
 def test_presses_are_seeded_per_set_object_and_number():
@@ -173,7 +145,9 @@ def test_printer_protocol_scores_exact_gradients_within_5um(tmp_path):
     press_objects(scene, registration, tmp_path / "pressing", progress=False)
     plan, frames, blanks, truth = read_presses(tmp_path / "pressing")
     assert len(frames) == len(plan) == 2 and set(blanks) == set(SETS)
-    perfect = ExactGradients(tmp_path / "pressing", load_profile("sensor", "digit")["px_per_mm"])
+    # a perfect model: the exact gradients of the true surface, integrated with the scene's
+    # integrator (poisson_dst)
+    perfect = TruthGradients(tmp_path / "pressing", load_profile("sensor", "digit")["px_per_mm"])
     errors = evaluate_objects(
         scene,
         {80: "exact"},
