@@ -245,6 +245,10 @@ def _scene_problems(scene: Mapping) -> list[str]:
             problems.append(f"{kind}: {exc}")
     if scene.get("sensor") is not None and not problems:
         problems += _magnetic_problems(scene)
+    if not imported and scene.get("objects"):
+        from threedcal.evaluate.pressing import mount_problem
+
+        problems += [p for p in [mount_problem(scene)] if p]
     return problems
 
 

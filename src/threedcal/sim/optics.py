@@ -48,6 +48,11 @@ class GelSimulator:
 
     `image_size=(width, height)` and `px_per_mm` override the profile's frame (used to render at a
     real dataset's scale). Poses are in image pixels (x = column, y = row, sub-pixel), depths in mm.
+
+    `seed` is the sensor's own draw: its paint texture, and by default the camera noise. A later
+    session on the same sensor keeps the gel and paint but not the noise or the lighting:
+    `noise_seed` draws the noise fields and per-frame picks apart from `seed`, and `gain_rgb`
+    scales every frame per colour channel (the LEDs' brightness drifted since calibration).
     """
 
     def __init__(
@@ -57,11 +62,20 @@ class GelSimulator:
         *,
         image_size: tuple[int, int] | None = None,
         px_per_mm: float | None = None,
+        noise_seed: int | None = None,
+        gain_rgb=None,
     ):
         if profile.get("type") != "vision":
             raise ConfigError(f"sensor profile {profile.get('name')!r} is not a vision sensor")
         self.profile = profile
         self.seed = int(seed)
+        self.noise_seed = self.seed if noise_seed is None else int(noise_seed)
+        self.gain_rgb = None if gain_rgb is None else np.asarray(gain_rgb, dtype=np.float32)
+        if self.gain_rgb is not None and (
+            self.gain_rgb.shape != (3,)
+            or not np.all(np.isfinite(self.gain_rgb) & (self.gain_rgb > 0))
+        ):
+            raise ConfigError(f"gain_rgb must be three positive numbers, got {gain_rgb!r}")
         w, h = image_size or (profile["image"]["width_px"], profile["image"]["height_px"])
         self.width, self.height = int(w), int(h)
         self.px_per_mm = float(px_per_mm or profile["px_per_mm"])
@@ -203,7 +217,7 @@ class GelSimulator:
         self._bg = self._blur(bg.astype(np.float32))
 
     def _setup_noise(self) -> None:
-        rng = _stream(self.seed, 2)
+        rng = _stream(self.noise_seed, 2)
         shape = (_NOISE_BANK, self.height + _NOISE_PAD, self.width + _NOISE_PAD, 3)
         self._noise = (rng.standard_normal(shape, dtype=np.float32) * self.noise_dn).astype(
             np.float32
@@ -393,12 +407,14 @@ class GelSimulator:
         return (1.0 - self.shadow_strength * (occl > 0)).astype(np.float32)
 
     def _finish(self, frame: np.ndarray, frame_index: int) -> np.ndarray:
-        rng = _stream(self.seed, 3, int(frame_index))
+        rng = _stream(self.noise_seed, 3, int(frame_index))
         k = int(rng.integers(_NOISE_BANK))
         oy, ox = (int(v) for v in rng.integers(_NOISE_PAD, size=2))
         gain = 1.0 + self.gain_jitter * float(rng.standard_normal())
         if gain != 1.0:
             frame *= np.float32(gain)
+        if self.gain_rgb is not None:
+            frame *= self.gain_rgb
         if self._marker_mask is not None:
             frame *= self._marker_mask
         frame += self._noise[k, oy : oy + self.height, ox : ox + self.width]
