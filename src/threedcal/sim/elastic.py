@@ -13,8 +13,8 @@ rigid base displaces the surface by u = C(k) p cos(kx) with
     S(t) = [(3 - 4nu) sinh 2t - 2t] / [(3 - 4nu) cosh 2t + 2t^2 + (1 + (3 - 4nu)^2) / 2].
 
 S is derived from the Navier equations of a plane-strain Fourier mode (the rigid-base case of
-Burmister's layered-system solution, J. Appl. Phys. 16, 89 and 126, 1945); the derivation with
-sympy is reproduced in docs/simulator.md. Limits, each checked in tests/test_sim_elastic.py:
+Burmister's layered-system solution, J. Appl. Phys. 16, 89 and 126, 1945); the derivation, by sympy,
+is `docs/diagnostics/elastic_gel.py derive`. Limits, each checked in tests/test_sim_elastic.py:
 S -> 1 for kh -> inf (Boussinesq half-space: C = 2/(E* k)); for kh -> 0 a compressible layer acts as
 a Winkler foundation of constrained modulus M = E (1 - nu) / ((1 + nu)(1 - 2nu)), u = p h / M
 (Johnson, Contact Mechanics, 1985, thin bonded layer); an incompressible one follows the lubrication
@@ -61,6 +61,7 @@ _RHO_MAX = (
     30.0  # beyond this many thicknesses the layer's own response is below 1e-10 of its near field
 )
 _SPECTRA = 24  # cached kernel spectra per kernel (one per FFT shape)
+_SPARSE_UPDATES = 24  # up to this many nodes set apart from a CG step: direct sums, not an FFT
 
 
 @dataclass(frozen=True)
@@ -270,6 +271,12 @@ class LayerKernel:
         return sfft.irfft2(sfft.rfft2(padded) * spec, s=fft_shape)[:ny, :nx]
 
 
+def _mirrored(table: np.ndarray) -> np.ndarray:
+    """The lag table K[|dy|, |dx|] as K[dy + ny - 1, dx + nx - 1] for every signed lag."""
+    rows = np.concatenate([table[:0:-1], table], axis=0)
+    return np.concatenate([rows[:, :0:-1], rows], axis=1)
+
+
 @dataclass
 class ContactResult:
     """The solution on the solver grid: pressure (MPa), surface displacement (mm, into the gel)."""
@@ -335,6 +342,7 @@ def solve_contact(
     t = zero.copy()
     g_old, delta, converged, iterations = 1.0, 0.0, False, 0
     self_influence = float(kernel.influence(1, 1)[0, 0])
+    lags = None
     while iterations < max_iter:
         iterations += 1
         gap = u - w
@@ -359,12 +367,21 @@ def solve_contact(
             p[overlap] = -gap[overlap] * (tau if tau > 0 else 1.0 / self_influence)
         else:
             delta = 1.0
-        # u = K p, updated by linearity; a fresh convolution only where the projection or new contact
-        # points changed p away from the CG step
-        if np.array_equal(p, step):
-            u = u - tau * r
-        else:
+        # u = K p, updated by linearity: the CG step moved it by -tau r; the few nodes the projection
+        # or the new contact points set apart add their own influence (a full convolution if many)
+        changed = np.flatnonzero(p != step)
+        if changed.size > _SPARSE_UPDATES:
             u = conv(p)
+        else:
+            u = u - tau * r
+            if changed.size:
+                if lags is None:
+                    lags = _mirrored(kernel.influence(*w.shape))
+                ny, nx = w.shape
+                for i, j in zip(*np.unravel_index(changed, w.shape), strict=True):
+                    u += (p[i, j] - step[i, j]) * lags[
+                        ny - 1 - i : 2 * ny - 1 - i, nx - 1 - j : 2 * nx - 1 - j
+                    ]
     force = float(p.sum()) * kernel.spacing_mm**2
     return ContactResult(p, u, force, iterations, converged, scale)
 

@@ -119,6 +119,9 @@ class GelSimulator:
                 tol=float(gel.get("elastic_tolerance", 1e-3)),
             )
             self._press_memo: tuple | None = None
+            # pixels on lattice nodes every grid_px (uniform pixels, as everything here assumes);
+            # a lens would set None and sample each pixel's gel point instead
+            self._pixel_lattice: int | None = grid_px
             self._setup_linear_shading()
 
     # ----------------------------------------------------------------- set-up (once per simulator)
@@ -133,6 +136,11 @@ class GelSimulator:
         self._n0 = _normals(gx0, gy0)
         half_diag = math.hypot(self._cx, self._cy) / s
         self._rho2 = (self.X**2 + self.Y**2) / half_diag**2  # 1 at the corners
+
+    @property
+    def domed(self) -> bool:
+        """True when the undeformed gel is a dome (profile gel.dome), False when flat."""
+        return self._dome is not None
 
     def sag_mm(self, x_mm, y_mm):
         """Depth of the undeformed gel surface below its apex (0 for a flat gel), x/y from the centre."""
@@ -439,29 +447,19 @@ class GelSimulator:
 
     def _elastic_surface(self, press, window) -> tuple[np.ndarray, np.ndarray]:
         """Gel surface (mm) and contact mask in `window`: the elastic displacement, sampled at each
-        pixel's gel point by cubic interpolation between lattice nodes; the indenter where the
-        interpolation would put the gel through it (never through it, equal to it in contact)."""
-        import cv2
-
+        pixel's gel point by cubic interpolation between lattice nodes; in contact (where the solver's
+        contact set covers the pixel) the indenter itself; elsewhere never through the indenter."""
         y0, y1, x0, x1 = window
         X, Y = self.X[y0:y1, x0:x1], self.Y[y0:y1, x0:x1]
         gel = self._elastic
         box = gel.nodes_covering(float(X.min()), float(X.max()), float(Y.min()), float(Y.max()))
         box = (box[0] - 2, box[1] + 2, box[2] - 2, box[3] + 2)  # the cubic's support
-        u_nodes = press.displacement_on(box).astype(np.float32)
-        bx, by = gel.node_coords((box[0], box[0] + 1, box[2], box[2] + 1))
-        step = gel.spacing_mm
-        u = cv2.remap(
-            u_nodes,
-            _lattice_coord(X, float(bx[0, 0]), step),
-            _lattice_coord(Y, float(by[0, 0]), step),
-            cv2.INTER_CUBIC,
-            borderMode=cv2.BORDER_REPLICATE,
-        )
+        u = self._sample_nodes(press.displacement_on(box), box, window)
         z = self.Z0[y0:y1, x0:x1] + u
         contact = np.zeros(u.shape, bool)
         # the indenter matters only where it was solved for (elsewhere it is above the gel)
         dom = press.node_box()
+        step = gel.spacing_mm
         nx, ny = gel.node_coords(dom)
         inside = (
             (X >= float(nx.min()) - step)
@@ -474,14 +472,14 @@ class GelSimulator:
             r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
             Xi, Yi = X[r0:r1, c0:c1], Y[r0:r1, c0:c1]
             # in contact where the solver's contact set covers the pixel (linear interpolation of its
-            # indicator); there the gel is the indenter, elsewhere never through it
+            # indicator: a pixel midway between a contact node and a free one counts as contact)
+            padded = (dom[0] - 2, dom[1] + 2, dom[2] - 2, dom[3] + 2)
             touching = (
-                cv2.remap(
-                    np.pad(press.result.contact.astype(np.float32), 1),
-                    _lattice_coord(Xi, float(nx[0, 0]) - step, step),
-                    _lattice_coord(Yi, float(ny[0, 0]) - step, step),
-                    cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT,
+                self._sample_nodes(
+                    np.pad(press.result.contact.astype(np.float32), 2),
+                    padded,
+                    (y0 + r0, y0 + r1, x0 + c0, x0 + c1),
+                    linear=True,
                 )
                 >= 0.5
             )
@@ -493,6 +491,30 @@ class GelSimulator:
                 gel_depth = np.where(touching, w, np.maximum(ui, w))
             z[r0:r1, c0:c1] = self.Z0[y0:y1, x0:x1][r0:r1, c0:c1] + gel_depth
         return z.astype(np.float32), contact
+
+    def _sample_nodes(self, values, box, window, linear: bool = False) -> np.ndarray:
+        """`values` on the lattice nodes of `box` (row0, row1, col0, col1) at the pixels of `window`:
+        Catmull-Rom cubic (exact for quadratics) or linear interpolation.
+
+        Today's pixels sit on the lattice (node (i, j) at pixel (i, j) x grid_px), so the
+        interpolation is separable with fixed weights. Pixels that are not (a lens) go through
+        cv2.remap at each pixel's gel point (X, Y) instead."""
+        y0, y1, x0, x1 = window
+        f = self._pixel_lattice
+        if f is not None:
+            cols = _upsample_axis(np.asarray(values, np.float32), box[2], x0, x1, f, linear, 1)
+            return _upsample_axis(cols, box[0], y0, y1, f, linear, 0)
+        import cv2
+
+        gel = self._elastic
+        bx, by = gel.node_coords((box[0], box[0] + 1, box[2], box[2] + 1))
+        return cv2.remap(
+            np.asarray(values, np.float32),
+            _lattice_coord(self.X[y0:y1, x0:x1], float(bx[0, 0]), gel.spacing_mm),
+            _lattice_coord(self.Y[y0:y1, x0:x1], float(by[0, 0]), gel.spacing_mm),
+            cv2.INTER_LINEAR if linear else cv2.INTER_CUBIC,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
 
     # ----------------------------------------------------------------- shading
     def contact_change(self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float):
@@ -654,6 +676,29 @@ class GelSimulator:
         frame += 0.5  # round half up on the cast below
         np.clip(frame, 0.0, 255.0, out=frame)
         return frame.astype(np.uint8)
+
+
+def _upsample_axis(v, first: int, p0: int, p1: int, f: int, linear: bool, axis: int):
+    """Values at pixels p0..p1-1 along `axis` from nodes at pixels f * (first + k) (k = 0, 1, ...)."""
+    p = np.arange(p0, p1)
+    node, t = p // f - first, ((p % f) / f).astype(np.float32)
+    if linear:
+        taps = ((0, 1 - t), (1, t))
+    else:  # Catmull-Rom (Keys a = -0.5)
+        t2, t3 = t * t, t * t * t
+        taps = (
+            (-1, (-t3 + 2 * t2 - t) / 2),
+            (0, (3 * t3 - 5 * t2 + 2) / 2),
+            (1, (-3 * t3 + 4 * t2 + t) / 2),
+            (2, (t3 - t2) / 2),
+        )
+    shape = [1, 1]
+    shape[axis] = p.size
+    out = None
+    for offset, weight in taps:
+        term = np.take(v, node + offset, axis=axis) * weight.reshape(shape)
+        out = term if out is None else out + term
+    return out
 
 
 def _lattice_coord(v: np.ndarray, first: float, step: float) -> np.ndarray:
