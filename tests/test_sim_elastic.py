@@ -294,7 +294,9 @@ def test_the_gel_never_goes_through_the_indenter_and_equals_it_in_contact(esim):
         depth_in = z - esim.Z0[y0:y1, x0:x1]  # how far the gel sank
         has = np.isfinite(w)
         assert np.all(depth_in[has] >= w[has] - 1e-5)  # never through the indenter
-        assert np.abs(depth_in[contact] - w[contact]).max() < 1e-5  # the indenter in contact
+        # the indenter in contact, to the solver's tolerance (1e-4 of the depth) and the
+        # interpolation's
+        assert np.abs(depth_in[contact] - w[contact]).max() < 3e-4 * d + 5e-4
         # the indenter's deepest point (d under the axis; a flat end on the dome's slope goes deeper)
         assert depth_in.max() == pytest.approx(np.nanmax(w), abs=0.01 * d)
         # smooth off the indenter: the wall's foot has a finite slope, not the wall's step
@@ -344,3 +346,16 @@ def test_far_field_first_order_shading_matches_full_shading(esim, monkeypatch):
         full = esim._elastic_change(z, win, c)
         monkeypatch.undo()
         assert np.abs(linear - full).max() < 0.05
+
+
+def test_pixels_off_the_lattice_sample_the_same_gel(monkeypatch):
+    """The lens hook: a cubic spline at each pixel's gel point (pixels off the lattice) gives the gel
+    the separable lattice interpolation gives (two cubic interpolants of the same nodes)."""
+    sim = elastic_sim("gelsight_mini")
+    ball, c, d = Sphere(2.0), (150.3, 110.6), 1.0
+    win = sim.window(ball, c, d)
+    on_lattice, contact = sim.surface(ball, c, 0, d, win)
+    monkeypatch.setattr(sim, "_pixel_lattice", None)
+    remapped, contact2 = sim.surface(ball, c, 0, d, win)
+    assert np.abs(remapped - on_lattice).max() < 2e-3 * d
+    assert (contact != contact2).sum() <= 0.05 * contact.sum()

@@ -57,9 +57,8 @@ from threedcal.errors import ConfigError
 
 _GAUSS3 = (np.array([-math.sqrt(0.6), 0.0, math.sqrt(0.6)]) / 2, np.array([5.0, 8.0, 5.0]) / 18)
 _RHO_STEP = 0.01  # table spacing of g(rho), in layer thicknesses
-_RHO_MAX = (
-    30.0  # beyond this many thicknesses the layer's own response is below 1e-10 of its near field
-)
+# beyond this many thicknesses the layer's own response is below 1e-10 of its near field
+_RHO_MAX = 30.0
 _SPECTRA = 24  # cached kernel spectra per kernel (one per FFT shape)
 _SPARSE_UPDATES = 24  # up to this many nodes set apart from a CG step: direct sums, not an FFT
 
@@ -388,11 +387,12 @@ def solve_contact(
 
 @dataclass
 class Press:
-    """One solved press on a node lattice x = x0 + i s, y = y0 + j s (mm, the caller's frame).
-
-    `domain` = (row0, col0) of the pressure grid's first node in lattice indices."""
+    """One solved press. Its node lattice is centred on the indenter: node (i, j) sits at
+    (x0 + j s, y0 + i s) mm with (x0, y0) = `origin_mm`, so the discretisation is symmetric about
+    the axis wherever the press sits. `domain` = (row0, col0) of the pressure grid's first node."""
 
     gel: ElasticGel
+    origin_mm: tuple[float, float]
     domain: tuple[int, int]
     result: ContactResult
     interference: Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -409,6 +409,18 @@ class Press:
     @property
     def pressure(self) -> np.ndarray:
         return self.result.pressure
+
+    @property
+    def spacing_mm(self) -> float:
+        return self.gel.spacing_mm
+
+    def node_coords(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """(X, Y) mm of the lattice nodes in `box` (row0, row1, col0, col1)."""
+        return _node_coords(self.origin_mm, self.spacing_mm, box)
+
+    def nodes_covering(self, x0: float, x1: float, y0: float, y1: float):
+        """Smallest lattice box (row0, row1, col0, col1) whose nodes cover [x0, x1] x [y0, y1] mm."""
+        return _nodes_covering(self.origin_mm, self.spacing_mm, x0, x1, y0, y1)
 
     def node_box(self) -> tuple[int, int, int, int]:
         """(row0, row1, col0, col1) lattice indices of the pressure grid (end exclusive)."""
@@ -437,58 +449,53 @@ class Press:
         return self.gel.reach_mm(self.force_n, slope, height_mm)
 
 
-class ElasticGel:
-    """Presses rigid indenters into a gel layer on a node lattice of spacing `spacing_mm`.
+def _node_coords(origin, s, box):
+    r0, r1, c0, c1 = box
+    return np.meshgrid(origin[0] + np.arange(c0, c1) * s, origin[1] + np.arange(r0, r1) * s)
 
-    The lattice is anchored at `origin_mm` (x0, y0): node (i, j) sits at (x0 + j s, y0 + i s). The
-    caller supplies the indenter as a function interference(X, Y) -> w (mm below the undeformed
-    surface, -inf where it has no surface) and a bounding box it cannot reach beyond.
+
+def _nodes_covering(origin, s, x0, x1, y0, y1):
+    ox, oy = origin
+    return (
+        math.floor((y0 - oy) / s),
+        math.ceil((y1 - oy) / s) + 1,
+        math.floor((x0 - ox) / s),
+        math.ceil((x1 - ox) / s) + 1,
+    )
+
+
+class ElasticGel:
+    """Presses rigid indenters into a gel layer on node lattices of spacing `spacing_mm`.
+
+    The caller supplies the indenter as a function interference(X, Y) -> w (mm below the undeformed
+    surface, -inf where it has no surface), a bounding box it cannot reach beyond, and the lattice
+    origin (its axis: the solution is then the same, relative to the axis, wherever it presses a flat
+    gel, and mirror-symmetric for a symmetric indenter).
     """
 
     def __init__(
-        self,
-        material: GelMaterial,
-        spacing_mm: float,
-        origin_mm: tuple[float, float] = (0.0, 0.0),
-        *,
-        tol: float = 1e-4,
-        max_iter: int = 2000,
+        self, material: GelMaterial, spacing_mm: float, *, tol: float = 1e-4, max_iter: int = 2000
     ):
         self.material = material
         self.kernel = LayerKernel(material, spacing_mm)
         self.spacing_mm = float(spacing_mm)
-        self.origin_mm = (float(origin_mm[0]), float(origin_mm[1]))
         self.tol = float(tol)
         self.max_iter = int(max_iter)
         self._last: tuple[object, Press] | None = None
-        self._tail: tuple[np.ndarray, np.ndarray] | None = None
+        self._tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def node_coords(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """(X, Y) mm of the lattice nodes in `box` (row0, row1, col0, col1)."""
-        r0, r1, c0, c1 = box
-        s = self.spacing_mm
-        x = self.origin_mm[0] + np.arange(c0, c1) * s
-        y = self.origin_mm[1] + np.arange(r0, r1) * s
-        return np.meshgrid(x, y)
-
-    def nodes_covering(self, x0: float, x1: float, y0: float, y1: float):
-        """Smallest lattice box (row0, row1, col0, col1) whose nodes cover [x0, x1] x [y0, y1] mm."""
-        s, (ox, oy) = self.spacing_mm, self.origin_mm
-        return (
-            math.floor((y0 - oy) / s),
-            math.ceil((y1 - oy) / s) + 1,
-            math.floor((x0 - ox) / s),
-            math.ceil((x1 - ox) / s) + 1,
-        )
-
-    def press(self, interference, bounds_mm, key: object = None) -> Press | None:
-        """Solve the contact of the indenter `interference` confined to `bounds_mm` (x0, x1, y0, y1).
+    def press(
+        self, interference, bounds_mm, origin_mm=(0.0, 0.0), key: object = None
+    ) -> Press | None:
+        """Solve the contact of the indenter `interference` confined to `bounds_mm` (x0, x1, y0, y1)
+        on the lattice through `origin_mm`.
 
         None when it does not touch the gel. `key` names the indenter and pose: a press with the same
         key as the previous one (the frames of one hold) starts from its pressure.
         """
-        box = self.nodes_covering(*bounds_mm)
-        X, Y = self.node_coords(box)
+        origin = (float(origin_mm[0]), float(origin_mm[1]))
+        box = _nodes_covering(origin, self.spacing_mm, *bounds_mm)
+        X, Y = _node_coords(origin, self.spacing_mm, box)
         w_all = np.asarray(interference(X, Y), dtype=np.float64)
         if np.isposinf(w_all).any():
             raise ConfigError("indenter interference holds +inf")
@@ -502,7 +509,9 @@ class ElasticGel:
         # w > -margin, margin > F |G_min|, misses no contact; widen and re-solve until that holds.
         rise = self.max_rise_per_newton
         margin = 0.05 * top if rise > 0 else 0.0
-        warm = self._last[1] if self._last is not None and self._last[0] == key else None
+        warm = None
+        if self._last is not None and self._last[0] == key and self._last[1].origin_mm == origin:
+            warm = self._last[1]
         while True:
             rows, cols = np.nonzero(w_all > -margin)
             sub = (
@@ -517,7 +526,7 @@ class ElasticGel:
             result = solve_contact(
                 self.kernel, w, initial=initial, tol=self.tol, max_iter=self.max_iter
             )
-            solved = Press(self, domain, result, interference)
+            solved = Press(self, origin, domain, result, interference)
             needed = rise * result.force_n
             if margin >= needed or sub == (0, w_all.shape[0], 0, w_all.shape[1]):
                 break

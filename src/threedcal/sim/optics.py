@@ -110,16 +110,15 @@ class GelSimulator:
             from threedcal.sim.elastic import ElasticGel
 
             grid_px = int(gel.get("elastic_grid_px", 2))
-            # nodes on every grid_px-th pixel centre (the lattice is in mm: a lens would only change
-            # where pixels sample it)
+            # a node every grid_px pixels, on a lattice through each press's axis (in mm: a lens
+            # would only change where the pixels sample it)
             self._elastic = ElasticGel(
                 material,
                 grid_px / self.px_per_mm,
-                origin_mm=(float(self.X[0, 0]), float(self.Y[0, 0])),
-                tol=float(gel.get("elastic_tolerance", 1e-3)),
+                tol=float(gel.get("elastic_tolerance", 1e-4)),
             )
             self._press_memo: tuple | None = None
-            # pixels on lattice nodes every grid_px (uniform pixels, as everything here assumes);
+            # pixels a uniform grid, grid_px of them per lattice step (as everything here assumes);
             # a lens would set None and sample each pixel's gel point instead
             self._pixel_lattice: int | None = grid_px
             self._setup_linear_shading()
@@ -405,7 +404,7 @@ class GelSimulator:
         ax, ay = self._axis_mm(center_px)
         reach = indenter.reach_mm
         press = self._elastic.press(
-            interference, (ax - reach, ax + reach, ay - reach, ay + reach), key=pose
+            interference, (ax - reach, ax + reach, ay - reach, ay + reach), (ax, ay), key=pose
         )
         self._press_memo = ((pose, float(depth_mm)), press)
         return press
@@ -433,7 +432,7 @@ class GelSimulator:
 
     def _elastic_window(self, press):
         """The pixels the press changes: its pressure grid plus the far field's visible reach."""
-        X, Y = self._elastic.node_coords(press.node_box())
+        X, Y = press.node_coords(press.node_box())
         s = self.px_per_mm
         reach = (
             press.reach_mm(slope=FAR_SLOPE, height_mm=FAR_HEIGHT_MM) * s + 3 * self.blur_sigma + 2
@@ -447,20 +446,20 @@ class GelSimulator:
 
     def _elastic_surface(self, press, window) -> tuple[np.ndarray, np.ndarray]:
         """Gel surface (mm) and contact mask in `window`: the elastic displacement, sampled at each
-        pixel's gel point by cubic interpolation between lattice nodes; in contact (where the solver's
-        contact set covers the pixel) the indenter itself; elsewhere never through the indenter."""
+        pixel's gel point by cubic interpolation between lattice nodes, never through the indenter;
+        in contact (gel and indenter within the solver's and the interpolation's tolerance) the
+        indenter itself."""
         y0, y1, x0, x1 = window
         X, Y = self.X[y0:y1, x0:x1], self.Y[y0:y1, x0:x1]
-        gel = self._elastic
-        box = gel.nodes_covering(float(X.min()), float(X.max()), float(Y.min()), float(Y.max()))
+        box = press.nodes_covering(float(X.min()), float(X.max()), float(Y.min()), float(Y.max()))
         box = (box[0] - 2, box[1] + 2, box[2] - 2, box[3] + 2)  # the cubic's support
-        u = self._sample_nodes(press.displacement_on(box), box, window)
+        u = self._sample_nodes(press.displacement_on(box), box, window, press)
         z = self.Z0[y0:y1, x0:x1] + u
         contact = np.zeros(u.shape, bool)
         # the indenter matters only where it was solved for (elsewhere it is above the gel)
         dom = press.node_box()
-        step = gel.spacing_mm
-        nx, ny = gel.node_coords(dom)
+        step = press.spacing_mm
+        nx, ny = press.node_coords(dom)
         inside = (
             (X >= float(nx.min()) - step)
             & (X <= float(nx.max()) + step)
@@ -470,51 +469,43 @@ class GelSimulator:
         rows, cols = np.nonzero(inside.any(axis=1))[0], np.nonzero(inside.any(axis=0))[0]
         if rows.size:
             r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-            Xi, Yi = X[r0:r1, c0:c1], Y[r0:r1, c0:c1]
-            # in contact where the solver's contact set covers the pixel (linear interpolation of its
-            # indicator: a pixel midway between a contact node and a free one counts as contact)
-            padded = (dom[0] - 2, dom[1] + 2, dom[2] - 2, dom[3] + 2)
-            touching = (
-                self._sample_nodes(
-                    np.pad(press.result.contact.astype(np.float32), 2),
-                    padded,
-                    (y0 + r0, y0 + r1, x0 + c0, x0 + c1),
-                    linear=True,
-                )
-                >= 0.5
-            )
-            w = press.interference_at(Xi, Yi)
-            touching &= np.isfinite(w)  # a wall's foot: the indenter has no surface at this pixel
+            w = press.interference_at(X[r0:r1, c0:c1], Y[r0:r1, c0:c1])
             ui = u[r0:r1, c0:c1]
-            contact[r0:r1, c0:c1] = touching
+            # never through the indenter: where the interpolated gel would pass through it, the gel
+            # is the indenter. In contact the two agree to the solver's tolerance, so the gel leaves
+            # the indenter where the interpolated elastic surface does, not at a lattice node
             with np.errstate(invalid="ignore"):
-                gel_depth = np.where(touching, w, np.maximum(ui, w))
+                gel_depth = np.maximum(ui, w)
+                # touching: within the solver's tolerance and the interpolation's (~0.5 um)
+                contact[r0:r1, c0:c1] = ui - w <= 2 * press.result.gap_tolerance_mm + 5e-4
             z[r0:r1, c0:c1] = self.Z0[y0:y1, x0:x1][r0:r1, c0:c1] + gel_depth
         return z.astype(np.float32), contact
 
-    def _sample_nodes(self, values, box, window, linear: bool = False) -> np.ndarray:
-        """`values` on the lattice nodes of `box` (row0, row1, col0, col1) at the pixels of `window`:
-        Catmull-Rom cubic (exact for quadratics) or linear interpolation.
+    def _sample_nodes(self, values, box, window, press) -> np.ndarray:
+        """`values` on the nodes of `press`'s lattice in `box` (row0, row1, col0, col1) at the pixels
+        of `window`, by Catmull-Rom cubic interpolation (exact for quadratics).
 
-        Today's pixels sit on the lattice (node (i, j) at pixel (i, j) x grid_px), so the
-        interpolation is separable with fixed weights. Pixels that are not (a lens) go through
-        cv2.remap at each pixel's gel point (X, Y) instead."""
+        Today's pixels are a uniform grid along the lattice's axes, so the interpolation is separable
+        with fixed weights. Pixels that are not (a lens) take a cubic spline at each pixel's gel point
+        (X, Y) instead."""
         y0, y1, x0, x1 = window
         f = self._pixel_lattice
         if f is not None:
-            cols = _upsample_axis(np.asarray(values, np.float32), box[2], x0, x1, f, linear, 1)
-            return _upsample_axis(cols, box[0], y0, y1, f, linear, 0)
-        import cv2
+            # the pixel (fractional) where lattice node 0 sits, along x and along y
+            ox, oy = (
+                press.origin_mm[0] * self.px_per_mm + self._cx,
+                press.origin_mm[1] * self.px_per_mm + self._cy,
+            )
+            cols = _upsample_axis(np.asarray(values, np.float32), box[2], ox, x0, x1, f, 1)
+            return _upsample_axis(cols, box[0], oy, y0, y1, f, 0)
+        from scipy.ndimage import map_coordinates
 
-        gel = self._elastic
-        bx, by = gel.node_coords((box[0], box[0] + 1, box[2], box[2] + 1))
-        return cv2.remap(
-            np.asarray(values, np.float32),
-            _lattice_coord(self.X[y0:y1, x0:x1], float(bx[0, 0]), gel.spacing_mm),
-            _lattice_coord(self.Y[y0:y1, x0:x1], float(by[0, 0]), gel.spacing_mm),
-            cv2.INTER_LINEAR if linear else cv2.INTER_CUBIC,
-            borderMode=cv2.BORDER_REPLICATE,
-        )
+        bx, by = press.node_coords((box[0], box[0] + 1, box[2], box[2] + 1))
+        rows = (self.Y[y0:y1, x0:x1] - float(by[0, 0])) / press.spacing_mm
+        cols = (self.X[y0:y1, x0:x1] - float(bx[0, 0])) / press.spacing_mm
+        return map_coordinates(
+            np.asarray(values, np.float64), [rows, cols], order=3, mode="nearest"
+        ).astype(np.float32)
 
     # ----------------------------------------------------------------- shading
     def contact_change(self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float):
@@ -575,7 +566,12 @@ class GelSimulator:
         term = np.multiply(jy, dgy[..., None])
         delta += term
         delta += np.multiply(jz, dz[..., None], out=term)
-        steep = dgx * dgx + dgy * dgy > LINEAR_SLOPE**2
+        # in full where the deformation is not gentle, and wherever a shadow could start
+        gx0, gy0 = (g[y0:y1, x0:x1] for g in self._g0)
+        tan_min = min(li["tan_el"] for li in self._lights)
+        steep = (dgx * dgx + dgy * dgy > LINEAR_SLOPE**2) | (
+            np.square(dgx + gx0) + np.square(dgy + gy0) > (0.8 * tan_min) ** 2
+        )
         rows, cols = np.nonzero(steep.any(axis=1))[0], np.nonzero(steep.any(axis=0))[0]
         if rows.size:
             pad = int(math.ceil(self.shadow_reach_mm * s)) + 2 if self.shadow_strength > 0 else 2
@@ -583,8 +579,8 @@ class GelSimulator:
             r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + 1 + pad, h)
             c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + 1 + pad, w)
             sub = (y0 + r0, y0 + r1, x0 + c0, x0 + c1)
-            gx = dgx[r0:r1, c0:c1] + self._g0[0][sub[0] : sub[1], sub[2] : sub[3]]
-            gy = dgy[r0:r1, c0:c1] + self._g0[1][sub[0] : sub[1], sub[2] : sub[3]]
+            gx = dgx[r0:r1, c0:c1] + gx0[r0:r1, c0:c1]
+            gy = dgy[r0:r1, c0:c1] + gy0[r0:r1, c0:c1]
             zs = z[r0:r1, c0:c1]
             delta[r0:r1, c0:c1] = self._exact_change(
                 zs, sub, center_px, (gx, gy), self._shadow_box(gx, gy)
@@ -678,34 +674,31 @@ class GelSimulator:
         return frame.astype(np.uint8)
 
 
-def _upsample_axis(v, first: int, p0: int, p1: int, f: int, linear: bool, axis: int):
-    """Values at pixels p0..p1-1 along `axis` from nodes at pixels f * (first + k) (k = 0, 1, ...)."""
-    p = np.arange(p0, p1)
-    node, t = p // f - first, ((p % f) / f).astype(np.float32)
-    if linear:
-        taps = ((0, 1 - t), (1, t))
-    else:  # Catmull-Rom (Keys a = -0.5)
-        t2, t3 = t * t, t * t * t
-        taps = (
-            (-1, (-t3 + 2 * t2 - t) / 2),
-            (0, (3 * t3 - 5 * t2 + 2) / 2),
-            (1, (-3 * t3 + 4 * t2 + t) / 2),
-            (2, (t3 - t2) / 2),
-        )
+def _upsample_axis(v, first: int, origin_px: float, p0: int, p1: int, f: int, axis: int):
+    """Catmull-Rom values at pixels p0..p1-1 along `axis` from lattice nodes first, first + 1, ...
+    (node k at pixel origin_px + k f), limited to the range of the two nodes around each pixel."""
+    q = (np.arange(p0, p1) - origin_px) / f
+    node = np.floor(q).astype(np.int64)
+    t = (q - node).astype(np.float32)
+    node -= first
+    t2, t3 = t * t, t * t * t
+    taps = (
+        (-1, (-t3 + 2 * t2 - t) / 2),
+        (0, (3 * t3 - 5 * t2 + 2) / 2),
+        (1, (-3 * t3 + 4 * t2 + t) / 2),
+        (2, (t3 - t2) / 2),
+    )
     shape = [1, 1]
-    shape[axis] = p.size
+    shape[axis] = q.size
     out = None
     for offset, weight in taps:
         term = np.take(v, node + offset, axis=axis) * weight.reshape(shape)
         out = term if out is None else out + term
-    return out
-
-
-def _lattice_coord(v: np.ndarray, first: float, step: float) -> np.ndarray:
-    """Positions `v` (mm) in lattice units from node `first`, to 1/64 of a node (float32 for
-    cv2.remap): the same gel point gets the same weights wherever the press sits, so a pixel midway
-    between a contact node and a free one is decided the same way in every frame."""
-    return (np.round((v - first) * (64.0 / step)) / 64.0).astype(np.float32)
+    # never beyond the two nodes around a pixel: no overshoot where the gel bends sharply (the foot
+    # of a wall). Where it is smooth the cubic stays between them anyway, except at a crest between
+    # two nodes, flattened by < s^2 u'' / 8 (in contact the indenter itself restores it)
+    left, right = np.take(v, node, axis=axis), np.take(v, node + 1, axis=axis)
+    return np.clip(out, np.minimum(left, right), np.maximum(left, right))
 
 
 def _normals(gx: np.ndarray, gy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
