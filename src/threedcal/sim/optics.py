@@ -21,9 +21,10 @@ What it models, and why (every constant comes from the sensor profile):
 
 Speed: the background is rendered once; a frame re-shades only a window around the contact and adds
 the change (blur is linear, so blurring the change alone is exact). An elastic gel's far field can
-reach the whole frame: it is shaded in full, but cast shadows are traced only near steep slopes (a
-shadow needs a slope steeper than the light's elevation within its reach). Noise comes from a bank
-of pre-drawn fields picked and shifted per frame from (seed, frame_index).
+reach the whole frame: where it is gentle it is shaded to first order (the shading's Jacobian, taken
+once at the undeformed gel), and cast shadows are traced only near steep slopes (a shadow needs a
+slope steeper than the light's elevation within its reach). Noise comes from a bank of pre-drawn
+fields picked and shifted per frame from (seed, frame_index).
 """
 
 from __future__ import annotations
