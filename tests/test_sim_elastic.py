@@ -268,9 +268,14 @@ def test_elastic_gel_needs_its_constants(tmp_path):
 def test_elastic_ball_renders_deterministically_and_touches_less_than_the_geometry(esim):
     ball, d = Sphere(2.0), 1.0
     c = (esim.width / 2 + 0.3, esim.height / 2 - 0.4)
-    a = esim.render(ball, c, 0, d, frame_index=3)
-    b = GelSimulator(esim.profile, seed=7).render(ball, c, 0, d, frame_index=3)
+    a = esim.render(ball, c, 0, d, frame_index=3, hold_frame=2)
+    # the same bytes from a fresh simulator, and after other presses (no state carried over)
+    fresh = GelSimulator(esim.profile, seed=7)
+    b = fresh.render(ball, c, 0, d, frame_index=3, hold_frame=2)
+    fresh.render(Sphere(1.0), (30.5, 40.2), 0, 0.7, frame_index=1)
+    fresh.render(ball, c, 0, d, frame_index=3, hold_frame=1)
     assert a.dtype == np.uint8 and np.array_equal(a, b)
+    assert np.array_equal(a, fresh.render(ball, c, 0, d, frame_index=3, hold_frame=2))
     press = esim.press(ball, c, 0, d)
     s = esim._elastic.spacing_mm
     radius = contact_radius(press.result, s)

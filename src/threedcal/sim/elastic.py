@@ -481,17 +481,15 @@ class ElasticGel:
         self.spacing_mm = float(spacing_mm)
         self.tol = float(tol)
         self.max_iter = int(max_iter)
-        self._last: tuple[object, Press] | None = None
         self._tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def press(
-        self, interference, bounds_mm, origin_mm=(0.0, 0.0), key: object = None
-    ) -> Press | None:
+    def press(self, interference, bounds_mm, origin_mm=(0.0, 0.0)) -> Press | None:
         """Solve the contact of the indenter `interference` confined to `bounds_mm` (x0, x1, y0, y1)
         on the lattice through `origin_mm`.
 
-        None when it does not touch the gel. `key` names the indenter and pose: a press with the same
-        key as the previous one (the frames of one hold) starts from its pressure.
+        None when it does not touch the gel. The result depends on these arguments alone (no state
+        carried from earlier presses), so a frame renders to the same bytes in any order or after a
+        resumed run.
         """
         origin = (float(origin_mm[0]), float(origin_mm[1]))
         box = _nodes_covering(origin, self.spacing_mm, *bounds_mm)
@@ -510,8 +508,6 @@ class ElasticGel:
         rise = self.max_rise_per_newton
         margin = 0.05 * top if rise > 0 else 0.0
         warm = None
-        if self._last is not None and self._last[0] == key and self._last[1].origin_mm == origin:
-            warm = self._last[1]
         while True:
             rows, cols = np.nonzero(w_all > -margin)
             sub = (
@@ -531,8 +527,7 @@ class ElasticGel:
             if margin >= needed or sub == (0, w_all.shape[0], 0, w_all.shape[1]):
                 break
             margin = 1.5 * needed
-            warm = solved
-        self._last = (key, solved)
+            warm = solved  # the narrower solve starts the wider one
         return solved
 
     @cached_property

@@ -405,7 +405,7 @@ class GelSimulator:
         ax, ay = self._axis_mm(center_px)
         reach = indenter.reach_mm
         press = self._elastic.press(
-            interference, (ax - reach, ax + reach, ay - reach, ay + reach), (ax, ay), key=pose
+            interference, (ax - reach, ax + reach, ay - reach, ay + reach), (ax, ay)
         )
         self._press_memo = ((pose, float(depth_mm)), press)
         return press
