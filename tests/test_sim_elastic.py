@@ -364,3 +364,26 @@ def test_pixels_off_the_lattice_sample_the_same_gel(monkeypatch):
     remapped, contact2 = sim.surface(ball, c, 0, d, win)
     assert np.abs(remapped - on_lattice).max() < 2e-3 * d
     assert (contact != contact2).sum() <= 0.05 * contact.sum()
+
+
+def test_a_test_object_presses_the_elastic_gel():
+    """The pawn (a mesh turned into a relief, vertical walls) on the elastic Mini: it renders, the
+    gel never goes through it and equals it in contact, and its walls leave no step."""
+    from threedcal.evaluate.objects import load_object
+    from threedcal.evaluate.pressing import relief_indenter
+
+    sim = elastic_sim("gelsight_mini")
+    pawn = relief_indenter(load_object("pawn"), sim.px_per_mm, 7.0)
+    c, d = (170.2, 115.7), 0.8
+    win = sim.window(pawn, c, d)
+    z, contact = sim.surface(pawn, c, 0, d, win)
+    y0, y1, x0, x1 = win
+    w = sim.interference(pawn, c, 0, d)(sim.X[y0:y1, x0:x1], sim.Y[y0:y1, x0:x1])
+    sunk = z - sim.Z0[y0:y1, x0:x1]
+    has = np.isfinite(w)
+    assert contact.any() and np.all(sunk[has] >= w[has] - 1e-5)
+    assert np.abs(sunk[contact] - w[contact]).max() < 3e-4 * d + 5e-4
+    assert np.abs(np.diff(sunk, axis=1))[~has[:, 1:] & ~has[:, :-1]].max() < 0.25 * d
+    assert sim.press(pawn, c, 0, d).force_n > 0
+    frame = sim.render(pawn, c, 0, d, frame_index=2)
+    assert frame.dtype == np.uint8 and not np.array_equal(frame, sim.blank(2))
