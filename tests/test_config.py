@@ -217,3 +217,25 @@ def test_train_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     )
     with pytest.raises(ConfigError, match="no_such_key"):
         TrainSettings.of(no_such_key=1)
+
+
+def test_configuration_page_is_the_schema_reference_and_every_key_is_described():
+    from threedcal.schema import schema_keys, with_reference
+
+    page = Path(__file__).resolve().parents[1] / "docs/configuration.md"
+    assert page.read_text() == with_reference(page.read_text()), (
+        "docs/configuration.md is out of date with the schema: run "
+        "`.venv/bin/threedcal config reference --write docs/configuration.md`"
+    )
+    keys = schema_keys("config")
+    assert len(keys) > 50
+    assert [path for path, node in keys if not node.get("description")] == []
+    paths = [path for path, _ in keys]
+    assert "scenes.<name>.model.preset" in paths and "scenes.<name>.pressing.mount.x_mm" in paths
+
+
+def test_reference_needs_its_markers():
+    from threedcal.schema import with_reference
+
+    with pytest.raises(ConfigError, match="markers"):
+        with_reference("# a page without them\n")

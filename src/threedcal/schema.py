@@ -147,3 +147,82 @@ def fill_defaults(instance: Any, schema: Mapping, root: Mapping | None = None) -
         for key, value in instance.items():
             if key not in schema.get("properties", {}):
                 fill_defaults(value, extra, root)
+
+
+REFERENCE_BEGIN = (
+    "<!-- generated from the config schema by `threedcal config reference`; do not edit -->"
+)
+REFERENCE_END = "<!-- end of generated reference -->"
+
+
+def _resolved(node: Mapping, root: Mapping) -> dict:
+    node = dict(node)
+    while "$ref" in node:
+        target = root["$defs"][node.pop("$ref").rsplit("/", 1)[-1]]
+        node = {**target, **node}
+    return node
+
+
+def _allowed(node: Mapping) -> str:
+    if "enum" in node:
+        return " \\| ".join(f"`{v}`" for v in node["enum"])
+    kind = node.get("type", "")
+    kinds = kind if isinstance(kind, list) else [kind]
+    text = " or ".join(str(k) for k in kinds if k)
+    if kind == "array" and "enum" in node.get("items", {}):
+        text = "list of " + " \\| ".join(f"`{v}`" for v in node["items"]["enum"])
+    bounds = [
+        f"{sym} {node[key]}"
+        for key, sym in (
+            ("minimum", "≥"),
+            ("exclusiveMinimum", ">"),
+            ("maximum", "≤"),
+            ("exclusiveMaximum", "<"),
+        )
+        if key in node
+    ]
+    return ", ".join([text, *bounds]) if text else ", ".join(bounds)
+
+
+def schema_keys(kind: str = "config") -> list[tuple[str, dict]]:
+    """Every key of a schema as (dotted path, resolved node), depth first; `<name>` for map keys."""
+    root = load_schema(kind)
+    out: list[tuple[str, dict]] = []
+
+    def walk(node: Mapping, path: str) -> None:
+        node = _resolved(node, root)
+        for key, sub in node.get("properties", {}).items():
+            here = f"{path}.{key}" if path else key
+            sub = _resolved(sub, root)
+            if not any(p == here for p, _ in out):
+                out.append((here, sub))
+            walk(sub, here)
+        extra = node.get("additionalProperties")
+        if isinstance(extra, Mapping) and ("$ref" in extra or "properties" in extra):
+            walk(extra, f"{path}.<name>")
+        for alternative in [*node.get("oneOf", []), *node.get("anyOf", [])]:
+            walk(alternative, path)
+
+    walk(root, "")
+    return out
+
+
+def reference_table(kind: str = "config") -> str:
+    """A Markdown table of every key: allowed values, default, description (docs/configuration.md)."""
+    lines = ["| key | allowed | default | meaning |", "|---|---|---|---|"]
+    for path, node in schema_keys(kind):
+        default = f"`{canonical_json(node['default'])}`" if "default" in node else ""
+        meaning = " ".join(str(node.get("description", "")).split()).replace("|", "\\|")
+        lines.append(f"| `{path}` | {_allowed(node)} | {default} | {meaning} |")
+    return "\n".join(lines) + "\n"
+
+
+def with_reference(page: str, kind: str = "config") -> str:
+    """`page` with the text between the reference markers replaced by a fresh reference table."""
+    if REFERENCE_BEGIN not in page or REFERENCE_END not in page:
+        raise ConfigError(
+            f"the page has no reference markers ({REFERENCE_BEGIN} ... {REFERENCE_END})"
+        )
+    head, rest = page.split(REFERENCE_BEGIN, 1)
+    _, tail = rest.split(REFERENCE_END, 1)
+    return f"{head}{REFERENCE_BEGIN}\n{reference_table(kind)}{REFERENCE_END}{tail}"
