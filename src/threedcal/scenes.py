@@ -17,7 +17,7 @@ from threedcal.config import FULL_TRAINING_P, is_imported, training_fractions
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
-# The study-wide integrator comparison (rules/integrate.smk), built when the config enables it.
+# The study-wide integrator comparison (rules/integration_study.smk), built when the config enables it.
 INTEGRATION_STUDY_TARGETS = [
     f"{RESULTS}/integration/error_vs_time.csv",
     f"{RESULTS}/integration/error_vs_time.png",
