@@ -239,3 +239,12 @@ def test_reference_needs_its_markers():
 
     with pytest.raises(ConfigError, match="markers"):
         with_reference("# a page without them\n")
+
+
+def test_a_magnetic_sensor_names_its_board_as_reader_not_camera():
+    message = error_of(config_with(sensor="reskin", camera="/dev/ttyACM0"))
+    assert "scenes.s.camera" in message and "reader" in message
+    message = error_of(config_with(reader="/dev/ttyACM0"))
+    assert "scenes.s.reader" in message and "camera" in message
+    ok = validate_config(config_with(sensor="reskin", reader="/dev/ttyACM0"))
+    assert ok["scenes"]["s"]["reader"] == "/dev/ttyACM0"

@@ -20,7 +20,7 @@ from threedcal.sim.marlin import parse_faults
 # The one fraction trained when a scene asks for no ablation: all training coordinates (80 % of all).
 FULL_TRAINING_P = 80
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
-IMPORT_IRRELEVANT = ("printer", "port", "camera", "probe", "plan", "bench", "pressing")
+IMPORT_IRRELEVANT = ("printer", "port", "camera", "reader", "probe", "plan", "bench", "pressing")
 
 
 def validate_config(config: Mapping, source: str = "config", *, check_files: bool = False) -> dict:
@@ -132,14 +132,24 @@ def mount_problem(scene: Mapping) -> str | None:
 def _magnetic_problems(scene: Mapping) -> list[str]:
     """A magnetic (ReSkin) scene collects readings and trains the localisation MLP, nothing else."""
     if load_profile("sensor", scene["sensor"]).get("type") != "magnetic":
+        if scene.get("reader", "sim") != "sim":
+            return [
+                "reader: only a magnetic sensor has a reader board; a camera sensor's device is `camera`"
+            ]
         return []
     image_only = ("import", "ablation", "objects")
-    return [
+    problems = [
         f"{key}: not available for a magnetic sensor ({scene['sensor']}): it gives readings, "
         "not images (remove it)"
         for key in image_only
         if scene.get(key)
     ]
+    if scene.get("camera", "sim") != "sim":
+        problems.append(
+            f"camera: a magnetic sensor ({scene['sensor']}) has no camera: name its board's serial "
+            "device as `reader` (e.g. reader: /dev/ttyACM0)"
+        )
+    return problems
 
 
 def load_config(path: str | Path, *, check_files: bool = False) -> dict:

@@ -63,7 +63,7 @@ RECORDED_PACKAGES = (
 # The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
 # stages that read the changed key (a new model preset never recollects).
 STAGE_KEYS = {
-    "collect": ("sensor", "printer", "port", "camera", "probe", "plan", "bench", "seed"),
+    "collect": ("sensor", "printer", "port", "camera", "reader", "probe", "plan", "bench", "seed"),
     "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
     "object_presses": (
         "sensor",
