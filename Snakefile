@@ -1,5 +1,4 @@
 # threedcal study workflow: `snakemake --cores 2 all` builds every scene's results (see README.md).
-import os
 import re
 from pathlib import Path
 
@@ -34,13 +33,6 @@ for _config_file in workflow.configfiles:
 CONFIG_SOURCE = ", ".join(map(str, workflow.overwrite_configfiles)) or "config.yaml"
 config.update(validate_config(config, source=CONFIG_SOURCE))
 validate(config, "workflow/schemas/config.schema.yaml")
-
-# Every job's BLAS/OpenMP pool (numpy, scipy, OpenCV) from config: the jobs are started with this
-# environment, so it is in place before numpy loads. Jobs already run in parallel; a pool per job
-# on top oversubscribes the cores (a dense DST in poisson_dst ran 17x slower). Torch threads are
-# set from `torch_threads` by the scripts that use torch.
-for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_variable] = str(config["numeric_threads"])
 
 SCENES = list(config["scenes"])
 IMPORTED_SCENES = [
