@@ -4,6 +4,11 @@
 # store is protected: Snakemake refuses to overwrite it.
 
 
+# The printer is attached to the machine that runs Snakemake: collection is never submitted to a cluster.
+localrules:
+    collect,
+
+
 rule collect:
     output:
         store=protected(directory("results/{scene}/raw.zarr")),
@@ -23,6 +28,8 @@ rule collect:
         truth="results/{scene}/collect/bench_truth.json",
     log:
         "results/{scene}/logs/collect.log",
+    benchmark:
+        "results/{scene}/benchmarks/collect.tsv"
     wildcard_constraints:
         scene="|".join(COLLECTED_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:

@@ -24,6 +24,8 @@ rule objects:
         ),
     log:
         "results/{scene}/logs/objects.log",
+    benchmark:
+        "results/{scene}/benchmarks/objects.tsv"
     wildcard_constraints:
         scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
