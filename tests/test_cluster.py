@@ -1,0 +1,146 @@
+"""Where jobs run: printer jobs one at a time and on the submitting machine; the study on Slurm.
+
+The last test runs workflow/cluster/check.py (the tiny study on Slurm against a local run) when a
+Slurm controller answers; `make cluster-test` starts one, runs that check and stops it again.
+"""
+
+import base64
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+from conftest import REPO, SNAKEMAKE, snakemake, tiny_study_config, write_config
+
+PROFILE = REPO / "workflow/profiles/slurm"
+
+
+def two_printer_scenes() -> dict:
+    # Two small simulated collections, both ready at once: only the printer keeps them apart.
+    scene = {"sensor": "digit", "printer": "ender3", "plan": {"spacing_mm": 4.0, "depth_mm": 1.0}}
+    return {"seed": 1, "torch_threads": 1, "scenes": {"one": scene, "two": dict(scene)}}
+
+
+def job_span(workdir, output: str) -> tuple[float, float]:
+    """When the job that made `output` started and ended, as Snakemake recorded it."""
+    record = workdir / ".snakemake/metadata" / base64.b64encode(output.encode()).decode()
+    data = json.loads(record.read_text())
+    return data["starttime"], data["endtime"]
+
+
+def job_blocks(text: str) -> dict[str, list[str]]:
+    """Rule name -> the text of each of its jobs in Snakemake's output."""
+    blocks: dict[str, list[str]] = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", text):
+        match = re.match(r"(?:local)?rule (\w+):", block.strip())
+        if match:
+            blocks.setdefault(match.group(1), []).append(block.split("\n\n")[0])
+    return blocks
+
+
+@pytest.mark.slow
+def test_collections_take_turns_on_the_printer_without_a_profile(tmp_path):
+    config = write_config(tmp_path, two_printer_scenes())
+    targets = [f"results/{name}/collect/summary.json" for name in ("one", "two")]
+    snakemake(tmp_path, config, *targets)  # bare `snakemake --cores 2`: no profile, no --resources
+    first, second = sorted(job_span(tmp_path, target) for target in targets)
+    assert first[1] <= second[0], f"the collections overlapped: {first} and {second}"
+    bench = pd.read_csv(tmp_path / "results/one/benchmarks/collect.tsv", sep="\t")
+    assert len(bench) == 1 and bench["s"].iloc[0] > 0 and bench["max_rss"].iloc[0] > 0
+
+
+def test_every_rule_writes_a_benchmark_file_beside_its_logs(tmp_path):
+    config = write_config(tmp_path, tiny_study_config(tmp_path))
+    listed = snakemake(tmp_path, config, "--list-rules").stdout.split()
+    dry = snakemake(tmp_path, config, "--dry-run")
+    blocks = job_blocks(dry.stdout + dry.stderr)
+    assert set(blocks) == set(listed)  # the tiny study runs every rule
+    for rule, jobs in blocks.items():
+        if rule == "all":
+            continue
+        for job in jobs:
+            bench = re.search(r"^\s+benchmark: (\S+)$", job, re.MULTILINE)
+            log = re.search(r"^\s+log: (\S+)$", job, re.MULTILINE)
+            assert bench, f"rule {rule} has no benchmark file"
+            # results/{scene}/benchmarks/ beside results/{scene}/logs/; study-wide: results/benchmarks/
+            scope = log.group(1).split("/")[1]
+            study_wide = scope in ("logs", "integration")
+            folder = "results/benchmarks/" if study_wide else f"results/{scope}/benchmarks/"
+            assert bench.group(1).startswith(folder) and bench.group(1).endswith(".tsv"), (
+                rule,
+                bench.group(1),
+            )
+
+
+def test_slurm_profile_asks_a_gpu_for_training_and_the_printer_for_collection(tmp_path):
+    pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
+    config = write_config(tmp_path, tiny_study_config(tmp_path))
+    dry = snakemake(tmp_path, config, "--profile", str(PROFILE), "--dry-run")
+    blocks = job_blocks(dry.stdout + dry.stderr)
+    for job in blocks["train"]:
+        assert "slurm_partition=gpu" in job and "gres=gpu:1" in job
+    for job in blocks["collect"]:
+        assert "printer=1" in job
+    for job in blocks["stats"] + blocks["objects"]:
+        assert "slurm_partition=cpu" in job and "gres=" not in job
+
+
+def test_slurm_profile_runs_collection_on_this_machine_without_sbatch(tmp_path):
+    pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
+    config = write_config(tmp_path, two_printer_scenes())
+    # No Slurm to submit to (SLURM_CONF names a missing file): a collection through the profile
+    # succeeds only because `collect` is a local rule, run here and never given to sbatch.
+    result = subprocess.run(
+        [
+            str(SNAKEMAKE),
+            "-s",
+            str(REPO / "Snakefile"),
+            "-d",
+            str(tmp_path),
+            "--configfile",
+            str(config),
+            "--profile",
+            str(PROFILE),
+            "results/one/collect/summary.json",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=dict(os.environ, SLURM_CONF=str(tmp_path / "no-slurm.conf")),
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "localrule collect:" in result.stdout + result.stderr
+    assert "submitted with SLURM jobid" not in result.stdout + result.stderr
+    assert (tmp_path / "results/one/raw.zarr/zarr.json").is_file()
+
+
+def slurm_controller_missing() -> str | None:
+    """Why no Slurm controller can be used here, or None when one answers `scontrol ping`."""
+    if shutil.which("scontrol") is None:
+        return "no Slurm client (scontrol) on this machine"
+    try:
+        ping = subprocess.run(["scontrol", "ping"], capture_output=True, text=True, timeout=20)
+    except subprocess.TimeoutExpired:
+        return "`scontrol ping` timed out"
+    if ping.returncode != 0 or "UP" not in ping.stdout:
+        return f"no Slurm controller answers `scontrol ping` ({(ping.stdout + ping.stderr).strip()[:160]})"
+    return None
+
+
+@pytest.mark.slow
+def test_study_on_slurm_gives_the_local_results(tmp_path):
+    reason = slurm_controller_missing()
+    if reason:
+        pytest.skip(f"{reason}; `make cluster-test` starts one and runs this check")
+    pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
+    result = subprocess.run(
+        [sys.executable, str(REPO / "workflow/cluster/check.py"), str(tmp_path / "work")],
+        capture_output=True,
+        text=True,
+    )
+    print(result.stdout)
+    assert result.returncode == 0, result.stdout + result.stderr
