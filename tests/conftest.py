@@ -46,7 +46,7 @@ def tiny_study_config(tmp_path: Path) -> dict:
 
 
 def snakemake(
-    workdir: Path, configfile: Path, *args: str, check: bool = True
+    workdir: Path, configfile: Path, *args: str, check: bool = True, env: dict | None = None
 ) -> subprocess.CompletedProcess:
     cmd = [
         str(SNAKEMAKE),
@@ -60,7 +60,7 @@ def snakemake(
         "2",
         *args,
     ]
-    result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir)
+    result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir, env=env)
     if check and result.returncode != 0:
         raise AssertionError(
             f"snakemake failed ({' '.join(cmd)}):\n{result.stdout}\n{result.stderr}"

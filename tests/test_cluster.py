@@ -14,7 +14,7 @@ import sys
 
 import pandas as pd
 import pytest
-from conftest import REPO, SNAKEMAKE, snakemake, tiny_study_config, write_config
+from conftest import REPO, snakemake, tiny_study_config, write_config
 
 PROFILE = REPO / "workflow/profiles/slurm"
 
@@ -94,22 +94,13 @@ def test_slurm_profile_runs_collection_on_this_machine_without_sbatch(tmp_path):
     config = write_config(tmp_path, two_printer_scenes())
     # No Slurm to submit to (SLURM_CONF names a missing file): a collection through the profile
     # succeeds only because `collect` is a local rule, run here and never given to sbatch.
-    result = subprocess.run(
-        [
-            str(SNAKEMAKE),
-            "-s",
-            str(REPO / "Snakefile"),
-            "-d",
-            str(tmp_path),
-            "--configfile",
-            str(config),
-            "--profile",
-            str(PROFILE),
-            "results/one/collect/summary.json",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
+    result = snakemake(
+        tmp_path,
+        config,
+        "--profile",
+        str(PROFILE),
+        "results/one/collect/summary.json",
+        check=False,
         env=dict(os.environ, SLURM_CONF=str(tmp_path / "no-slurm.conf")),
     )
     assert result.returncode == 0, result.stdout + result.stderr

@@ -6,9 +6,10 @@ workflow/cluster/slurm.sh starts such a cluster on one machine. In WORKDIR it
 
 1. runs tests/config/test.yaml locally with a bare `snakemake --cores 2` (no profile) and checks
    that the two collections never overlapped (the `printer` resource the Snakefile sets);
-2. runs it through `--profile workflow/profiles/slurm` with two failures made on purpose: an image of
-   the imported ball scene is unreadable (a cluster job fails: its log must say why, where the docs
-   say), and the collection of `tiny_digit` is killed mid-way (its partial store must stay);
+2. at the same time runs it through `--profile workflow/profiles/slurm` with two failures made on
+   purpose: an image of the imported ball scene is unreadable (a cluster job fails: its log must say
+   why, where the docs say), and the collection of `tiny_digit` is killed mid-way (its partial
+   store must stay);
 3. repairs the image and reruns: only what failed and what follows it runs; the collection resumes;
 4. asks sacct which jobs ran where: `collect` never went to Slurm, training got the GPU partition;
 5. compares every output of the two runs: equal bytes, or equal but for the named timing fields.
@@ -63,7 +64,7 @@ EXCLUDED = {
     "integration/reading.md": "names the fastest integrator, read from the timings",
     "integration/error_vs_time.png": "plots the timings",
     "*/presets.png": "plots inference and training times",
-    "*/stats/error_vs_cost.png": "plots training time (and the probing estimate, below)",
+    "*/stats/error_vs_cost.png": "plots training time and the probing estimate",
     "summary.md": "quotes collection and inference speed (its other figures are compared at the source)",
     # The collection of KILLED_SCENE was killed and resumed on purpose: its frames and labels must
     # equal the uninterrupted run's, but the per-point clock counts from the start of each run.
@@ -114,48 +115,45 @@ def matches(relative: str, patterns) -> str | None:
 # Runs
 
 
-def write_config(work: Path) -> Path:
-    """tests/config/test.yaml with absolute data paths; the ball scene reads a copy we may damage."""
+def write_config(work: Path, *workdirs: Path) -> Path:
+    """tests/config/test.yaml with the real-data path made absolute. An imported scene reads
+    `data/<scene>` relative to each run's work directory: a copy per run, so the cluster's copy can
+    be damaged while the local run reads its own, and both runs see the same configuration."""
     config = yaml.safe_load((REPO / "tests/config/test.yaml").read_text())
     if "realism" in config:
         config["realism"]["real"] = str((REPO / config["realism"]["real"]).resolve())
     for name, scene in config["scenes"].items():
         if "import" in scene:
             source = (REPO / scene["import"]["path"]).resolve()
-            copy = work / "data" / name
-            shutil.copytree(source, copy)
-            scene["import"]["path"] = str(copy)
+            for workdir in workdirs:
+                shutil.rmtree(workdir / "data" / name, ignore_errors=True)
+                shutil.copytree(source, workdir / "data" / name)
+            scene["import"]["path"] = f"data/{name}"
     path = work / "test.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
 
 
 def snakemake_command(workdir: Path, config: Path, *args: str) -> list[str]:
-    return [
-        str(SNAKEMAKE),
-        "-s",
-        str(REPO / "Snakefile"),
-        "-d",
-        str(workdir),
-        "--configfile",
-        str(config),
-        *args,
-    ]
+    """This repository's workflow on `config`, in `workdir` (the launch directory does not matter)."""
+    workflow = ["-s", str(REPO / "Snakefile"), "-d", str(workdir)]
+    return [str(SNAKEMAKE), *workflow, "--configfile", str(config), *args]
 
 
-def run_logged(command: list[str], log: Path, timeout: float) -> tuple[int, float]:
-    start = time.monotonic()
+def start_logged(command: list[str], log: Path) -> subprocess.Popen:
     with log.open("w") as out:
-        process = subprocess.Popen(
+        return subprocess.Popen(
             command, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
         )
-        try:
-            process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            raise CheckFailed(f"{' '.join(command)} did not end within {timeout:.0f} s") from None
-        finally:
-            stop(process)
-    return process.returncode, time.monotonic() - start
+
+
+def finish(process: subprocess.Popen, timeout: float, what: str) -> int:
+    try:
+        return process.wait(timeout)
+    except subprocess.TimeoutExpired:
+        raise CheckFailed(f"{what} did not end within {timeout:.0f} s") from None
+    finally:
+        stop(process)
 
 
 def stop(process: subprocess.Popen) -> None:
@@ -342,67 +340,13 @@ def _drop(value, keys):
 # ---------------------------------------------------------------------------------------------
 
 
-def parse_jobs(text: str) -> list[tuple[str, str]]:
-    """(rule, wildcards) of each job a dry run lists."""
-    jobs = []
-    for block in re.split(r"\n(?=(?:local)?rule \w+:)", text):
-        match = re.match(r"(?:local)?rule (\w+):", block.strip())
-        if match:
-            wildcards = re.search(r"^\s+wildcards: (.*)$", block, re.MULTILINE)
-            jobs.append((match.group(1), wildcards.group(1) if wildcards else ""))
-    return jobs
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("workdir", type=Path, help="an empty directory for both runs")
-    parser.add_argument("--timeout", type=float, default=420, help="seconds per Snakemake run")
-    parser.add_argument(
-        "--reuse-local",
-        action="store_true",
-        help="keep WORKDIR's local run from an earlier check (redo only the cluster part)",
-    )
-    args = parser.parse_args(argv)
-    work = args.workdir.resolve()
-    work.mkdir(parents=True, exist_ok=True)
-    started = time.monotonic()
-    since = time.strftime("%Y-%m-%dT%H:%M:%S")
-    print(f"cluster check in {work} (Slurm config: {os.environ.get('SLURM_CONF', 'default')})")
+def cluster_runs(
+    work: Path, config: Path, cluster: Path, damaged: Path, original: bytes, timeout: float
+) -> tuple[float, float]:
+    """The first cluster run (a damaged image, a killed collection), its checks, the repair and the
+    rerun. Returns both runs' seconds."""
     try:
-        ping = subprocess.run(["scontrol", "ping"], capture_output=True, text=True, timeout=30)
-    except FileNotFoundError:
-        raise CheckFailed("scontrol not found: no Slurm client on this machine") from None
-    check(
-        ping.returncode == 0 and "UP" in ping.stdout,
-        f"a Slurm controller answers ({ping.stdout.strip()})",
-    )
-    local, cluster = work / "local", work / "slurm"
-    if args.reuse_local:
-        shutil.rmtree(cluster, ignore_errors=True)
-        shutil.rmtree(work / "data", ignore_errors=True)
-    config = write_config(work)
-
-    # 1. Local reference, bare `snakemake --cores 2`: the Snakefile alone limits the printer.
-    rc, local_s = run_logged(
-        snakemake_command(local, config, "--cores", "2"), work / "local.log", args.timeout
-    )
-    print(f"local run (snakemake --cores 2, no profile): {local_s:.0f} s, exit {rc}")
-    check(rc == 0, f"the local run succeeded (log: {work / 'local.log'})")
-    spans = sorted(
-        metadata_times(local, f"results/{name}/collect/summary.json")
-        for name in collected_scenes(config)
-    )
-    check(
-        all(a[1] <= b[0] for a, b in zip(spans, spans[1:], strict=False)),
-        f"the {len(spans)} collections of the bare local run ran one after another",
-    )
-
-    # 2. Cluster run with two failures on purpose.
-    images = sorted((work / "data" / FAILING_SCENE).glob("*.png"))
-    damaged, original = images[0], images[0].read_bytes()
-    damaged.write_bytes(b"not a PNG: made unreadable by workflow/cluster/check.py")
-    try:
-        run1_s = run_cluster_with_failures(work, config, cluster, args.timeout)
+        run1_s = run_cluster_with_failures(work, config, cluster, timeout)
     finally:
         damaged.write_bytes(original)
     stage_log = cluster / f"results/{FAILING_SCENE}/logs/dataset.log"
@@ -415,7 +359,9 @@ def main(argv=None) -> int:
     slurm_logs = list((cluster / f".snakemake/slurm_logs/rule_{FAILING_RULE}").rglob("*.log"))
     check(
         any("not a readable image" in p.read_text() for p in slurm_logs),
-        f"Slurm's log of the failed job is kept ({', '.join(str(p.relative_to(cluster)) for p in slurm_logs)})",
+        "Slurm's log of the failed job is kept ("
+        + ", ".join(str(p.relative_to(cluster)) for p in slurm_logs)
+        + ")",
     )
     run1_log = (work / "slurm-run1.log").read_text()
     check(
@@ -449,11 +395,16 @@ def main(argv=None) -> int:
         f"the rerun plans only the failed work and what follows it ({len(planned)} jobs: "
         f"{', '.join(sorted(rules))})",
     )
-    rc, run2_s = run_logged(
-        snakemake_command(cluster, config, "--profile", str(PROFILE), *FAST_STATUS),
-        work / "slurm-run2.log",
-        args.timeout,
+    run2_start = time.monotonic()
+    rc = finish(
+        start_logged(
+            snakemake_command(cluster, config, "--profile", str(PROFILE), *FAST_STATUS),
+            work / "slurm-run2.log",
+        ),
+        timeout,
+        "the cluster rerun",
     )
+    run2_s = time.monotonic() - run2_start
     print(f"cluster run 2 (rerun after the repair): {run2_s:.0f} s, exit {rc}")
     check(rc == 0, f"the rerun succeeded (log: {work / 'slurm-run2.log'})")
     store_attrs = json.loads((cluster / f"results/{KILLED_SCENE}/raw.zarr/zarr.json").read_text())
@@ -462,13 +413,80 @@ def main(argv=None) -> int:
         runs[-1]["resumed_at"] >= KILL_AFTER,
         f"the collection resumed at point {runs[-1]['resumed_at']}, not from the start",
     )
+    return run1_s, run2_s
+
+
+def parse_jobs(text: str) -> list[tuple[str, str]]:
+    """(rule, wildcards) of each job a dry run lists."""
+    jobs = []
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", text):
+        match = re.match(r"(?:local)?rule (\w+):", block.strip())
+        if match:
+            wildcards = re.search(r"^\s+wildcards: (.*)$", block, re.MULTILINE)
+            jobs.append((match.group(1), wildcards.group(1) if wildcards else ""))
+    return jobs
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("workdir", type=Path, help="an empty directory for both runs")
+    parser.add_argument("--timeout", type=float, default=900, help="seconds per Snakemake run")
+    parser.add_argument(
+        "--reuse-local",
+        action="store_true",
+        help="keep WORKDIR's local run from an earlier check (redo only the cluster part)",
+    )
+    args = parser.parse_args(argv)
+    work = args.workdir.resolve()
+    work.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    since = time.strftime("%Y-%m-%dT%H:%M:%S")
+    print(f"cluster check in {work} (Slurm config: {os.environ.get('SLURM_CONF', 'default')})")
+    try:
+        ping = subprocess.run(["scontrol", "ping"], capture_output=True, text=True, timeout=30)
+    except FileNotFoundError:
+        raise CheckFailed("scontrol not found: no Slurm client on this machine") from None
+    check(
+        ping.returncode == 0 and "UP" in ping.stdout,
+        f"a Slurm controller answers ({ping.stdout.strip()})",
+    )
+    local, cluster = work / "local", work / "slurm"
+    shutil.rmtree(cluster, ignore_errors=True)
+    if not args.reuse_local:
+        shutil.rmtree(local, ignore_errors=True)
+    config = write_config(work, local, cluster)
+
+    # 1. Local reference, bare `snakemake --cores 2`: the Snakefile alone limits the printer. It runs
+    # beside the cluster runs, filling the cores while they wait on Slurm.
+    local_start = time.monotonic()
+    local_run = start_logged(snakemake_command(local, config, "--cores", "2"), work / "local.log")
+
+    # 2-3. The cluster runs (two failures on purpose, then the rerun) beside the local run.
+    damaged = sorted((cluster / "data" / FAILING_SCENE).glob("*.png"))[0]
+    original = damaged.read_bytes()
+    damaged.write_bytes(b"not a PNG: made unreadable by workflow/cluster/check.py")
+    try:
+        run1_s, run2_s = cluster_runs(work, config, cluster, damaged, original, args.timeout)
+    finally:
+        rc = finish(local_run, args.timeout, "the local run")
+    local_s = time.monotonic() - local_start
+    print(f"local run (snakemake --cores 2, no profile, beside the cluster runs): {local_s:.0f} s")
+    check(rc == 0, f"the local run succeeded (log: {work / 'local.log'})")
+    spans = sorted(
+        metadata_times(local, f"results/{name}/collect/summary.json")
+        for name in collected_scenes(config)
+    )
+    check(
+        all(a[1] <= b[0] for a, b in zip(spans, spans[1:], strict=False)),
+        f"the {len(spans)} collections of the bare local run ran one after another",
+    )
 
     # 4. Where the jobs ran.
     jobs = sacct_jobs(since)
     check(len(jobs) > 0, f"sacct lists {len(jobs)} Slurm jobs of these runs")
     check("collect" not in set(jobs["rule"]), "no collection job went to Slurm (a local rule)")
     check(
-        "localrule collect:" in run1_log + (work / "slurm-run2.log").read_text(),
+        "localrule collect:" in (work / "slurm-run1.log").read_text(),
         "Snakemake ran the collections itself (`localrule collect` in its log)",
     )
     train = jobs[jobs["rule"] == "train"]
@@ -518,7 +536,8 @@ def main(argv=None) -> int:
     for name in headline:
         print(f"      {name}")
     for _, row in table[table["verdict"] == "equal but"].iterrows():
-        print(f"  equal but {row['note']}: {row['file']}")
+        columns, why = row["note"].split(": ", 1)
+        print(f"  equal but for {columns} ({why}): {row['file']}")
     skipped = table[table["verdict"] == "not compared"].groupby("note")["file"].agg(list)
     for note, names in skipped.items():
         shown = ", ".join(names[:3]) + (f", ... ({len(names)} files)" if len(names) > 3 else "")

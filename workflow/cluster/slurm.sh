@@ -137,6 +137,7 @@ cmd_start() {
 AuthType=auth/munge
 AuthInfo=socket=$S/munge/munge.socket
 DbdHost=$host
+DbdAddr=127.0.0.1
 DbdPort=$DBD_PORT
 SlurmUser=$user
 PidFile=$S/slurmdbd.pid
@@ -182,7 +183,7 @@ ReturnToService=2
 JobAcctGatherType=jobacct_gather/linux
 JobAcctGatherFrequency=task=2
 AccountingStorageType=accounting_storage/slurmdbd
-AccountingStorageHost=$host
+AccountingStorageHost=127.0.0.1
 AccountingStoragePort=$DBD_PORT
 # Connections to slurmdbd authenticate through the munge socket named here, not AuthInfo's.
 AccountingStoragePass=$S/munge/munge.socket
