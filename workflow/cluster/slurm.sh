@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # A throwaway single-node Slurm with accounting (munge, MariaDB, slurmdbd, slurmctld, slurmd) for
 # `make cluster-test` (docs/cluster.md). Every file it writes lives in one state directory; every
-# daemon it starts is stopped again by the PID it wrote there. Nothing under /etc is touched.
+# daemon it starts is stopped again by the PID it wrote there. Beyond what the apt packages install,
+# nothing outside the state directory is written (no file under /etc, no system service started).
 #
 #   slurm.sh install [RECORD]   apt packages (once); newly installed package names appended to RECORD
 #   slurm.sh start STATE        configure and start the daemons under STATE (a new, empty directory)
@@ -53,14 +54,17 @@ cmd_install() {
     chmod 755 "$guard"
   fi
   say "apt-get install ${PACKAGES[*]}"
-  local rc=0
+  local rc=0 log
+  log=$(mktemp)
   export DEBIAN_FRONTEND=noninteractive
-  apt-get install -y -q --no-install-recommends "${PACKAGES[@]}" >/dev/null || {
+  apt-get install -y -q --no-install-recommends "${PACKAGES[@]}" >"$log" 2>&1 || {
     say "apt-get install failed; apt-get update and retry"
-    apt-get update -q >/dev/null && apt-get install -y -q --no-install-recommends "${PACKAGES[@]}" >/dev/null
+    apt-get update -q >>"$log" 2>&1 &&
+      apt-get install -y -q --no-install-recommends "${PACKAGES[@]}" >>"$log" 2>&1
   } || rc=$?
   [ -n "$guard" ] && rm -f "$guard"
-  [ "$rc" -eq 0 ] || die "apt-get install ${PACKAGES[*]} failed"
+  [ "$rc" -eq 0 ] || { tail -20 "$log" >&2; rm -f "$log"; die "apt-get install ${PACKAGES[*]} failed"; }
+  rm -f "$log"
   dpkg-query -W -f='${Package}\n' | sort >"$after"
   local added
   added=$(comm -13 "$before" "$after" | tr '\n' ' ')
