@@ -83,30 +83,43 @@ def test_slurm_profile_asks_a_gpu_for_training_and_the_printer_for_collection(tm
     blocks = job_blocks(dry.stdout + dry.stderr)
     for job in blocks["train"]:
         assert "slurm_partition=gpu" in job and "gres=gpu:1" in job
-    for job in blocks["collect"]:
+    for job in blocks["collect"] + blocks["object_presses"]:
         assert "printer=1" in job
     for job in blocks["stats"] + blocks["objects"]:
         assert "slurm_partition=cpu" in job and "gres=" not in job
 
 
-def test_slurm_profile_runs_collection_on_this_machine_without_sbatch(tmp_path):
+@pytest.mark.slow
+def test_slurm_profile_runs_printer_jobs_on_this_machine_without_sbatch(tmp_path):
     pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
-    config = write_config(tmp_path, two_printer_scenes())
-    # No Slurm to submit to (SLURM_CONF names a missing file): a collection through the profile
-    # succeeds only because `collect` is a local rule, run here and never given to sbatch.
-    result = snakemake(
-        tmp_path,
-        config,
-        "--profile",
-        str(PROFILE),
-        "results/one/collect/summary.json",
-        check=False,
-        env=dict(os.environ, SLURM_CONF=str(tmp_path / "no-slurm.conf")),
+    config = two_printer_scenes()
+    config["scenes"] = {"one": config["scenes"]["one"]}
+    config["scenes"]["one"].update(  # the tiny study's plan: enough contacts to register
+        plan={"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1},
+        objects=["pill"],
+        pressing={"presses": 1, "tuning_presses": 1},
     )
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert "localrule collect:" in result.stdout + result.stderr
-    assert "submitted with SLURM jobid" not in result.stdout + result.stderr
+    config = write_config(tmp_path, config)
+    # No Slurm to submit to (SLURM_CONF names a missing file): a printer job through the profile
+    # succeeds only because it is a local rule, run here and never given to sbatch.
+    no_slurm = dict(os.environ, SLURM_CONF=str(tmp_path / "no-slurm.conf"))
+
+    def through_profile(target: str) -> str:
+        result = snakemake(
+            tmp_path, config, "--profile", str(PROFILE), target, check=False, env=no_slurm
+        )
+        text = result.stdout + result.stderr
+        assert result.returncode == 0, text
+        assert "submitted with SLURM jobid" not in text
+        return text
+
+    assert "localrule collect:" in through_profile("results/one/collect/summary.json")
     assert (tmp_path / "results/one/raw.zarr/zarr.json").is_file()
+    snakemake(tmp_path, config, "results/one/dataset/registration.json")  # a Slurm job's work
+    pressing = "results/one/objects/pressing/summary.json"
+    assert "localrule object_presses:" in through_profile(pressing)
+    assert (tmp_path / pressing).is_file()
+    assert (tmp_path / "results/one/benchmarks/object_presses.tsv").is_file()
 
 
 def slurm_controller_missing() -> str | None:

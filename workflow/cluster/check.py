@@ -11,7 +11,8 @@ workflow/cluster/slurm.sh starts such a cluster on one machine. In WORKDIR it
    why, where the docs say), and the collection of `tiny_digit` is killed mid-way (its partial
    store must stay);
 3. repairs the image and reruns: only what failed and what follows it runs; the collection resumes;
-4. asks sacct which jobs ran where: `collect` never went to Slurm, training got the GPU partition;
+4. asks sacct which jobs ran where: `collect` and `object_presses` never went to Slurm, training got
+   the GPU partition;
 5. compares every output of the two runs: equal bytes, or equal but for the named timing fields.
 
 Prints the Slurm job ids, the run times and the equality table; exits non-zero on any failed check.
@@ -94,7 +95,10 @@ TIMING_KEYS = {
     f"{KILLED_SCENE}/raw.zarr/zarr.json": (RESUMED_RUN, "durations; the resumed run's record"),
     "*/collect/summary.json": (DURATIONS, "collection durations"),
     "*/raw.zarr/zarr.json": (DURATIONS, "collection durations"),
+    "*/objects/pressing/summary.json": (["seconds", "seconds_per_press"], "pressing wall time"),
 }
+# Rules that drive the printer: local rules, run by Snakemake on this machine, never through sbatch.
+PRINTER_RULES = ("collect", "object_presses")
 
 
 class CheckFailed(Exception):
@@ -484,11 +488,13 @@ def main(argv=None) -> int:
     # 4. Where the jobs ran.
     jobs = sacct_jobs(since)
     check(len(jobs) > 0, f"sacct lists {len(jobs)} Slurm jobs of these runs")
-    check("collect" not in set(jobs["rule"]), "no collection job went to Slurm (a local rule)")
-    check(
-        "localrule collect:" in (work / "slurm-run1.log").read_text(),
-        "Snakemake ran the collections itself (`localrule collect` in its log)",
-    )
+    runs_log = (work / "slurm-run1.log").read_text() + (work / "slurm-run2.log").read_text()
+    for rule in PRINTER_RULES:
+        check(rule not in set(jobs["rule"]), f"no {rule} job went to Slurm (a local rule)")
+        check(
+            f"localrule {rule}:" in runs_log,
+            f"Snakemake ran {rule} itself (`localrule {rule}` in its log)",
+        )
     train = jobs[jobs["rule"] == "train"]
     check(
         len(train) > 0
