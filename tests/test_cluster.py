@@ -148,3 +148,39 @@ def test_study_on_slurm_gives_the_local_results(tmp_path):
     )
     print(result.stdout)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def _load_resources():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "cluster_resources", REPO / "workflow/cluster/resources.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_resources_suggests_memory_and_time_per_rule_from_benchmark_files(tmp_path):
+    resources = _load_resources()
+    header = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+    jobs = {  # (wall s, max_rss MB, cpu s)
+        "a/benchmarks/train_P20.tsv": (2000.0, 563.3, 190.2),
+        "b/benchmarks/train_P80.tsv": (945.1, 380.6, 400.0),
+        "benchmarks/environment.tsv": (19.4, 257.3, 2.8),
+    }
+    for name, (wall, rss, cpu) in jobs.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(header + f"{wall}\t0:00:00\t{rss}\t0\t0\t0\t0\t0\t1\t{cpu}\n")
+    table = resources.suggest(resources.measured(tmp_path))
+    assert list(table.index) == ["train", "environment"]  # P is a wildcard: one rule, two jobs
+    train = table.loc["train"]
+    assert train["jobs"] == 2 and train["max_rss_mb"] == 563 and train["max_cpu_s"] == 400
+    assert train["mem_mb"] == 1500  # 563.3 x 1.5 + 500 = 1345 -> next 500 MB
+    assert train["runtime"] == 20  # 3 x 400 s = 20 min
+    assert table.loc["environment", "mem_mb"] == 1000  # 886 -> 1000
+    assert table.loc["environment", "runtime"] == 10  # at least 10 min
+    by_wall = resources.suggest(resources.measured(tmp_path), time="s")
+    assert by_wall.loc["train", "runtime"] == 100  # 3 x 2000 s = 100 min
+    with pytest.raises(SystemExit, match="no benchmarks"):
+        resources.measured(tmp_path / "a/benchmarks")

@@ -28,7 +28,11 @@ command -v apt-get >/dev/null || { echo "cluster-test: needs apt-get (Debian/Ubu
 
 "$SLURM" install "$REPO/.cache/cluster/apt-installed.txt"
 STATE=$(mktemp -d "${TMPDIR:-/tmp}/threedcal-cluster.XXXXXX")
+chmod 711 "$STATE" # munged wants its socket's path reachable by every user (o+x), mktemp gives 700
 mkdir "$STATE/slurm"
-eval "$("$SLURM" start "$STATE/slurm")" # SLURM_CONF, and PATH with the cluster's srun first
+# SLURM_CONF, and PATH with the cluster's srun first; a failed start stops here (set -e), which an
+# `eval "$(...)"` would not.
+cluster_env=$("$SLURM" start "$STATE/slurm")
+eval "$cluster_env"
 echo "cluster-test: Slurm up after $(($(date +%s) - started)) s"
 "$PYTHON" "$REPO/workflow/cluster/check.py" "$STATE/work"
