@@ -93,7 +93,9 @@ RESUMED_RUN = [*DURATIONS, "estimated_hardware_s", "runs"]
 TIMING_KEYS = {
     f"{KILLED_SCENE}/collect/summary.json": (RESUMED_RUN, "durations; the resumed run's record"),
     f"{KILLED_SCENE}/raw.zarr/zarr.json": (RESUMED_RUN, "durations; the resumed run's record"),
+    f"{KILLED_SCENE}/raw.zarr/captured/zarr.json": (RESUMED_RUN, "the resumed run's record"),
     "*/collect/summary.json": (DURATIONS, "collection durations"),
+    "*/raw.zarr/captured/zarr.json": (DURATIONS, "collection durations"),
     "*/raw.zarr/zarr.json": (DURATIONS, "collection durations"),
     "*/objects/pressing/summary.json": (["seconds", "seconds_per_press"], "pressing wall time"),
 }
