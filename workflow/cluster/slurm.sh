@@ -5,6 +5,7 @@
 # nothing outside the state directory is written (no file under /etc, no system service started).
 #
 #   slurm.sh install [RECORD]   apt packages (once); newly installed package names appended to RECORD
+#   slurm.sh installable        exit 0 when the packages are installed or apt-get can install them
 #   slurm.sh start STATE        configure and start the daemons under STATE (a new, empty directory)
 #   slurm.sh stop STATE         cancel our jobs, stop every daemon started under STATE, by PID
 #   slurm.sh purge RECORD       apt-get purge the packages RECORD lists (what `install` added)
@@ -30,6 +31,13 @@ missing_packages() {
   for p in "${PACKAGES[@]}"; do
     dpkg-query -W -f='${Status}\n' "$p" 2>/dev/null | grep -q "install ok installed" || echo "$p"
   done
+}
+
+cmd_installable() {
+  [ -z "$(missing_packages)" ] && return 0
+  local simulate=(apt-get install -s -q --no-install-recommends "${PACKAGES[@]}")
+  "${simulate[@]}" >/dev/null 2>&1 && return 0
+  apt-get update -q >/dev/null 2>&1 && "${simulate[@]}" >/dev/null 2>&1
 }
 
 cmd_install() {
@@ -272,8 +280,9 @@ cmd_stop() {
 
 case "${1:-}" in
   install) cmd_install "${2:-}" ;;
+  installable) cmd_installable ;;
   purge) cmd_purge "${2:-}" ;;
   start) cmd_start "${2:-}" ;;
   stop) cmd_stop "${2:-}" ;;
-  *) die "usage: slurm.sh install [RECORD] | start STATE | stop STATE | purge RECORD" ;;
+  *) die "usage: slurm.sh install [RECORD] | installable | start STATE | stop STATE | purge RECORD" ;;
 esac
