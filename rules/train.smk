@@ -10,6 +10,8 @@ rule train:
         figure="results/{scene}/models/P{p}/losses.png",
     log:
         "results/{scene}/logs/train_P{p}.log",
+    benchmark:
+        "results/{scene}/benchmarks/train_P{p}.tsv"
     wildcard_constraints:
         p=r"\d+",
     conda:
@@ -35,6 +37,8 @@ rule ball_eval:
         "results/{scene}/ball_eval.json",
     log:
         "results/{scene}/logs/ball_eval.log",
+    benchmark:
+        "results/{scene}/benchmarks/ball_eval.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",
     conda:
