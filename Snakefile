@@ -4,11 +4,19 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import is_imported, training_fractions, validate_config
+from threedcal.config import (
+    ablation_replicates,
+    is_imported,
+    model_keys,
+    training_fractions,
+    validate_config,
+)
 from threedcal.provenance import source_digest
 from threedcal.scenes import (
     ablation_scenes,
+    full_model_file,
     has_objects,
+    model_file,
     reskin_scenes,
     stage_config,
     study_targets,

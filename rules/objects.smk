@@ -1,10 +1,11 @@
 # Stage `objects`: test objects pressed on the simulated bench, depth predicted by the P = 80 model
-# (and every other P), errors against the CAD ground truth (Table II, Figs. 3C, 5, 6).
+# (and every other P), errors against the CAD ground truth (Table II, Figs. 3C, 5, 6). It reads
+# replicate 0 of each P only (models/P{p}/r0/model.pt).
 
 
 rule objects:
     input:
-        unpack(scene_models),
+        unpack(first_replicate_models),
     output:
         errors="results/{scene}/objects/errors.csv",
         integrators="results/{scene}/objects/integrators.csv",
