@@ -79,6 +79,6 @@ rule summary:
         CONDA_ENV
     params:
         config=lambda wildcards: {k: config[k] for k in ("scenes",)},
-        code=source_digest("report"),
+        code=source_digest("report", "evaluate"),
     script:
         "../scripts/summary.py"

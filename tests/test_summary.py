@@ -70,6 +70,7 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
                         "P": p,
                         "replicate": replicate,
                         "significant": paper_significant,
+                        "conclusion": "worse" if paper_significant else "no significant difference",
                         "relative_change": 0.3,
                     }
                 )
@@ -141,6 +142,7 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
         {"scenes": {"a": {"sensor": "digit"}}}, tmp_path / "results", tmp_path / "summary.md"
     )
     assert "| 5 | +30.0 % | 3/3 / 3/3 | worse (p = 0.002, interval +10.0 % to +50.0 %)" in text
+    assert next(row for row in text.splitlines() if row.startswith("| 5 |")).count("| agree |")
     line = next(row for row in text.splitlines() if row.startswith("| 20 |"))
     assert "0/3 / 0/3" in line
     assert (

@@ -339,6 +339,8 @@ def power_table(
 
 def needed_design(power: pd.DataFrame, p: int, column: str = "power_equivalence") -> str:
     """The cheapest simulated design (fewest replicates, then widest spacing) reaching 80 % power."""
+    if not (power["P"] == p).any():
+        return "—"
     part = power[(power["P"] == p) & (power[column] >= POWER_TARGET)]
     if part.empty:
         best = power[power["P"] == p].sort_values(column).iloc[-1]
@@ -355,7 +357,8 @@ def needed_design(power: pd.DataFrame, p: int, column: str = "power_equivalence"
 
 def power_figure(power: pd.DataFrame, path: str | Path, title: str) -> None:
     """Power against replicates for each P: solid = detect a +margin change, dashed = show
-    equivalence at no change; one colour per validation spacing; the study's design ringed."""
+    equivalence at no change; one colour per validation spacing; the study's design ringed.
+    R = 1 stands apart (crosses): its test cannot see the replicate variance and is too liberal."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -365,7 +368,7 @@ def power_figure(power: pd.DataFrame, path: str | Path, title: str) -> None:
     fig, axes = plt.subplots(
         1,
         len(fractions),
-        figsize=(2.6 * len(fractions) + 0.6, 3.4),
+        figsize=(2.6 * len(fractions) + 0.6, 3.6),
         dpi=120,
         sharey=True,
         squeeze=False,
@@ -376,26 +379,36 @@ def power_figure(power: pd.DataFrame, path: str | Path, title: str) -> None:
         part = power[power["P"] == p]
         for colour, spacing in zip(colours, spacings, strict=True):
             line = part[part["spacing_mm"] == spacing].sort_values("replicates")
+            if line.empty:
+                continue
             points = int(line["validation_points"].iloc[0])
+            many, one = line[line["replicates"] > 1], line[line["replicates"] == 1]
             ax.plot(
-                line["replicates"],
-                line["power_detect"],
+                many["replicates"],
+                many["power_detect"],
                 "o-",
                 c=colour,
                 ms=3,
                 label=f"{spacing:g} mm ({points} val. points)",
             )
-            ax.plot(line["replicates"], line["power_equivalence"], "s--", c=colour, ms=3)
+            ax.plot(many["replicates"], many["power_equivalence"], "s--", c=colour, ms=3)
+            ax.plot(one["replicates"], one["power_detect"], "x", c=colour, ms=5)
+            ax.plot(one["replicates"], one["power_equivalence"], "+", c=colour, ms=6)
         mine = part[part["observed"].astype(bool)]
         ax.plot(mine["replicates"], mine["power_detect"], "o", mfc="none", mec="k", ms=8)
         ax.plot(mine["replicates"], mine["power_equivalence"], "s", mfc="none", mec="k", ms=8)
         ax.axhline(POWER_TARGET, c="grey", lw=0.6, ls=":")
+        ticks = sorted(part["replicates"].unique())
         ax.set(xscale="log", xlabel="replicates R", title=f"P = {p} %", ylim=(-0.02, 1.02))
-        ax.set_xticks(sorted(part["replicates"].unique()), minor=False)
-        ax.set_xticklabels([str(r) for r in sorted(part["replicates"].unique())])
-    axes[0, 0].set_ylabel("power (solid: detect +margin, dashed: show equivalence)")
+        ax.set_xticks(ticks, [str(r) for r in ticks])
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    axes[0, 0].set_ylabel("power")
     axes[0, -1].legend(fontsize=6, loc="lower right")
-    fig.suptitle(title)
+    fig.suptitle(
+        f"{title}\nsolid: detect a +margin change, dashed: show equivalence at no change; "
+        "rings: this study; R = 1 (crosses) is too liberal",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
