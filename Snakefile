@@ -6,7 +6,9 @@ from snakemake.utils import min_version, validate
 
 from threedcal.config import (
     ablation_replicates,
+    canonical_json,
     is_imported,
+    load_yaml,
     model_keys,
     training_fractions,
     validate_config,
@@ -30,6 +32,11 @@ if not workflow.overwrite_configfiles:
 
     configfile: "config.yaml"
 
+
+# Snakemake's YAML loader keeps the last of two equal keys (two scenes of one name) silently; ours
+# refuses them, naming the line.
+for _config_file in workflow.configfiles:
+    load_yaml(_config_file)
 
 # Our validation first (messages name the key and the allowed values), then Snakemake's own.
 CONFIG_SOURCE = ", ".join(map(str, workflow.overwrite_configfiles)) or "config.yaml"
