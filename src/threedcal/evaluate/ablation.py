@@ -290,6 +290,25 @@ def holm(p_values) -> np.ndarray:
     return out
 
 
+def _block_row(family, test, p, sample, ref, low, high, statistic, df, p_raw) -> dict:
+    """The columns a block-level test of P against the reference shares: change and ratio interval."""
+    estimate = float(np.mean(sample) - np.mean(ref))
+    return {
+        "family": family,
+        "test": test,
+        "P": p,
+        "replicates": ref.shape[0],
+        "blocks": ref.shape[1],
+        "estimate": estimate,
+        "relative_change": estimate / float(np.mean(ref)),
+        "ci_low": low - 1.0,
+        "ci_high": high - 1.0,
+        "statistic": float(statistic),
+        "df": float(df),
+        "p_raw": float(p_raw),
+    }
+
+
 def paired_family(
     means: Mapping[int, np.ndarray], reference: int = REFERENCE_P, alpha: float = ALPHA
 ) -> pd.DataFrame:
@@ -300,22 +319,8 @@ def paired_family(
     for p in others:
         t, df, p_raw = difference_test(means[p], ref)
         low, high = ratio_interval(means[p], ref, alpha / 2)
-        estimate = float(np.mean(means[p]) - np.mean(ref))
         rows.append(
-            {
-                "family": "paired",
-                "test": "block_mixed_t",
-                "P": p,
-                "replicates": ref.shape[0],
-                "blocks": ref.shape[1],
-                "estimate": estimate,
-                "relative_change": estimate / float(np.mean(ref)),
-                "ci_low": low - 1.0,
-                "ci_high": high - 1.0,
-                "statistic": float(t),
-                "df": float(df),
-                "p_raw": float(p_raw),
-            }
+            _block_row("paired", "block_mixed_t", p, means[p], ref, low, high, t, df, p_raw)
         )
     adjusted = holm([r["p_raw"] for r in rows]) if rows else []
     for row, p_adj in zip(rows, adjusted, strict=True):
@@ -349,29 +354,27 @@ def equivalence_family(
         running = max(running, float(p_tost))
         equivalent = running < alpha
         binding_low = stats.t.sf(t_low, df_low) >= stats.t.cdf(t_high, df_high)
-        estimate = float(np.mean(means[p]) - np.mean(ref))
-        rows.append(
-            {
-                "family": "equivalence",
-                "test": "tost",
-                "P": p,
-                "replicates": ref.shape[0],
-                "blocks": ref.shape[1],
-                "estimate": estimate,
-                "relative_change": estimate / float(np.mean(ref)),
-                "ci_low": low - 1.0,
-                "ci_high": high - 1.0,
-                "statistic": float(t_low if binding_low else t_high),
-                "df": float(df_low if binding_low else df_high),
-                "p_raw": float(p_tost),
-                "p_adjusted": running,
-                "correction": "fixed sequence (largest P first)",
-                "significant": bool(equivalent),
-                "conclusion": _equivalence_conclusion(
-                    equivalent, p_tost < alpha, low - 1.0, high - 1.0, margin
-                ),
-            }
+        row = _block_row(
+            "equivalence",
+            "tost",
+            p,
+            means[p],
+            ref,
+            low,
+            high,
+            t_low if binding_low else t_high,
+            df_low if binding_low else df_high,
+            p_tost,
         )
+        row.update(
+            p_adjusted=running,
+            correction="fixed sequence (largest P first)",
+            significant=bool(equivalent),
+            conclusion=_equivalence_conclusion(
+                equivalent, p_tost < alpha, low - 1.0, high - 1.0, margin
+            ),
+        )
+        rows.append(row)
     return _frame(sorted(rows, key=lambda r: r["P"]))
 
 
