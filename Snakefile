@@ -5,15 +5,13 @@ from pathlib import Path
 from snakemake.utils import min_version, validate
 
 from threedcal.config import (
-    ablation_replicates,
-    canonical_json,
     is_imported,
-    load_yaml,
     model_keys,
     training_fractions,
     validate_config,
 )
-from threedcal.provenance import source_digest
+from threedcal.provenance import script_digest
+from threedcal.schema import canonical_json, load_yaml
 from threedcal.scenes import (
     ablation_scenes,
     full_model_file,
