@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.dataset.importers import check_import
