@@ -185,7 +185,7 @@ def test_a_replicate_trains_on_its_own_subset_with_its_own_seed(tmp_path, monkey
     monkeypatch.setattr(
         module, "_train_epoch", lambda m, t, idx, *a: used.append(list(idx)) or real(m, t, idx, *a)
     )
-    settings = TrainSettings(preset="compact_tiny", seed=3, **TINY)
+    settings = TrainSettings.of(preset="compact_tiny", seed=3, **TINY)
     zero = train(ts, tmp_path / "r0", 20, settings, progress=False)
     one = train(ts, tmp_path / "r1", 20, settings, progress=False, replicate=1)
     assert used[0] == [0, 1] and used[-1] == [2, 3]
