@@ -7,6 +7,11 @@
 # replicate 0 of each P (models/P{p}/r0/model.pt) under both protocols.
 
 
+# The presses drive the printer, attached to the machine that runs Snakemake: never submitted to a cluster.
+localrules:
+    object_presses,
+
+
 rule object_presses:
     input:
         registration="results/{scene}/dataset/registration.json",
@@ -17,6 +22,8 @@ rule object_presses:
         summary="results/{scene}/objects/pressing/summary.json",
     log:
         "results/{scene}/logs/object_presses.log",
+    benchmark:
+        "results/{scene}/benchmarks/object_presses.tsv"
     wildcard_constraints:
         scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
@@ -59,6 +66,8 @@ rule objects:
         ),
     log:
         "results/{scene}/logs/objects.log",
+    benchmark:
+        "results/{scene}/benchmarks/objects.tsv"
     wildcard_constraints:
         scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:

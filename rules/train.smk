@@ -11,6 +11,8 @@ rule train:
         figure="results/{scene}/models/P{p}/r{r}/losses.png",
     log:
         "results/{scene}/logs/train_P{p}_r{r}.log",
+    benchmark:
+        "results/{scene}/benchmarks/train_P{p}_r{r}.tsv"
     wildcard_constraints:
         p=r"\d+",
         r=r"\d+",
@@ -37,6 +39,8 @@ rule ball_eval:
         "results/{scene}/ball_eval.json",
     log:
         "results/{scene}/logs/ball_eval.log",
+    benchmark:
+        "results/{scene}/benchmarks/ball_eval.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",
     conda:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import logging
 import math
 import os
 import time
@@ -261,6 +262,8 @@ def train(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     device = configure_torch(settings)
+    # Where it trains: on a cluster, whether the job's GPU was usable (else the CPU).
+    logging.getLogger(__name__).info("training P=%d r%d on %s", percent, replicate, device)
     train_idx = ts.indices("train", percent=percent, replicate=replicate)
     if len(train_idx) == 0:
         raise ConfigError(
