@@ -4,12 +4,19 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import is_imported, training_fractions, validate_config
+from threedcal.config import (
+    is_imported,
+    model_keys,
+    training_fractions,
+    validate_config,
+)
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
 from threedcal.scenes import (
     ablation_scenes,
+    full_model_file,
     has_objects,
+    model_file,
     reskin_scenes,
     stage_config,
     study_targets,

@@ -9,13 +9,21 @@ def code_digest(script):
 
 
 def scene_models(wildcards):
-    """{"P5": "results/{scene}/models/P5/model.pt", ...}: every model of a scene, keyed by fraction."""
-    fractions = training_fractions(config["scenes"][wildcards.scene])
+    """{"P5_r0": "results/{scene}/models/P5/r0/model.pt", ...}: every model of a scene, by fraction and replicate."""
+    scene = config["scenes"][wildcards.scene]
     return {
-        f"P{p}": f"results/{wildcards.scene}/models/P{p}/model.pt" for p in fractions
+        f"P{p}_r{r}": model_file(wildcards.scene, p, r) for p, r in model_keys(scene)
     }
 
 
-def ablation_losses(wildcards):
+def first_replicate_models(wildcards):
+    """{"P5": "results/{scene}/models/P5/r0/model.pt", ...}: replicate 0 of every fraction."""
     fractions = training_fractions(config["scenes"][wildcards.scene])
-    return [f"results/{wildcards.scene}/models/P{p}/losses.csv" for p in fractions]
+    return {f"P{p}": model_file(wildcards.scene, p, 0) for p in fractions}
+
+
+def ablation_losses(wildcards):
+    scene = config["scenes"][wildcards.scene]
+    return [
+        model_file(wildcards.scene, p, r, "losses.csv") for p, r in model_keys(scene)
+    ]

@@ -3,7 +3,8 @@
 # press (the simulated bench renders each press once). `objects`: every model predicts depth on
 # those frames, scored under the `printer` protocol (ground truth where the registration and the
 # commanded Z put the object) and the paper's (`paper`: aligned and depth-fitted), Table II,
-# Figs. 3C, 5, 6. A new model reruns only the scoring.
+# Figs. 3C, 5, 6. A new model reruns only the scoring. With ablation replicates, `objects` scores
+# replicate 0 of each P (models/P{p}/r0/model.pt) under both protocols.
 
 
 # The presses drive the printer, attached to the machine that runs Snakemake: never submitted to a cluster.
@@ -40,7 +41,7 @@ rule object_presses:
 
 rule objects:
     input:
-        unpack(scene_models),
+        unpack(first_replicate_models),
         registration="results/{scene}/dataset/registration.json",
         frames="results/{scene}/objects/pressing/frames.npz",
         plan="results/{scene}/objects/pressing/plan.csv",

@@ -26,8 +26,8 @@ rule environment:
 
 rule inference_speed:
     input:
-        model=lambda wildcards: (
-            f"results/{wildcards.scene}/models/P{max(training_fractions(config['scenes'][wildcards.scene]))}/model.pt"
+        model=lambda wildcards: full_model_file(
+            wildcards.scene, config["scenes"][wildcards.scene]
         ),
         trainset="results/{scene}/dataset/trainset",
     output:

@@ -1,5 +1,7 @@
-# Stage `stats`: per-coordinate validation error of every model of a scene's ablation, the tests
-# against P = 80 and the paper's Fig. 3B / 4 figures; the cross-scene spread figure (Fig. 4C).
+# Stage `stats`: per-coordinate validation error of every model (P, replicate) of a scene's ablation,
+# the tests against P = 80 (the paper's, paired, equivalence), the recommendation, the power of the
+# design and the paper's Fig. 3B / 4 figures; the cross-scene spread figure (Fig. 4C). See
+# docs/statistics.md.
 
 
 rule stats:
@@ -16,7 +18,20 @@ rule stats:
             category="{scene}",
             subcategory="4 ablation",
         ),
+        tests_figure=report(
+            "results/{scene}/stats/tests.png",
+            caption="../workflow/report/stats_tests_figure.rst",
+            category="{scene}",
+            subcategory="4 ablation",
+        ),
         recommendation="results/{scene}/stats/recommendation.txt",
+        power="results/{scene}/stats/power.csv",
+        power_figure=report(
+            "results/{scene}/stats/power.png",
+            caption="../workflow/report/stats_power.rst",
+            category="{scene}",
+            subcategory="4 ablation",
+        ),
         costs="results/{scene}/stats/error_vs_cost.csv",
         loss_figure=report(
             "results/{scene}/stats/loss_curves.png",
@@ -51,9 +66,9 @@ rule stats:
     conda:
         CONDA_ENV
     params:
-        fractions=lambda wildcards: training_fractions(
-            config["scenes"][wildcards.scene]
-        ),
+        models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
+        settings=config["stats"],
+        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
         summary=lambda wildcards: (
             f"results/{wildcards.scene}/collect/summary.json"
             if wildcards.scene in COLLECTED_SCENES

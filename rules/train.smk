@@ -1,19 +1,21 @@
-# Stage `train`: one model per (scene, P) from the scene's model-ready set; ball_eval for imported balls.
+# Stage `train`: one model per (scene, P, replicate) from the scene's model-ready set; ball_eval for
+# imported balls. Replicate r trains on its own nested subset with its own seed (threedcal.dataset.splits).
 
 
 rule train:
     input:
         trainset="results/{scene}/dataset/trainset",
     output:
-        model="results/{scene}/models/P{p}/model.pt",
-        losses="results/{scene}/models/P{p}/losses.csv",
-        figure="results/{scene}/models/P{p}/losses.png",
+        model="results/{scene}/models/P{p}/r{r}/model.pt",
+        losses="results/{scene}/models/P{p}/r{r}/losses.csv",
+        figure="results/{scene}/models/P{p}/r{r}/losses.png",
     log:
-        "results/{scene}/logs/train_P{p}.log",
+        "results/{scene}/logs/train_P{p}_r{r}.log",
     benchmark:
-        "results/{scene}/benchmarks/train_P{p}.tsv"
+        "results/{scene}/benchmarks/train_P{p}_r{r}.tsv"
     wildcard_constraints:
         p=r"\d+",
+        r=r"\d+",
     conda:
         CONDA_ENV
     threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
@@ -29,8 +31,8 @@ rule train:
 
 rule ball_eval:
     input:
-        model=lambda wildcards: (
-            f"results/{wildcards.scene}/models/P{max(training_fractions(config['scenes'][wildcards.scene]))}/model.pt"
+        model=lambda wildcards: full_model_file(
+            wildcards.scene, config["scenes"][wildcards.scene]
         ),
         trainset="results/{scene}/dataset/trainset",
     output:

@@ -1,17 +1,19 @@
-"""Rule `stats`: validation MSE per coordinate, significance tests, recommendation and figures."""
+"""Rule `stats`: validation MSE per coordinate, the ablation's tests, recommendation, power and figures."""
 
 from threedcal.evaluate.validation import stats_stage
 from threedcal.logs import stage_log
 
 with stage_log(snakemake.log[0]) as log:
-    fractions = snakemake.params.fractions
+    keys = [tuple(key) for key in snakemake.params.models]
     line = stats_stage(
         snakemake.wildcards.scene,
-        {p: snakemake.input[f"P{p}"] for p in fractions},
-        dict(zip(fractions, snakemake.input.losses, strict=True)),
+        {(p, r): snakemake.input[f"P{p}_r{r}"] for p, r in keys},
+        dict(zip(keys, snakemake.input.losses, strict=True)),
         snakemake.input.trainset,
         snakemake.input.splits,
         snakemake.params.summary,
+        snakemake.params.settings,
+        snakemake.params.seed,
         dict(snakemake.output.items()),
     )
     log.info(line)

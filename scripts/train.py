@@ -1,4 +1,4 @@
-"""Rule `train`: one model at fraction P → model.pt, losses.csv, losses.png."""
+"""Rule `train`: replicate r of fraction P → model.pt, losses.csv, losses.png."""
 
 from threedcal.logs import stage_log
 from threedcal.model.train import TrainSettings, train
@@ -10,4 +10,5 @@ with stage_log(snakemake.log[0]):
         snakemake.output.model.rsplit("/", 1)[0],
         int(snakemake.wildcards.p),
         settings,
+        replicate=int(snakemake.wildcards.r),
     )

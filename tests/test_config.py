@@ -5,7 +5,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from threedcal.config import load_config, training_fractions, validate_config
+from threedcal.config import (
+    ablation_replicates,
+    load_config,
+    model_keys,
+    training_fractions,
+    validate_config,
+)
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
@@ -97,6 +103,36 @@ def test_scene_names_must_be_path_safe():
 def test_training_fractions_default_to_one_full_model():
     assert training_fractions({"ablation": []}) == [80]
     assert training_fractions({"ablation": [80, 5, 20]}) == [5, 20, 80]
+
+
+def test_ablation_takes_a_list_or_fractions_with_replicates():
+    plain = validate_config(config_with(ablation=[80, 5]))["scenes"]["s"]
+    full = validate_config(config_with(ablation={"fractions": [5, 80], "replicates": 3}))
+    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1}
+    assert full["scenes"]["s"]["ablation"] == {"fractions": [5, 80], "replicates": 3}
+    assert model_keys(full["scenes"]["s"]) == [(5, 0), (5, 1), (5, 2), (80, 0), (80, 1), (80, 2)]
+    assert ablation_replicates(validate_config(config_with())["scenes"]["s"]) == 1
+    assert "scenes.s.ablation.replicates: 0 is less than the minimum of 1" in error_of(
+        config_with(ablation={"fractions": [5, 80], "replicates": 0})
+    )
+    assert "scenes.s.ablation: unknown key 'reps'" in error_of(
+        config_with(ablation={"fractions": [5, 80], "reps": 3})
+    )
+    assert "scenes.s.ablation: 'fractions' is a required property" in error_of(
+        config_with(ablation={"replicates": 3})
+    )
+
+
+def test_stats_settings_default_to_the_papers_alpha_and_a_ten_percent_margin():
+    assert validate_config(config_with())["stats"] == {
+        "alpha": 0.01,
+        "equivalence_margin": 0.10,
+        "equivalence_alpha": 0.05,
+        "power_simulations": 1000,
+    }
+    assert "stats.equivalence_margin: 1.5 is greater than or equal to the maximum of 1" in error_of(
+        {**config_with(), "stats": {"equivalence_margin": 1.5}}
+    )
 
 
 def test_shipped_configs_are_valid(repo):

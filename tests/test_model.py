@@ -173,6 +173,29 @@ def test_training_is_deterministic_to_the_byte_and_writes_losses(tmp_path):
     assert (tmp_path / "c/model.pt").read_bytes() != (tmp_path / "a/model.pt").read_bytes()
 
 
+def test_a_replicate_trains_on_its_own_subset_with_its_own_seed(tmp_path, monkeypatch):
+    import threedcal.model.train as module
+    from threedcal.dataset.splits import replicate_seed
+
+    ts = synthetic_set()
+    ts.samples["min_p_r1"] = [80, 80, 20, 20, 0, 0]  # replicate 1's P = 20 subset: points 2, 3
+    ts = TrainingSet(ts.frames, ts.blank, ts.samples, px_per_mm=8.0, sphere_radius_mm=2.0)
+    used = []
+    real = module._train_epoch
+    monkeypatch.setattr(
+        module, "_train_epoch", lambda m, t, idx, *a: used.append(list(idx)) or real(m, t, idx, *a)
+    )
+    settings = TrainSettings.of(preset="compact_tiny", seed=3, **TINY)
+    zero = train(ts, tmp_path / "r0", 20, settings, progress=False)
+    one = train(ts, tmp_path / "r1", 20, settings, progress=False, replicate=1)
+    assert used[0] == [0, 1] and used[-1] == [2, 3]
+    assert zero["training"]["replicate"] == 0 and zero["training"]["settings"]["seed"] == 3
+    assert one["training"]["replicate"] == 1
+    assert one["training"]["settings"]["seed"] == replicate_seed(3, 1)
+    with pytest.raises(ConfigError, match="replicates 0..1, not 2"):
+        train(ts, tmp_path / "r2", 20, settings, progress=False, replicate=2)
+
+
 def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch):
     import threedcal.model.train as module
 

@@ -2,7 +2,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from threedcal.dataset.splits import in_field_of_view, split_points, subset, subset_size
+from threedcal.dataset.splits import (
+    in_field_of_view,
+    replicate_seed,
+    split_points,
+    subset,
+    subset_size,
+)
 from threedcal.errors import ConfigError
 
 FRACTIONS = [1, 5, 10, 20, 40, 80]
@@ -68,3 +74,41 @@ def test_field_of_view_filter_uses_pixel_centre_extent():
     )
     assert inside.tolist() == [True, True, False, True, False, True]
     assert not in_field_of_view([5], [5], 240, 320, margin_px=10)[0]
+
+
+def test_replicates_share_the_validation_coordinates_and_draw_their_own_nested_subsets():
+    table = split_points(grid(), FRACTIONS, seed=3, replicates=3)
+    single = split_points(grid(), FRACTIONS, seed=3)
+    # replicate 0 is the single-replicate study
+    pd.testing.assert_frame_equal(table[single.columns], single)
+    assert list(table.columns[-2:]) == ["min_p_r1", "min_p_r2"]
+    train = set(table.loc[table["split"] == "train", "point"])
+    for replicate in range(3):
+        previous = set()
+        for p in FRACTIONS:
+            chosen = subset(table, p, replicate)
+            assert len(chosen) == subset_size(400, p)
+            current = set(chosen["point"])
+            assert previous <= current <= train  # nested, never a validation coordinate
+            previous = current
+        assert previous == train  # P = 80 is every training coordinate, in every replicate
+    first = [set(subset(table, 5, r)["point"]) for r in range(3)]
+    assert first[0] != first[1] and first[1] != first[2]  # a fresh draw per replicate
+
+
+def test_replicate_seeds_are_the_scene_seed_then_derived_ones():
+    assert replicate_seed(7, 0) == 7
+    seeds = [replicate_seed(7, r) for r in range(1, 6)]
+    assert len(set(seeds)) == 5 and 7 not in seeds
+    assert seeds == [replicate_seed(7, r) for r in range(1, 6)]
+    assert replicate_seed(8, 1) != replicate_seed(7, 1)
+    with pytest.raises(ConfigError, match="replicate"):
+        replicate_seed(7, -1)
+
+
+def test_a_replicate_the_splits_do_not_hold_is_refused():
+    table = split_points(grid(), FRACTIONS, seed=3, replicates=2)
+    with pytest.raises(ConfigError, match="no replicate 2"):
+        subset(table, 5, 2)
+    with pytest.raises(ConfigError, match="replicates must be 1 or more"):
+        split_points(grid(), FRACTIONS, seed=3, replicates=0)

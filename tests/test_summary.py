@@ -60,3 +60,101 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     assert "10 or more per object" in text
     assert "gradient RMSE 0.300 (lookup 0.370)" in text and "8 images" in text
     assert (tmp_path / "summary.md").read_text() == text
+
+
+def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreements(tmp_path):
+    from threedcal.evaluate.ablation import TEST_COLUMNS
+
+    stats_dir = tmp_path / "results/a/stats"
+    stats_dir.mkdir(parents=True)
+    rows = []
+    for p, paper_significant in ((5, True), (20, False)):
+        for replicate in range(3):
+            for test in ("t", "mannwhitney"):
+                rows.append(
+                    {
+                        "family": "paper",
+                        "test": test,
+                        "P": p,
+                        "replicate": replicate,
+                        "significant": paper_significant,
+                        "conclusion": "worse" if paper_significant else "no significant difference",
+                        "relative_change": 0.3,
+                    }
+                )
+    common = {"replicates": 3, "blocks": 6, "n": 160}
+    rows += [
+        {
+            "family": "paired",
+            "P": 5,
+            "estimate": 0.3,
+            "relative_change": 0.30,
+            "ci_low": 0.1,
+            "ci_high": 0.5,
+            "p_adjusted": 0.002,
+            "significant": True,
+            "conclusion": "worse",
+            **common,
+        },
+        {
+            "family": "paired",
+            "P": 20,
+            "estimate": 0.04,
+            "relative_change": 0.04,
+            "ci_low": -0.1,
+            "ci_high": 0.2,
+            "p_adjusted": 0.4,
+            "significant": False,
+            "conclusion": "no significant difference",
+            **common,
+        },
+        {
+            "family": "equivalence",
+            "P": 5,
+            "estimate": 0.3,
+            "relative_change": 0.30,
+            "ci_low": 0.2,
+            "ci_high": 0.4,
+            "significant": False,
+            "conclusion": "not equivalent: a larger P is not",
+            **common,
+        },
+        {
+            "family": "equivalence",
+            "P": 20,
+            "estimate": 0.04,
+            "relative_change": 0.04,
+            "ci_low": -0.05,
+            "ci_high": 0.15,
+            "significant": False,
+            "conclusion": "not equivalent: the interval is wider than the margin allows (too little "
+            "power)",
+            **common,
+        },
+    ]
+    pd.DataFrame(rows, columns=TEST_COLUMNS).to_csv(stats_dir / "tests.csv", index=False)
+    pd.DataFrame(
+        [
+            {
+                "P": p,
+                "replicates": r,
+                "spacing_mm": s,
+                "validation_points": n,
+                "power_equivalence": power,
+            }
+            for p in (5, 20)
+            for r, s, n, power in ((3, 0.5, 160, 0.4), (5, 0.5, 160, 0.85), (5, 1.0, 40, 0.6))
+        ]
+    ).to_csv(stats_dir / "power.csv", index=False)
+    text = write_summary(
+        {"scenes": {"a": {"sensor": "digit"}}}, tmp_path / "results", tmp_path / "summary.md"
+    )
+    assert "| 5 | +30.0 % | 3/3 / 3/3 | worse (p = 0.002, interval +10.0 % to +50.0 %)" in text
+    assert next(row for row in text.splitlines() if row.startswith("| 5 |")).count("| agree |")
+    line = next(row for row in text.splitlines() if row.startswith("| 20 |"))
+    assert "0/3 / 0/3" in line
+    assert (
+        "disagree: the paper's tests find no difference, yet equivalence is not shown "
+        "(interval -5.0 % to +15.0 %)" in line
+    )
+    assert "5 replicates at 0.5 mm (160 validation points): 85%" in line

@@ -1,6 +1,7 @@
 """The Snakemake DAG: per-scene targets, config errors at parse time, caching, and one end-to-end run."""
 
 import json
+import re
 
 import pandas as pd
 import pytest
@@ -71,8 +72,8 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         assert record["scene"] == name and record["software"]["threedcal"]
     for name, scene in config["scenes"].items():
         if "import" in scene:
-            assert (tmp_path / f"results/{name}/models/P80/model.pt").stat().st_size > 0
-            assert (tmp_path / f"results/{name}/models/P80/losses.png").is_file()
+            assert (tmp_path / f"results/{name}/models/P80/r0/model.pt").stat().st_size > 0
+            assert (tmp_path / f"results/{name}/models/P80/r0/losses.png").is_file()
             ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
             assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 8
             assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
@@ -86,7 +87,10 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     for leaf in (
         "raw.zarr",
         "dataset/registration.json",
+        "models/P20/r1/model.pt",
         "stats/tests.csv",
+        "stats/tests.png",
+        "stats/power.csv",
         "stats/recommendation.txt",
         "objects/errors.csv",
         "objects/figures/pill_by_P.png",
@@ -119,6 +123,20 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert environment["thread_environment"] == dict.fromkeys(
         ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"), "1"
     )
+    # Two replicates per fraction, each scored on the same validation coordinates; tests.csv holds
+    # the paper's, the paired and the equivalence family; the recommendation rests on the last
+    stats_dir = tmp_path / f"results/{collected}/stats"
+    validation = pd.read_csv(stats_dir / "validation_mse.csv")
+    assert sorted(validation.groupby(["P", "replicate"]).groups) == [
+        (20, 0),
+        (20, 1),
+        (80, 0),
+        (80, 1),
+    ]
+    assert validation.groupby(["P", "replicate"])["point"].apply(frozenset).nunique() == 1
+    tests = pd.read_csv(stats_dir / "tests.csv")
+    assert set(tests["family"]) == {"paper", "paired", "equivalence"}
+    assert "margin of mean validation MSE" in (stats_dir / "recommendation.txt").read_text()
     # Nothing changed: nothing to do.
     assert scheduled_jobs(tmp_path, path) == []
     # A model setting of one scene: its trainings and what reads them rerun, not its collection
@@ -155,14 +173,56 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
         }
     }
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, config))
-    trains = sorted(wc["p"] for rule, wc in jobs if rule == "train")
-    assert trains == ["20", "80"]
+    trains = sorted((wc["p"], wc["r"]) for rule, wc in jobs if rule == "train")
+    assert trains == [("20", "0"), ("80", "0")]  # the plain list form: one replicate
     assert ("ball_eval", {"scene": "balls"}) in jobs
     # Asking for one P schedules that training alone (plus the dataset it reads).
     one = scheduled_jobs(
-        tmp_path, write_config(tmp_path, config), "results/balls/models/P20/model.pt"
+        tmp_path, write_config(tmp_path, config), "results/balls/models/P20/r0/model.pt"
     )
     assert sorted(rule for rule, _ in one) == ["dataset_import", "train"]
+
+
+def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_single_model_stages(
+    tmp_path,
+):
+    config = {
+        "scenes": {
+            "sim": {
+                "sensor": "digit",
+                "printer": "ender3",
+                "ablation": {"fractions": [20, 80], "replicates": 3},
+                "objects": ["pill"],
+            },
+            "balls": {
+                "sensor": "gelsight_mini",
+                "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
+                "ablation": {"fractions": [20, 80], "replicates": 2},
+            },
+        }
+    }
+    result = snakemake(tmp_path, write_config(tmp_path, config), "--dry-run")
+    blocks = {}  # (rule, scene, p, r) -> the job's dry-run text
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", result.stdout + result.stderr):
+        rule = re.match(r"(?:local)?rule (\w+):", block.strip())
+        wildcards = re.search(r"^\s+wildcards: (.*)$", block, re.MULTILINE)
+        if rule and wildcards:
+            values = dict(kv.split("=", 1) for kv in wildcards.group(1).split(", "))
+            key = (rule.group(1), values["scene"], values.get("p"), values.get("r"))
+            blocks[key] = block
+    trains = sorted((scene, p, r) for rule, scene, p, r in blocks if rule == "train")
+    assert trains == [("balls", p, r) for p in ("20", "80") for r in ("0", "1")] + [
+        ("sim", p, r) for p in ("20", "80") for r in ("0", "1", "2")
+    ]
+    # objects, inference_speed and ball_eval read replicate 0 (of every P / of the largest P)
+    objects = blocks[("objects", "sim", None, None)]
+    assert "models/P20/r0/model.pt" in objects and "models/P80/r0/model.pt" in objects
+    assert "/r1/" not in objects and "/r2/" not in objects
+    for rule, scene in (("inference_speed", "sim"), ("ball_eval", "balls")):
+        block = blocks[(rule, scene, None, None)]
+        assert "models/P80/r0/model.pt" in block and "/r1/" not in block, rule
+    stats_block = blocks[("stats", "sim", None, None)]
+    assert all(f"models/P{p}/r{r}/model.pt" in stats_block for p in (20, 80) for r in range(3))
 
 
 def targets_config():

@@ -45,7 +45,7 @@ def main(scene_name: str, p: int = 80) -> None:
         sensor, read_registration(root / "dataset" / "registration.json"), scene_mount(scene)
     )
     plan, frames, blanks, truth = read_presses(root / "objects" / "pressing")
-    checkpoint = read_checkpoint(root / "models" / f"P{p}" / "model.pt")
+    checkpoint = read_checkpoint(root / "models" / f"P{p}" / "r0" / "model.pt")
     est = DepthEstimator(checkpoint, device="cpu", blank=blanks["reporting"])
     limit = sim.max_penetration_mm
     print(f"{scene_name}: Type 2 / Type 1 MAE (um) of the simulator's own surface and of P = {p}")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.dataset.importers import check_import
@@ -49,6 +50,7 @@ def validate_config(config: Mapping, source: str = "config", *, check_files: boo
     config = copy.deepcopy(dict(config))
     fill_defaults(config, schema)
     for scene in config["scenes"].values():
+        scene["ablation"] = normalise_ablation(scene.get("ablation"))
         scene.setdefault("seed", config["seed"])
         scene.setdefault("torch_threads", config["torch_threads"])
         if is_imported(scene):  # no printer, probe or plan: the data exists already
@@ -164,9 +166,34 @@ def scene_config(config: Mapping, scene: str) -> dict:
         raise ConfigError(f"no scene {scene!r} in the config (scenes: {names})") from None
 
 
+def normalise_ablation(ablation: Any) -> dict:
+    """`ablation` in its full form {fractions: [...], replicates: R}.
+
+    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate.
+    """
+    if not ablation:
+        return {"fractions": [], "replicates": 1}
+    if isinstance(ablation, Mapping):
+        return {
+            "fractions": list(ablation.get("fractions") or []),
+            "replicates": int(ablation.get("replicates", 1)),
+        }
+    return {"fractions": list(ablation), "replicates": 1}
+
+
 def training_fractions(scene: Mapping) -> list[int]:
-    """The fractions P (percent) for which a scene trains one model each, ascending."""
-    return sorted(scene.get("ablation") or [FULL_TRAINING_P])
+    """The fractions P (percent) for which a scene trains models, ascending."""
+    return sorted(normalise_ablation(scene.get("ablation"))["fractions"] or [FULL_TRAINING_P])
+
+
+def ablation_replicates(scene: Mapping) -> int:
+    """R: models per fraction, each a fresh nested subset draw and a fresh initialisation."""
+    return normalise_ablation(scene.get("ablation"))["replicates"]
+
+
+def model_keys(scene: Mapping) -> list[tuple[int, int]]:
+    """Every (P, replicate) a scene trains: one training job each."""
+    return [(p, r) for p in training_fractions(scene) for r in range(ablation_replicates(scene))]
 
 
 def is_imported(scene: Mapping) -> bool:

@@ -13,7 +13,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from threedcal.config import FULL_TRAINING_P, is_imported, training_fractions
+from threedcal.config import FULL_TRAINING_P, is_imported, model_keys, training_fractions
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -27,7 +27,10 @@ INTEGRATION_STUDY_TARGETS = [
 STATS_FILES = (
     "validation_mse.csv",
     "tests.csv",
+    "tests.png",
     "recommendation.txt",
+    "power.csv",
+    "power.png",
     "error_vs_cost.csv",
     "loss_curves.png",
     "mse_map.png",
@@ -149,11 +152,21 @@ def ablation_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if has_ablation(scene)]
 
 
+def model_file(name: str, percent: int, replicate: int = 0, leaf: str = "model.pt") -> str:
+    """results/{scene}/models/P{p}/r{r}/{leaf}: where replicate r of fraction P is trained."""
+    return f"{RESULTS}/{name}/models/P{percent}/r{replicate}/{leaf}"
+
+
+def full_model_file(name: str, scene: Mapping) -> str:
+    """Replicate 0 of the largest fraction: the model inference_speed and ball_eval read."""
+    return model_file(name, max(training_fractions(scene)), 0)
+
+
 def model_targets(name: str, scene: Mapping) -> list[str]:
-    """One training job per fraction P: model.pt and losses.csv (+ losses.png) under models/P{p}/."""
+    """One training job per (P, replicate): model.pt and losses.csv (+ losses.png) under models/P{p}/r{r}/."""
     return [
-        f"{RESULTS}/{name}/models/P{p}/{leaf}"
-        for p in training_fractions(scene)
+        model_file(name, p, r, leaf)
+        for p, r in model_keys(scene)
         for leaf in ("model.pt", "losses.csv")
     ]
 

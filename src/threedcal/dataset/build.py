@@ -14,7 +14,7 @@ from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
     samples = trainset.samples.drop_duplicates("point").sort_values("point")
-    table = samples[["point", "split", "min_p"]].copy()
+    table = samples[["point", "split", *trainset.replicate_columns]].copy()
     if xy_mm is not None:
         table.insert(1, "x_mm", xy_mm[table["point"].to_numpy(), 0])
         table.insert(2, "y_mm", xy_mm[table["point"].to_numpy(), 1])
@@ -26,7 +26,14 @@ def build_imported(
     scene: Mapping, trainset_dir: str | Path, splits_path: str | Path
 ) -> TrainingSet:
     data = load_imported(scene["import"]["format"], scene["import"]["path"])
-    trainset = from_imported(data, seed=scene["seed"])
+    from threedcal.config import ablation_replicates, training_fractions
+
+    trainset = from_imported(
+        data,
+        seed=scene["seed"],
+        fractions=tuple(training_fractions(scene)),
+        replicates=ablation_replicates(scene),
+    )
     trainset.max_slope_deg = float(scene["dataset"]["max_slope_deg"])
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
@@ -80,10 +87,10 @@ def build_collected(
 
     from threedcal.collect.plan import dome_sag_mm
     from threedcal.collect.store import open_checked
-    from threedcal.config import training_fractions
+    from threedcal.config import ablation_replicates, training_fractions
     from threedcal.dataset.labels import contact_radius_mm
     from threedcal.dataset.registration import estimate_touch, register
-    from threedcal.dataset.splits import in_field_of_view, split_points
+    from threedcal.dataset.splits import in_field_of_view, min_p_column, split_points
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])
@@ -136,7 +143,10 @@ def build_collected(
     coords = pd.DataFrame({"x_mm": plan_xy[keep, 0], "y_mm": plan_xy[keep, 1]})
     coordinate_id = coords.groupby(["x_mm", "y_mm"], sort=True).ngroup().to_numpy()
     unique = coords.assign(point=coordinate_id).drop_duplicates("point").sort_values("point")
-    table = split_points(unique, training_fractions(scene), seed=scene["seed"]).set_index("point")
+    replicates = ablation_replicates(scene)
+    table = split_points(
+        unique, training_fractions(scene), seed=scene["seed"], replicates=replicates
+    ).set_index("point")
     samples = pd.DataFrame(
         {
             "frame": keep,
@@ -146,7 +156,10 @@ def build_collected(
             "depth_mm": depth[keep],
             "eval_radius_px": [contact_radius_mm(radius_mm, d) * px_per_mm for d in depth[keep]],
             "split": table.loc[coordinate_id, "split"].to_numpy(),
-            "min_p": table.loc[coordinate_id, "min_p"].to_numpy(),
+            **{
+                min_p_column(r): table.loc[coordinate_id, min_p_column(r)].to_numpy()
+                for r in range(replicates)
+            },
         }
     )
     trainset = TrainingSet(

@@ -4,6 +4,12 @@ As in the paper, P is a fraction of *all* probe coordinates (P=80 is the whole t
 20 % are held out), drawn from the training coordinates, and subsets are nested: every coordinate of
 P=5 is also in P=20. Splitting by coordinate (not by frame) keeps the repeated frames of one
 indentation on the same side.
+
+Replicates (`ablation.replicates`) share the validation coordinates, so every model of a study is
+scored on the same ones; each replicate draws its own nested subsets from the training coordinates.
+Replicate 0 takes them in the order of the split's own shuffle (a study with one replicate is the
+single-model study); replicate r >= 1 reshuffles the training coordinates with
+numpy.random.default_rng(replicate_seed(seed, r)), the seed its model also trains with.
 """
 
 from __future__ import annotations
@@ -23,17 +29,38 @@ def subset_size(n_points: int, percent: int) -> int:
     return max(1, int(round(n_points * percent / 100.0)))
 
 
+def replicate_seed(seed: int, replicate: int) -> int:
+    """The seed of replicate r: the scene's own for r = 0, SeedSequence([seed, r])'s first word after.
+
+    Used for replicate r's subset draw and for its model's initialisation and patch sampling.
+    """
+    if replicate < 0:
+        raise ConfigError(f"replicate must be 0 or more, got {replicate}")
+    if replicate == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(replicate)]).generate_state(1)[0])
+
+
+def min_p_column(replicate: int) -> str:
+    """The splits/samples column of replicate r's subsets: min_p for r = 0, min_p_r{r} after."""
+    return "min_p" if replicate == 0 else f"min_p_r{replicate}"
+
+
 def split_points(
     points: pd.DataFrame,
     fractions: Sequence[int],
     seed: int,
     validation_fraction: float = VALIDATION_FRACTION,
+    replicates: int = 1,
 ) -> pd.DataFrame:
     """`points` (columns point, x_mm, y_mm; one row per coordinate) → the splits table.
 
     Columns: point, x_mm, y_mm, split ('train' / 'val'), min_p (smallest P in `fractions` whose
-    subset holds the point; 0 for validation points and training points in no subset).
+    subset holds the point; 0 for validation points and training points in no subset), and for
+    replicates r = 1 .. R-1 the same of replicate r's subsets in min_p_r{r}.
     """
+    if replicates < 1:
+        raise ConfigError(f"split_points: replicates must be 1 or more, got {replicates}")
     for column in ("point", "x_mm", "y_mm"):
         if column not in points:
             raise ConfigError(f"split_points: points table lacks column {column!r}")
@@ -60,17 +87,29 @@ def split_points(
     table = points[["point", "x_mm", "y_mm"]].reset_index(drop=True).copy()
     table["split"] = "train"
     table.loc[val_index, "split"] = "val"
-    table["min_p"] = 0
-    # Nested subsets: a prefix of one fixed shuffle of the training coordinates.
-    for p in sorted(fractions, reverse=True):
-        members = train_index[: subset_size(n, p)]
-        table.loc[members, "min_p"] = p
+    # Nested subsets: a prefix of one shuffle of the training coordinates per replicate.
+    for replicate in range(replicates):
+        order = train_index
+        if replicate > 0:
+            order = np.random.default_rng(replicate_seed(seed, replicate)).permutation(
+                np.sort(train_index)
+            )
+        column = min_p_column(replicate)
+        table[column] = 0
+        for p in sorted(fractions, reverse=True):
+            table.loc[order[: subset_size(n, p)], column] = p
     return table.sort_values("point").reset_index(drop=True)
 
 
-def subset(table: pd.DataFrame, percent: int) -> pd.DataFrame:
-    """Training coordinates of the P=percent subset."""
-    chosen = (table["split"] == "train") & (table["min_p"] > 0) & (table["min_p"] <= percent)
+def subset(table: pd.DataFrame, percent: int, replicate: int = 0) -> pd.DataFrame:
+    """Training coordinates of replicate r's P=percent subset."""
+    column = min_p_column(replicate)
+    if column not in table:
+        raise ConfigError(
+            f"the splits hold no replicate {replicate} (no column {column!r}); "
+            "rebuild the dataset with the study's ablation.replicates"
+        )
+    chosen = (table["split"] == "train") & (table[column] > 0) & (table[column] <= percent)
     return table[chosen]
 
 

@@ -5,7 +5,8 @@ On disk (``results/{scene}/dataset/``)::
     frames.npy    (N, H, W, 3) uint8, memory-mapped when read: no image decoding per epoch
     blank.npy     (H, W, 3) float32, mean of the no-contact frames
     samples.csv   one row per frame: frame, point, center_x_px, center_y_px, depth_mm,
-                  eval_radius_px, split (train/val), min_p — parsed once, into arrays
+                  eval_radius_px, split (train/val), min_p (and min_p_r1 ... for replicates
+                  1 .. R-1, threedcal.dataset.splits) — parsed once, into arrays
     meta.json     px_per_mm, sphere_radius_mm, max_slope_deg, downscale, source
 
 Labels are not stored: they are the exact sphere gradients of (centre, depth, radius) computed on
@@ -79,16 +80,31 @@ class TrainingSet:
         self.split = self.samples["split"].to_numpy(str)
         self.min_p = self.samples["min_p"].to_numpy(int)
         self.point = self.samples["point"].to_numpy(int)
+        self.replicate_columns = ["min_p"] + sorted(
+            (c for c in self.samples.columns if c.startswith("min_p_r")),
+            key=lambda c: int(c.removeprefix("min_p_r")),
+        )
+
+    @property
+    def replicates(self) -> int:
+        """Replicates whose subsets this set holds (min_p, min_p_r1, ...)."""
+        return len(self.replicate_columns)
 
     @property
     def image_shape(self) -> tuple[int, int]:
         return tuple(self.frames.shape[1:3])
 
-    def indices(self, split: str, percent: int | None = None) -> np.ndarray:
-        """Frames of a split; for 'train' with `percent`, only the P=percent subset's coordinates."""
+    def indices(self, split: str, percent: int | None = None, replicate: int = 0) -> np.ndarray:
+        """Frames of a split; for 'train' with `percent`, only replicate r's P=percent subset."""
         chosen = self.split == split
         if split == "train" and percent is not None:
-            chosen &= (self.min_p > 0) & (self.min_p <= percent)
+            if not 0 <= replicate < self.replicates:
+                raise ConfigError(
+                    f"this dataset holds the subsets of replicates 0..{self.replicates - 1}, "
+                    f"not {replicate}; rebuild it with the study's ablation.replicates"
+                )
+            min_p = self.samples[self.replicate_columns[replicate]].to_numpy(int)
+            chosen &= (min_p > 0) & (min_p <= percent)
         return np.flatnonzero(chosen)
 
     def inputs(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
@@ -127,7 +143,8 @@ class TrainingSet:
         directory.mkdir(parents=True, exist_ok=True)
         np.save(directory / "frames.npy", np.ascontiguousarray(self.frames, dtype=np.uint8))
         np.save(directory / "blank.npy", self.blank.astype(np.float32))
-        self.samples.loc[:, list(SAMPLE_COLUMNS)].to_csv(directory / "samples.csv", index=False)
+        columns = list(SAMPLE_COLUMNS) + self.replicate_columns[1:]
+        self.samples.loc[:, columns].to_csv(directory / "samples.csv", index=False)
         meta = {
             **(self.meta or {}),
             "px_per_mm": self.px_per_mm,
@@ -202,9 +219,15 @@ def downscale(trainset: TrainingSet, factor: int) -> TrainingSet:
     )
 
 
-def from_imported(data, seed: int, validation_fraction: float = 0.2) -> TrainingSet:
+def from_imported(
+    data,
+    seed: int,
+    validation_fraction: float = 0.2,
+    fractions: tuple[int, ...] = (80,),
+    replicates: int = 1,
+) -> TrainingSet:
     """An imported dataset → TrainingSet with a seeded split by probe coordinate (by image for ball folders)."""
-    from threedcal.dataset.splits import split_points
+    from threedcal.dataset.splits import min_p_column, split_points
 
     points = (
         pd.DataFrame({"point": data.point, "x_mm": data.xy_mm[:, 0], "y_mm": data.xy_mm[:, 1]})
@@ -212,8 +235,16 @@ def from_imported(data, seed: int, validation_fraction: float = 0.2) -> Training
         .fillna(0.0)
     )
     table = split_points(
-        points, [80], seed=seed, validation_fraction=validation_fraction
+        points,
+        list(fractions),
+        seed=seed,
+        validation_fraction=validation_fraction,
+        replicates=replicates,
     ).set_index("point")
+    replicate_columns = {
+        min_p_column(r): table.loc[data.point, min_p_column(r)].to_numpy()
+        for r in range(1, replicates)
+    }
     samples = pd.DataFrame(
         {
             "frame": np.arange(len(data.names)),
@@ -224,6 +255,7 @@ def from_imported(data, seed: int, validation_fraction: float = 0.2) -> Training
             "eval_radius_px": data.eval_radius_px,
             "split": table.loc[data.point, "split"].to_numpy(),
             "min_p": table.loc[data.point, "min_p"].to_numpy(),
+            **replicate_columns,
         }
     )
     return TrainingSet(

@@ -4,17 +4,21 @@ The error of a model at a validation coordinate is the gradient MSE over the fra
 inside a disc of 1.5 contact radii around the probe centre: the contact and its immediate
 surroundings, where the sensor's signal is (a whole-frame mean would mostly average zeros).
 Coordinates are those of the dataset stage, already restricted to probe centres inside the image.
+Every model (each fraction P and replicate r) is scored on the same validation coordinates; the
+figures show the mean over replicates and their spread (min to max).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from threedcal.dataset.splits import subset_size
 from threedcal.dataset.trainset import TrainingSet
+from threedcal.errors import ConfigError
 
 WINDOW_SCALE = 1.5
 
@@ -50,40 +54,98 @@ def coordinate_mse(estimator, trainset: TrainingSet, split: str = "val") -> pd.D
     return table.groupby("point", as_index=False)["mse"].mean()
 
 
+def scoring_disc_mm(trainset: TrainingSet, split: str = "val") -> float:
+    """Diameter (mm) of the typical scoring disc: 2 x 1.5 contact radii (median over the split)."""
+    radius_px = np.maximum(WINDOW_SCALE * trainset.eval_radius_px[trainset.indices(split)], 3.0)
+    if radius_px.size == 0:
+        raise ConfigError(f"the dataset has no {split!r} frames to score")
+    return float(2 * np.median(radius_px) / trainset.px_per_mm)
+
+
+def probe_spacing_mm(splits: pd.DataFrame) -> float:
+    """The probe grid's spacing: the median distance from each coordinate to its nearest one."""
+    from scipy.spatial import cKDTree
+
+    xy = splits[["x_mm", "y_mm"]].to_numpy(float)
+    if len(xy) < 2:
+        raise ConfigError("the splits hold fewer than 2 probe coordinates")
+    distance, _ = cKDTree(xy).query(xy, k=2)
+    return float(np.median(distance[:, 1]))
+
+
 def ablation_table(
-    model_paths: Mapping[int, str | Path], trainset: TrainingSet, splits: pd.DataFrame
+    model_paths: Mapping[tuple[int, int], str | Path],
+    trainset: TrainingSet,
+    splits: pd.DataFrame,
 ) -> pd.DataFrame:
-    """validation_mse.csv: P, point, x_mm, y_mm, mse for every model P and validation coordinate."""
+    """validation_mse.csv: P, replicate, point, x_mm, y_mm, mse for every model and validation coordinate."""
     from threedcal.model.inference import DepthEstimator
 
     tables = []
     coords = splits.set_index("point")[["x_mm", "y_mm"]]
-    for p, path in sorted(model_paths.items()):
+    for (p, replicate), path in sorted(model_paths.items()):
         estimator = DepthEstimator.from_checkpoint(path, device="cpu")
         table = coordinate_mse(estimator, trainset)
         table.insert(0, "P", p)
+        table.insert(1, "replicate", replicate)
         tables.append(table.join(coords, on="point"))
-    return pd.concat(tables, ignore_index=True)[["P", "point", "x_mm", "y_mm", "mse"]]
+    return pd.concat(tables, ignore_index=True)[["P", "replicate", "point", "x_mm", "y_mm", "mse"]]
 
 
-def loss_curves_figure(losses: Mapping[int, pd.DataFrame], path: str | Path, title: str) -> None:
-    """Fig. 3B: training and validation loss against epoch for every P."""
+def replicate_summary(table: pd.DataFrame, statistic: str = "mean") -> pd.DataFrame:
+    """Per P: the statistic of the per-coordinate MSE in each replicate, then its mean, min and max
+    over replicates (columns P, mean, low, high, replicates)."""
+    per_model = table.groupby(["P", "replicate"])["mse"].agg(statistic)
+    grouped = per_model.groupby(level="P")
+    return pd.DataFrame(
+        {
+            "mean": grouped.mean(),
+            "low": grouped.min(),
+            "high": grouped.max(),
+            "replicates": grouped.size(),
+        }
+    ).reset_index()
+
+
+def loss_curves_figure(
+    losses: Mapping[tuple[int, int], pd.DataFrame], path: str | Path, title: str
+) -> None:
+    """Fig. 3B: training and validation loss against epoch for every P (mean over replicates, band
+    from the lowest to the highest replicate)."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
-    colours = plt.cm.viridis(np.linspace(0, 0.9, len(losses)))
-    for colour, (p, table) in zip(colours, sorted(losses.items()), strict=True):
-        checked = table.dropna(subset=["val_loss"])  # validation runs on a subset of epochs
-        ax.plot(checked["epoch"], checked["val_loss"], c=colour, label=f"P = {p} %")
-        ax.plot(table["epoch"], table["train_loss"], c=colour, ls=":", lw=1)
+    fractions = sorted({p for p, _ in losses})
+    colours = plt.cm.viridis(np.linspace(0, 0.9, len(fractions)))
+    for colour, p in zip(colours, fractions, strict=True):
+        runs = pd.concat([table.assign(replicate=r) for (q, r), table in losses.items() if q == p])
+        for column, style in (("val_loss", "-"), ("train_loss", ":")):
+            checked = runs.dropna(subset=[column])  # validation runs on a subset of epochs
+            band = checked.groupby("epoch")[column].agg(["mean", "min", "max"])
+            label = f"P = {p} %" if column == "val_loss" else None
+            ax.plot(
+                band.index,
+                band["mean"],
+                c=colour,
+                ls=style,
+                lw=1 if style == ":" else 1.5,
+                label=label,
+            )
+            if column == "val_loss" and runs["replicate"].nunique() > 1:
+                ax.fill_between(band.index, band["min"], band["max"], color=colour, alpha=0.2, lw=0)
     ax.set(xlabel="epoch", ylabel="gradient MSE", yscale="log", title=title)
-    ax.legend(fontsize=7, title="validation (solid), training (dotted)", title_fontsize=7)
+    ax.legend(
+        fontsize=7,
+        title="validation (solid, band: replicates), training (dotted)",
+        title_fontsize=7,
+    )
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
 
 
 def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, title: str) -> None:
-    """Fig. 4A: validation MSE over the gel for each P, the training coordinates of that P marked."""
+    """Fig. 4A: validation MSE over the gel for each P, the mean over replicates at each coordinate;
+    crosses mark replicate 0's training coordinates of that P."""
     plt = _pyplot()
     fractions = sorted(table["P"].unique())
     columns = min(len(fractions), 3)
@@ -96,9 +158,11 @@ def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, 
         squeeze=False,
         layout="constrained",
     )
-    vmin, vmax = np.percentile(table["mse"], [2, 98])
+    means = table.groupby(["P", "point", "x_mm", "y_mm"], as_index=False)["mse"].mean()
+    vmin, vmax = np.percentile(means["mse"], [2, 98])
+    spread = replicate_summary(table).set_index("P")
     for ax, p in zip(axes.ravel(), fractions, strict=False):
-        part = table[table["P"] == p]
+        part = means[means["P"] == p]
         points = ax.scatter(
             part["x_mm"], part["y_mm"], c=part["mse"], cmap="magma", vmin=vmin, vmax=vmax, s=18
         )
@@ -106,8 +170,15 @@ def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, 
             (splits["split"] == "train") & (splits["min_p"] > 0) & (splits["min_p"] <= p)
         ]
         ax.scatter(train["x_mm"], train["y_mm"], marker="x", c="tab:cyan", s=10, lw=0.8)
+        row = spread.loc[p]
+        interval = (
+            f"\n{row['mean']:.3g} ({row['low']:.3g} to {row['high']:.3g}, "
+            f"{int(row['replicates'])} replicates)"
+            if row["replicates"] > 1
+            else f"\nmean {row['mean']:.3g}"
+        )
         ax.set(
-            title=f"P = {p} % ({len(train)} training points)",
+            title=f"P = {p} % ({len(train)} training points){interval}",
             aspect="equal",
             xlabel="x (mm)",
             ylabel="y (mm)",
@@ -115,14 +186,20 @@ def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, 
         ax.title.set_fontsize(8)
     for ax in axes.ravel()[len(fractions) :]:
         ax.axis("off")
-    fig.colorbar(points, ax=axes.ravel().tolist(), label="validation gradient MSE", shrink=0.8)
+    fig.colorbar(
+        points,
+        ax=axes.ravel().tolist(),
+        label="validation gradient MSE (replicate mean)",
+        shrink=0.8,
+    )
     fig.suptitle(title)
     fig.savefig(path)
     plt.close(fig)
 
 
 def kde_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
-    """Fig. 4B: Gaussian KDEs of each P's validation MSE distribution, means dashed."""
+    """Fig. 4B: Gaussian KDEs of each P's validation MSE distribution (mean over replicates, band
+    from the lowest to the highest), the replicates' means dashed with their range shaded."""
     from scipy.stats import gaussian_kde
 
     plt = _pyplot()
@@ -130,11 +207,22 @@ def kde_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
     fractions = sorted(table["P"].unique())
     colours = plt.cm.viridis(np.linspace(0, 0.9, len(fractions)))
     grid = np.linspace(0, np.percentile(table["mse"], 99.5) * 1.1, 400)
+    spread = replicate_summary(table).set_index("P")
     for colour, p in zip(colours, fractions, strict=True):
-        values = table.loc[table["P"] == p, "mse"].to_numpy()
-        if values.size > 2 and np.ptp(values) > 0:
-            ax.plot(grid, gaussian_kde(values)(grid), c=colour, label=f"P = {p} %")
-        ax.axvline(values.mean(), c=colour, ls="--", lw=0.8)
+        curves = []
+        for _, part in table[table["P"] == p].groupby("replicate"):
+            values = part["mse"].to_numpy()
+            if values.size > 2 and np.ptp(values) > 0:
+                curves.append(gaussian_kde(values)(grid))
+        if curves:
+            curves = np.array(curves)
+            ax.plot(grid, curves.mean(axis=0), c=colour, label=f"P = {p} %")
+            if len(curves) > 1:
+                ax.fill_between(grid, curves.min(0), curves.max(0), color=colour, alpha=0.2, lw=0)
+        row = spread.loc[p]
+        ax.axvline(row["mean"], c=colour, ls="--", lw=0.8)
+        if row["replicates"] > 1:
+            ax.axvspan(row["low"], row["high"], color=colour, alpha=0.12, lw=0)
     ax.set(xlabel="validation gradient MSE", ylabel="density", title=title)
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -143,12 +231,22 @@ def kde_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
 
 
 def std_figure(tables: Mapping[str, pd.DataFrame], path: str | Path) -> None:
-    """Fig. 4C: standard deviation of validation MSE against P, every scene on one axis."""
+    """Fig. 4C: standard deviation of validation MSE against P, every scene on one axis (mean over
+    replicates, bars from the lowest to the highest replicate)."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.6), dpi=120)
     for scene, table in sorted(tables.items()):
-        spread = table.groupby("P")["mse"].std()
-        ax.plot(spread.index, spread.values, "o-", label=scene)
+        if "replicate" not in table:
+            table = table.assign(replicate=0)
+        spread = replicate_summary(table, "std")
+        ax.errorbar(
+            spread["P"],
+            spread["mean"],
+            yerr=[spread["mean"] - spread["low"], spread["high"] - spread["mean"]],
+            fmt="o-",
+            capsize=3,
+            label=f"{scene} ({int(spread['replicates'].max())} replicates)",
+        )
     ax.set(
         xscale="log",
         xlabel="P (% of probe points)",
@@ -162,23 +260,32 @@ def std_figure(tables: Mapping[str, pd.DataFrame], path: str | Path) -> None:
 
 
 def cost_table(
-    table: pd.DataFrame, losses: Mapping[int, pd.DataFrame], n_points: int, hardware_s: float | None
+    table: pd.DataFrame,
+    losses: Mapping[tuple[int, int], pd.DataFrame],
+    n_points: int,
+    hardware_s: float | None,
 ) -> pd.DataFrame:
-    """Per P: mean validation MSE, probe points, estimated probing hours and measured training minutes."""
+    """Per P: mean validation MSE (mean over replicates, with their lowest and highest), probe
+    points, estimated probing hours and measured training minutes per model (mean over replicates)."""
+    from threedcal.dataset.splits import subset_size
+
+    spread = replicate_summary(table).set_index("P")
     rows = []
     for p in sorted(table["P"].unique()):
-        from threedcal.dataset.splits import subset_size
-
         points = subset_size(n_points, int(p))
+        minutes = [float(t["seconds"].sum()) / 60 for (q, _), t in losses.items() if q == p]
         rows.append(
             {
                 "P": int(p),
                 "points": points,
-                "mean_mse": float(table.loc[table["P"] == p, "mse"].mean()),
+                "mean_mse": float(spread.loc[p, "mean"]),
+                "mean_mse_low": float(spread.loc[p, "low"]),
+                "mean_mse_high": float(spread.loc[p, "high"]),
+                "replicates": int(spread.loc[p, "replicates"]),
                 "probing_h": None
                 if hardware_s is None
                 else round(hardware_s * points / n_points / 3600, 4),
-                "training_min": round(float(losses[p]["seconds"].sum()) / 60, 3),
+                "training_min": round(float(np.mean(minutes)), 3),
             }
         )
     return pd.DataFrame(rows)
@@ -191,10 +298,19 @@ def cost_figure(costs: pd.DataFrame, path: str | Path, title: str) -> None:
     for ax, column, label in zip(
         axes,
         ("probing_h", "training_min"),
-        ("estimated probing time (h)", "training time (min)"),
+        ("estimated probing time (h)", "training time per model (min)"),
         strict=True,
     ):
-        ax.plot(costs[column], costs["mean_mse"], "o-")
+        ax.errorbar(
+            costs[column],
+            costs["mean_mse"],
+            yerr=[
+                costs["mean_mse"] - costs["mean_mse_low"],
+                costs["mean_mse_high"] - costs["mean_mse"],
+            ],
+            fmt="o-",
+            capsize=3,
+        )
         for _, row in costs.iterrows():
             ax.annotate(
                 f"P={int(row['P'])}",
@@ -211,39 +327,66 @@ def cost_figure(costs: pd.DataFrame, path: str | Path, title: str) -> None:
     plt.close(fig)
 
 
-def read_losses(paths: Mapping[int, str | Path]) -> dict[int, pd.DataFrame]:
-    return {p: pd.read_csv(path) for p, path in paths.items()}
-
-
-def fractions_of(paths: Sequence[str]) -> list[int]:
-    return sorted(int(Path(p).parent.name.lstrip("P")) for p in paths)
-
-
 def stats_stage(
     scene_name: str,
-    models: Mapping[int, str | Path],
-    losses: Mapping[int, str | Path],
+    models: Mapping[tuple[int, int], str | Path],
+    losses: Mapping[tuple[int, int], str | Path],
     trainset_dir: str | Path,
     splits_path: str | Path,
     summary_path: str | Path | None,
+    settings: Mapping,
+    seed: int,
     out: Mapping[str, str | Path],
 ) -> str:
-    """The `stats` rule: validation_mse.csv, tests.csv, recommendation, costs and the figures."""
+    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the power
+    table (+ figure), costs and the Fig. 3B/4 figures. `settings` is the config's `stats` section."""
     import json
 
-    from threedcal.evaluate.ablation import compare_fractions, recommend
+    from threedcal.evaluate.ablation import ablation_tests, recommend, spatial_blocks, tests_figure
+    from threedcal.evaluate.power import power_figure, power_table
 
     trainset = TrainingSet.load(trainset_dir)
     splits = pd.read_csv(splits_path)
     table = ablation_table(models, trainset, splits)
     table.to_csv(out["validation_mse"], index=False)
-    tests = compare_fractions({p: table.loc[table["P"] == p, "mse"] for p in models})
-    tests.to_csv(out["tests"], index=False)
+    block_mm = scoring_disc_mm(trainset)
+    blocks = spatial_blocks(table, block_mm)
+    tests = ablation_tests(
+        table,
+        blocks,
+        alpha=settings["alpha"],
+        margin=settings["equivalence_margin"],
+        equivalence_alpha=settings["equivalence_alpha"],
+    )
+    tests.to_csv(out["tests"], index=False, float_format="%.6g")
     n_points = len(splits)
-    points_by_p = {p: subset_size_for(n_points, p) for p in models}
-    line = recommend(tests, points_by_p)
+    points_by_p = {p: subset_size(n_points, p) for p, _ in models}
+    line = recommend(
+        tests,
+        points_by_p,
+        margin=settings["equivalence_margin"],
+        equivalence_alpha=settings["equivalence_alpha"],
+    )
     Path(out["recommendation"]).write_text(line + "\n")
-    loss_tables = read_losses(losses)
+    tests_figure(
+        tests,
+        out["tests_figure"],
+        f"{scene_name}: each P against P = 80 %",
+        margin=settings["equivalence_margin"],
+    )
+    power = power_table(
+        table,
+        block_mm,
+        probe_spacing_mm(splits),
+        margin=settings["equivalence_margin"],
+        alpha=settings["alpha"],
+        equivalence_alpha=settings["equivalence_alpha"],
+        simulations=settings["power_simulations"],
+        seed=seed,
+    )
+    power.to_csv(out["power"], index=False, float_format="%.4g")
+    power_figure(power, out["power_figure"], f"{scene_name}: power of the design")
+    loss_tables = {key: pd.read_csv(path) for key, path in losses.items()}
     hardware_s = None
     if summary_path is not None and Path(summary_path).is_file():
         hardware_s = json.loads(Path(summary_path).read_text()).get("estimated_hardware_s")
@@ -254,9 +397,3 @@ def stats_stage(
     kde_figure(table, out["kde_figure"], f"{scene_name}: validation MSE distributions")
     cost_figure(costs, out["cost_figure"], f"{scene_name}: error against cost")
     return line
-
-
-def subset_size_for(n_points: int, percent: int) -> int:
-    from threedcal.dataset.splits import subset_size
-
-    return subset_size(n_points, percent)

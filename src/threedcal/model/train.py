@@ -190,10 +190,11 @@ def configure_torch(settings: TrainSettings) -> torch.device:
     return torch.device(settings.device)
 
 
-def _resume_key(settings: TrainSettings, percent: int, ts: TrainingSet) -> str:
+def _resume_key(settings: TrainSettings, percent: int, replicate: int, ts: TrainingSet) -> str:
     described = {
         "settings": asdict(settings),
         "percent": percent,
+        "replicate": replicate,
         "frames": list(ts.frames.shape),
         "meta": ts.meta or {},
     }
@@ -246,18 +247,28 @@ def train(
     percent: int,
     settings: TrainSettings,
     progress: bool = True,
+    replicate: int = 0,
 ) -> dict:
-    """Train at fraction `percent` into out_dir/{model.pt, losses.csv, losses.png}; returns the checkpoint."""
+    """Train replicate r at fraction `percent` into out_dir/{model.pt, losses.csv, losses.png}.
+
+    Replicate r trains on its own nested subset (TrainingSet.indices) with the seed
+    replicate_seed(settings.seed, r): replicate 0 is the scene seed itself. Returns the checkpoint.
+    """
+    from threedcal.dataset.splits import replicate_seed
+
     if not isinstance(ts, TrainingSet):
         ts = TrainingSet.load(ts)
+    settings = replace(settings, seed=replicate_seed(settings.seed, replicate))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     device = configure_torch(settings)
     # Where it trains: on a cluster, whether the job's GPU was usable (else the CPU).
-    logging.getLogger(__name__).info("training P=%d on %s", percent, device)
-    train_idx = ts.indices("train", percent=percent)
+    logging.getLogger(__name__).info("training P=%d r%d on %s", percent, replicate, device)
+    train_idx = ts.indices("train", percent=percent, replicate=replicate)
     if len(train_idx) == 0:
-        raise ConfigError(f"P={percent}: no training frames in this dataset's split")
+        raise ConfigError(
+            f"P={percent}, replicate {replicate}: no training frames in this dataset's split"
+        )
     val_idx = ts.indices("val")
     val_rng = np.random.default_rng([settings.seed, 1 << 20])
     val_windows = sample_windows(ts, val_idx, _val_settings(settings), val_rng)
@@ -269,7 +280,7 @@ def train(
     inputs = _Inputs(ts, normalisation["drift"])
     epochs = settings.epochs(percent) if is_learned(settings.preset) else 1
     checked = validation_epochs(epochs)
-    key = _resume_key(settings, percent, ts)
+    key = _resume_key(settings, percent, replicate, ts)
     resume_path = out_dir / RESUME_NAME
     rows: list[dict] = []
     start = 1
@@ -285,7 +296,10 @@ def train(
                 rows = list(state["losses"])
                 start = int(state["epoch"]) + 1
     bar = tqdm(
-        range(start, epochs + 1), desc=f"train P{percent}", unit="epoch", disable=not progress
+        range(start, epochs + 1),
+        desc=f"train P{percent} r{replicate}",
+        unit="epoch",
+        disable=not progress,
     )
     for epoch in bar:
         began = time.perf_counter()
@@ -323,15 +337,17 @@ def train(
         )
         bar.set_postfix(train=f"{train_loss:.4g}", val=f"{val_loss:.4g}")
         if is_learned(settings.preset) and epoch < epochs:
-            checkpoint = _checkpoint(model, settings, ts, percent, epoch, normalisation)
+            checkpoint = _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation)
             checkpoint.update(
                 epoch=epoch, optimizer=optimizer.state_dict(), losses=rows, resume_key=key
             )
             save_checkpoint(resume_path, checkpoint)
-    final = _checkpoint(model, settings, ts, percent, epochs, normalisation)
+    final = _checkpoint(model, settings, ts, percent, replicate, epochs, normalisation)
     save_checkpoint(out_dir / "model.pt", final)
     write_losses(out_dir / "losses.csv", rows)
-    plot_losses(out_dir / "losses.png", rows, title=f"{settings.preset}, P={percent}")
+    plot_losses(
+        out_dir / "losses.png", rows, title=f"{settings.preset}, P={percent}, replicate {replicate}"
+    )
     resume_path.unlink(missing_ok=True)
     return final
 
@@ -387,7 +403,7 @@ class _Pairs:
             yield self.inputs(int(i)).numpy(), self.ts.labels(int(i))
 
 
-def _checkpoint(model, settings, ts, percent, epoch, normalisation) -> dict:
+def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -> dict:
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -402,6 +418,7 @@ def _checkpoint(model, settings, ts, percent, epoch, normalisation) -> dict:
         "image_shape": list(ts.image_shape),
         "training": {
             "percent": int(percent),
+            "replicate": int(replicate),
             "epochs": int(epoch),
             "settings": {k: v for k, v in asdict(settings).items() if v is not None},
         },

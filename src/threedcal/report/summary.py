@@ -81,10 +81,42 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
             )
         )
     lines += ["| | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in facts] + [""]
+    lines += ablation_section(root / "stats")
     errors = root / "objects" / "errors.csv"
     if errors.is_file():
         lines += object_table(pd.read_csv(errors))
     return lines
+
+
+def ablation_section(stats_dir: Path) -> list[str]:
+    """The ablation's three test families side by side, disagreements spelled out, and the design
+    the power simulation says each P needs (docs/statistics.md)."""
+    tests_path = stats_dir / "tests.csv"
+    if not tests_path.is_file():
+        return []
+    from threedcal.evaluate.ablation import family_comparison
+    from threedcal.evaluate.power import needed_design
+
+    tests = pd.read_csv(tests_path)
+    if not {"paper", "paired", "equivalence"} <= set(tests["family"]):
+        return []
+    comparison = family_comparison(tests)
+    power = pd.read_csv(stats_dir / "power.csv") if (stats_dir / "power.csv").is_file() else None
+    lines = [
+        "Each P against P = 80 % (tests.csv): the paper's tests (replicates significant, t / U), "
+        "the paired spatial-block test and the equivalence test (TOST):",
+        "",
+        "| P | change of mean MSE | paper t / U | paired | equivalence | families | "
+        "80 % power to show equivalence |",
+        "|---:|---:|---|---|---|---|---|",
+    ]
+    for row in comparison.itertuples():
+        design = needed_design(power, row.P) if power is not None else "—"
+        lines.append(
+            f"| {row.P} | {row.change} | {row.paper_t} / {row.paper_u} | {row.paired} | "
+            f"{row.equivalence} | {row.agreement} | {design} |"
+        )
+    return lines + [""]
 
 
 def _ci(row, metric: str) -> str:
