@@ -204,7 +204,9 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
     assert record["error_px"] <= 0.3, record
     assert record["residual_px"] <= 0.2, record
     assert abs(record["rotation_deg"] - truth["seating_rotation_deg"]) < 0.2
-    assert abs(record["touch_offset_error_mm"]) < 0.12
+    # the default first-contact search: the touch height within 0.01 mm (target 0.02)
+    assert record["touch_method"] == "search"
+    assert abs(record["touch_offset_error_mm"]) <= 0.01, record
 
 
 def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_path):
@@ -217,7 +219,12 @@ def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_pa
                 "s": {
                     "sensor": "digit",
                     "printer": "ender3",
-                    "plan": {"spacing_mm": 2.0, "depths_mm": [0.5, 1.0, 1.5], "frames": 1},
+                    "plan": {
+                        "spacing_mm": 2.0,
+                        "depths_mm": [0.5, 1.0, 1.5],
+                        "frames": 1,
+                        "touch_search": {"points": 0},  # the radii's estimate, for plans without
+                    },
                     "bench": {"touch_offset_mm": 0.1},
                 }
             },
@@ -228,6 +235,159 @@ def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_pa
     )
     paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
     record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
+    assert record["touch_method"] == "rim" and record["touch_search"] is None
     assert abs(record["touch_offset_error_mm"]) < 0.05, record
     # the located rim sits outside the true edge by about a pixel (19.5 px/mm)
     assert 0.02 < record["rim_edge_offset_mm"] < 0.1, record
+
+
+def collect_and_register(tmp_path, sensor, plan, seed, bench=None):
+    scene = validate_config(
+        {
+            "seed": seed,
+            "scenes": {
+                "s": {
+                    "sensor": sensor,
+                    "printer": "ender3",
+                    "plan": plan,
+                    "bench": bench or {"touch_offset_mm": 0.1},
+                }
+            },
+        }
+    )["scenes"]["s"]
+    collect_scene(
+        "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
+    )
+    paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
+    return build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
+
+
+@pytest.mark.parametrize(
+    "sensor, plan, seed",
+    [
+        # config/paper.yaml's depth, d = R: the rim's radii tell nothing there (a = R)
+        ("digit", {"spacing_mm": 3.0, "depth_mm": 2.0, "frames": 1}, 3),
+        # a cross plan cycling d < R and d > R (a vertical contact rim)
+        (
+            "digit",
+            {
+                "pattern": "cross",
+                "spacing_mm": 2.0,
+                "depths_mm": [1.0, 3.0],
+                "depth_mode": "cycle",
+                "frames": 1,
+                "arm_width_mm": 2.0,
+            },
+            5,
+        ),
+    ],
+    ids=["grid-2.0", "cross-1.0+3.0"],
+)
+def test_touch_search_finds_the_hidden_touch_height(tmp_path, sensor, plan, seed):
+    """The default first-contact search (3 places) on the bench with grid and cross plans at d = R
+    and d > R: within 0.01 mm of the hidden touch height (target 0.02, measured 2-3 um in
+    docs/registration.md; the GelSight Mini's is checked in
+    test_registration_recovers_the_hidden_seating). The affine comes from the grid rows."""
+    record = collect_and_register(tmp_path, sensor, plan, seed)
+    assert record["touch_method"] == "search"
+    assert abs(record["touch_offset_error_mm"]) <= 0.01, record
+    assert len(record["touch_search"]["offset_mm_by_place"]) == 3
+    assert record["error_px"] < 0.5, record
+    # touch frames only locate the gel: the training set holds grid frames alone
+    samples = (tmp_path / "ts" / "samples.csv").read_text().splitlines()
+    assert len(samples) - 1 == record["frames_in_view"]
+    raw = open_raw(tmp_path / "raw.zarr")
+    assert record["frames_in_view"] <= raw.sizes["frame"] - record["touch_search"]["frames"]
+
+
+def elastic_surface(self, indenter, center_px, rotation_deg, depth_mm, window):
+    """A stand-in for an elastic gel: the Hertz solution for a sphere on a half-space. Contact
+    radius a = sqrt(R d) (not sqrt(2Rd − d²)), and the surface sinks outside the contact too:
+    d − r²/2R inside, ((2a² − r²) asin(a/r) + a sqrt(r² − a²)) / (π R) outside."""
+    y0, y1, x0, x1 = window
+    x = self.X[y0:y1, x0:x1] - (center_px[0] - self._cx) / self.px_per_mm
+    y = self.Y[y0:y1, x0:x1] - (center_px[1] - self._cy) / self.px_per_mm
+    r = np.hypot(x, y)
+    R = indenter.radius_mm
+    a = np.sqrt(R * depth_mm)
+    inside = r < a
+    safe = np.maximum(r, a)
+    outside = ((2 * a * a - safe**2) * np.arcsin(a / safe) + a * np.sqrt(safe**2 - a * a)) / (
+        np.pi * R
+    )
+    sink = np.where(inside, depth_mm - r * r / (2 * R), outside)
+    return (self.Z0[y0:y1, x0:x1] + sink).astype(np.float32), inside
+
+
+def wide_window(self, indenter, center_px, depth_mm):
+    """The Hertz surface reaches far (1/r): re-shade 3 R around the contact."""
+    reach = 3 * indenter.radius_mm * self.px_per_mm
+    x0, x1 = max(int(center_px[0] - reach), 0), min(int(center_px[0] + reach) + 1, self.width)
+    y0, y1 = max(int(center_px[1] - reach), 0), min(int(center_px[1] + reach) + 1, self.height)
+    return (y0, y1, x0, x1) if x1 - x0 >= 3 and y1 - y0 >= 3 else None
+
+
+def touch_error_with_true_centres(tmp_path, sensor, seed):
+    """Collect a touch search and measure δ with the contacts placed by the bench's true affine:
+    the search alone, apart from the registration (tested above)."""
+    from threedcal.collect.plan import dome_sag_at_px, plan_phases
+    from threedcal.dataset.registration import measure_touch_search
+
+    scene = validate_config(
+        {
+            "seed": seed,
+            "scenes": {
+                "s": {
+                    "sensor": sensor,
+                    "printer": "ender3",
+                    "plan": {"spacing_mm": 8.0, "depth_mm": 1.0, "frames": 1},
+                }
+            },
+        }
+    )["scenes"]["s"]
+    collect_scene(
+        "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
+    )
+    raw = open_raw(tmp_path / "raw.zarr")
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    profile = raw.attrs["sensor_profile"]
+    phase = plan_phases(raw.attrs["plan"], scene["plan"], profile)
+    rows = np.searchsorted(raw["point"].values, np.flatnonzero(phase == "touch"))
+    xy = np.column_stack([raw["cmd_x_mm"].values[rows], raw["cmd_y_mm"].values[rows]])
+    affine = np.asarray(truth["affine_px_per_mm"])
+    centres = xy @ affine[:, :2].T + affine[:, 2]
+    result = measure_touch_search(
+        raw["frames"].values[rows],
+        raw["blank_frames"].values,
+        raw["depth_mm"].values[rows] - dome_sag_at_px(profile, centres[:, 0], centres[:, 1]),
+        np.unique(xy, axis=0, return_inverse=True)[1].ravel(),
+        centres,
+        float(profile["px_per_mm"]),
+        reach_mm=2.0,
+        span_mm=scene["plan"]["touch_search"]["beyond_mm"],
+    )
+    return result.offset_mm - truth["touch_offset_mm"]
+
+
+@pytest.mark.parametrize(
+    "sensor, change, seed",
+    [("digit", "elastic", 11), ("gelsight_mini", "elastic", 12), ("gelsight_mini", "skirt", 13)],
+)
+def test_touch_search_does_not_assume_the_contact_law(tmp_path, monkeypatch, sensor, change, seed):
+    """The search fits contact area against depth with a free slope: a Hertz-like elastic gel
+    (a² = Rd, the surface sinking around the contact) or a skirt three times as wide holding most
+    of the displaced volume leave it within 0.02 mm (measured: 8 and 2 um). The rim's radii read
+    an elastic contact as half as deep: hundreds of micrometres off."""
+    from threedcal.sim.optics import GelSimulator
+
+    if change == "elastic":
+        monkeypatch.setattr(GelSimulator, "surface", elastic_surface)
+        monkeypatch.setattr(GelSimulator, "window", wide_window)
+    else:
+        profile = yaml.safe_load(
+            (REPO / f"src/threedcal/profiles/sensors/{sensor}.yaml").read_text()
+        )
+        profile["gel"].update(skirt_width_per_thickness=0.3, rim_volume_fraction=0.8)
+        sensor = tmp_path / f"{sensor}_wide_skirt.yaml"
+        sensor.write_text(yaml.safe_dump(profile))
+    assert abs(touch_error_with_true_centres(tmp_path, str(sensor), seed)) <= 0.02

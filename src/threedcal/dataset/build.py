@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from threedcal.dataset.importers import load_imported
+from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 
 
@@ -27,7 +28,7 @@ def build_imported(
 ) -> TrainingSet:
     data = load_imported(scene["import"]["format"], scene["import"]["path"])
     trainset = from_imported(data, seed=scene["seed"])
-    trainset.max_slope_deg = float(scene["dataset"]["max_slope_deg"])
+    trainset.max_slope_deg = check_max_slope(scene["dataset"]["max_slope_deg"])
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
     xy = np.full((int(data.point.max()) + 1, 2), np.nan)
@@ -72,14 +73,17 @@ def build_collected(
 
     Labels use only what a real user knows: the sphere, the plan and the registration fitted here.
     The bench's hidden truth (simulated scenes) is read only to report the registration's error.
+    The affine comes from the plan's grid rows; the touch height from its first-contact search
+    (the touch rows, which only serve that: they are not training frames), or, for a plan
+    without one, from the grid's contact radii (docs/registration.md).
     """
     import json
 
-    from threedcal.collect.plan import dome_sag_mm
+    from threedcal.collect.plan import dome_sag_at_px, plan_phases
     from threedcal.collect.store import open_raw
     from threedcal.config import training_fractions
     from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.registration import estimate_touch, register
+    from threedcal.dataset.registration import register
     from threedcal.dataset.splits import in_field_of_view, split_points
     from threedcal.profiles import load_profile
 
@@ -88,21 +92,25 @@ def build_collected(
     raw = open_raw(store_path)
     frames = raw["frames"]
     height, width = frames.shape[1:3]
-    blank = raw["blank_frames"].values.astype(np.float32).mean(axis=0)
+    blank_frames = raw["blank_frames"].values
+    blank = blank_frames.astype(np.float32).mean(axis=0)
     point_of_frame = raw["point"].values
     n_points = int(point_of_frame.max()) + 1
+    collected = raw.attrs.get("config", {})
+    phase = plan_phases(
+        raw.attrs["plan"], collected.get("plan", {}), raw.attrs.get("sensor_profile", sensor)
+    )
+    grid_points = np.flatnonzero(phase == "grid")
+    touch_points = np.flatnonzero(phase == "touch")
     cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
     plan_xy = np.column_stack([raw["x_mm"].values, raw["y_mm"].values])
-    nominal_depth = raw["depth_mm"].values - dome_sag_mm(sensor, plan_xy[:, 0], plan_xy[:, 1])
     # One contact per point, from the mean of its frames (less noise than any single frame).
     first = np.searchsorted(point_of_frame, np.arange(n_points))
     last = np.searchsorted(point_of_frame, np.arange(n_points), side="right")
-    means = [
-        np.clip(
-            frames[first[p] : last[p]].values.astype(np.float32).mean(axis=0) + 0.5, 0, 255
-        ).astype(np.uint8)
-        for p in range(n_points)
-    ]
+
+    def mean_frame(p: int) -> np.ndarray:
+        stack = frames[first[p] : last[p]].values.astype(np.float32)
+        return np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8)
 
     def whole(contact) -> bool:  # the rim and a margin inside the image
         margin = contact.radius_px + 5
@@ -113,23 +121,42 @@ def build_collected(
 
     flat = sensor["gel"].get("dome") is None
     registration = register(
-        cmd_xy[first], means, blank, accept=whole, flat_gel=flat, progress=progress
+        cmd_xy[first[grid_points]],
+        [mean_frame(p) for p in grid_points],
+        blank,
+        accept=whole,
+        flat_gel=flat,
+        progress=progress,
     )
     fit = registration.fit
-    inlier_points = np.flatnonzero(fit.inliers)
-    estimate = estimate_touch(
-        nominal_depth[first][inlier_points],
-        np.array([registration.contacts[p].radius_px for p in inlier_points])
-        / np.mean(fit.px_per_mm),
-        radius_mm,
-    )
-    touch = estimate.offset_mm
-    # Labels for every frame whose probe centre the registration puts inside the image.
-    centres = fit.apply(cmd_xy)
-    depth = np.clip(nominal_depth + touch, 0.0, None)
-    inside = in_field_of_view(centres[:, 0], centres[:, 1], width, height) & (depth > 0)
-    keep = np.flatnonzero(inside)
     px_per_mm = float(np.mean(fit.px_per_mm))
+    centres = fit.apply(cmd_xy)
+    # Depth below the gel surface where the registration puts each press: the plan compensated
+    # the dome's sag at the nominal seating, the sensor sits where the registration says.
+    nominal_depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
+    touch = _touch_height(
+        collected.get("plan", {}),
+        raw,
+        touch_points,
+        grid_points,
+        first,
+        mean_frame,
+        blank_frames,
+        centres,
+        nominal_depth,
+        registration,
+        radius_mm,
+        progress,
+    )
+    offset = touch["touch_offset_mm"]
+    # Labels for every grid frame whose probe centre the registration puts inside the image.
+    depth = np.clip(nominal_depth + offset, 0.0, None)
+    inside = (
+        in_field_of_view(centres[:, 0], centres[:, 1], width, height)
+        & (depth > 0)
+        & (phase[point_of_frame] == "grid")
+    )
+    keep = np.flatnonzero(inside)
     coords = pd.DataFrame({"x_mm": plan_xy[keep, 0], "y_mm": plan_xy[keep, 1]})
     coordinate_id = coords.groupby(["x_mm", "y_mm"], sort=True).ngroup().to_numpy()
     unique = coords.assign(point=coordinate_id).drop_duplicates("point").sort_values("point")
@@ -152,7 +179,7 @@ def build_collected(
         samples=samples.assign(frame=np.arange(len(keep))),
         px_per_mm=px_per_mm,
         sphere_radius_mm=radius_mm,
-        max_slope_deg=float(scene["dataset"]["max_slope_deg"]),
+        max_slope_deg=check_max_slope(scene["dataset"]["max_slope_deg"]),
         meta={"source": "collected", "store_frames": keep.tolist()},
     )
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
@@ -173,9 +200,9 @@ def build_collected(
         "channel_unmixing": None
         if registration.unmixing is None
         else registration.unmixing.round(4).tolist(),
-        "touch_offset_mm": round(touch, 4),
-        "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + touch, 4),
-        "rim_edge_offset_mm": None if estimate.edge_mm is None else round(estimate.edge_mm, 4),
+        **{k: v for k, v in touch.items() if k != "touch_offset_mm"},
+        "touch_offset_mm": round(offset, 4),
+        "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + offset, 4),
         "frames_in_view": int(len(keep)),
         "probe_points_in_view": int(len(unique)),
     }
@@ -188,7 +215,7 @@ def build_collected(
             error = np.linalg.norm(fit.apply(probe) - true_px, axis=1)
             record["error_px"] = round(float(np.sqrt(np.mean(error**2))), 4)
             record["error_px_max"] = round(float(error.max()), 4)
-            record["touch_offset_error_mm"] = round(touch - float(truth["touch_offset_mm"]), 4)
+            record["touch_offset_error_mm"] = round(offset - float(truth["touch_offset_mm"]), 4)
     Path(registration_path).write_text(json.dumps(record, indent=2) + "\n")
     picks = (
         np.linspace(0, len(trainset.samples) - 1, min(5, len(trainset.samples))).round().astype(int)
@@ -197,6 +224,72 @@ def build_collected(
         trainset,
         list(picks),
         figure_path,
-        f"registration: residual {fit.residual_px:.2f} px, touch offset {touch:+.3f} mm",
+        f"registration: residual {fit.residual_px:.2f} px, touch offset {offset:+.3f} mm",
     )
     return record
+
+
+def _touch_height(
+    plan_config: Mapping,
+    raw,
+    touch_points: np.ndarray,
+    grid_points: np.ndarray,
+    first: np.ndarray,
+    mean_frame,
+    blank_frames: np.ndarray,
+    centres: np.ndarray,
+    nominal_depth: np.ndarray,
+    registration,
+    radius_mm: float,
+    progress: bool,
+) -> dict:
+    """registration.json's touch fields: from the first-contact search when the plan has one
+    (`touch_method` "search"), else from the grid's contact radii ("rim", valid for d < R only)."""
+    from threedcal.dataset.registration import estimate_touch, measure_touch_search
+
+    fit = registration.fit
+    px_per_mm = float(np.mean(fit.px_per_mm))
+    if len(touch_points):
+        search = plan_config["touch_search"]
+        rows = first[touch_points]
+        places, place = np.unique(
+            np.column_stack([raw["x_mm"].values[rows], raw["y_mm"].values[rows]]),
+            axis=0,
+            return_inverse=True,
+        )
+        result = measure_touch_search(
+            [mean_frame(p) for p in touch_points],
+            blank_frames,
+            nominal_depth[rows],
+            place.ravel(),
+            centres[rows],
+            px_per_mm,
+            reach_mm=radius_mm,
+            span_mm=float(search["beyond_mm"]),
+            progress=progress,
+        )
+        return {
+            "touch_offset_mm": result.offset_mm,
+            "touch_method": "search",
+            "rim_edge_offset_mm": None,
+            "touch_search": {
+                "places_mm": places.round(4).tolist(),
+                "offset_mm_by_place": result.place_offsets_mm.round(4).tolist(),
+                "onset_depth_mm_by_place": result.onset_depth_mm.round(4).tolist(),
+                "steps_fitted_by_place": result.steps_fitted.tolist(),
+                "frames": int(len(touch_points)),
+            },
+        }
+    inliers = grid_points[np.flatnonzero(fit.inliers)]
+    contacts = [registration.contacts[i] for i in np.flatnonzero(fit.inliers)]
+    estimate = estimate_touch(
+        nominal_depth[first[inliers]],
+        np.array([c.radius_px for c in contacts]) / px_per_mm,
+        radius_mm,
+    )
+    return {
+        "touch_offset_mm": estimate.offset_mm,
+        "touch_method": "rim",
+        "rim_edge_offset_mm": None if estimate.edge_mm is None else round(estimate.edge_mm, 4),
+        "touch_search": None,
+    }
