@@ -241,7 +241,9 @@ def test_touch_onset_is_where_the_contact_area_line_meets_zero(delta):
     np.testing.assert_allclose(result.place_offsets_mm, delta, atol=1e-9)
     assert np.all(result.steps_fitted >= 5)  # 0.1 mm past the onset at 0.02 mm steps
     # the onset step is the first with contact: within one step below -δ
-    assert np.all((result.onset_depth_mm > -delta) & (result.onset_depth_mm <= -delta + 0.02 + 1e-9))
+    assert np.all(
+        (result.onset_depth_mm > -delta) & (result.onset_depth_mm <= -delta + 0.02 + 1e-9)
+    )
 
 
 def test_touch_onset_takes_the_median_over_places():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ import pandas as pd
 from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
+from threedcal.errors import ConfigError
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -59,6 +61,85 @@ def _registration_figure(
     plt.close(fig)
 
 
+@dataclass
+class RegisteredStore:
+    """A collected store with its registration: what labels and the touch height are made from.
+
+    Frames are indexed as in the store; `phase` and `first`/`last` (frame range) per plan row."""
+
+    raw: object  # the store as an xarray Dataset
+    sensor: dict
+    plan_config: dict  # the plan section the store was collected with
+    phase: np.ndarray  # per plan row: "touch" or "grid"
+    first: np.ndarray
+    last: np.ndarray
+    registration: object  # threedcal.dataset.registration.Registration (grid rows only)
+    centres: np.ndarray  # (frames, 2) where the affine puts each frame's probe, px
+    nominal_depth: np.ndarray  # (frames,) commanded depth below the gel surface there, mm
+
+    @property
+    def px_per_mm(self) -> float:
+        return float(np.mean(self.registration.fit.px_per_mm))
+
+    def rows(self, phase: str) -> np.ndarray:
+        return np.flatnonzero(self.phase == phase)
+
+    def mean_frame(self, row: int) -> np.ndarray:
+        """One plan row's frames averaged (less noise than any one), uint8."""
+        return _mean_frame(self.raw, self.first[row], self.last[row])
+
+
+def _mean_frame(raw, start: int, stop: int) -> np.ndarray:
+    stack = raw["frames"][start:stop].values.astype(np.float32)
+    return np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8)
+
+
+def register_store(
+    scene: Mapping, store_path: str | Path, progress: bool = True
+) -> RegisteredStore:
+    """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
+    its frames), and each frame's depth below the gel where the affine places it."""
+    from threedcal.collect.plan import dome_sag_at_px, plan_phases
+    from threedcal.collect.store import open_raw
+    from threedcal.dataset.registration import register
+    from threedcal.profiles import load_profile
+
+    sensor = load_profile("sensor", scene["sensor"])
+    raw = open_raw(store_path)
+    height, width = raw["frames"].shape[1:3]
+    point_of_frame = raw["point"].values
+    n_rows = int(point_of_frame.max()) + 1
+    plan_config = raw.attrs.get("config", {}).get("plan", {})
+    phase = plan_phases(raw.attrs["plan"], plan_config, raw.attrs.get("sensor_profile", sensor))
+    first = np.searchsorted(point_of_frame, np.arange(n_rows))
+    last = np.searchsorted(point_of_frame, np.arange(n_rows), side="right")
+    cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
+
+    def whole(contact) -> bool:  # the rim and a margin inside the image
+        margin = contact.radius_px + 5
+        return (
+            margin <= contact.x_px <= width - 1 - margin
+            and margin <= contact.y_px <= height - 1 - margin
+        )
+
+    grid = np.flatnonzero(phase == "grid")
+    registration = register(
+        cmd_xy[first[grid]],
+        [_mean_frame(raw, first[p], last[p]) for p in grid],
+        raw["blank_frames"].values.astype(np.float32).mean(axis=0),
+        accept=whole,
+        flat_gel=sensor["gel"].get("dome") is None,
+        progress=progress,
+    )
+    centres = registration.fit.apply(cmd_xy)
+    # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
+    # registration says, and the sag there is what the press's depth is measured from.
+    depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
+    return RegisteredStore(
+        raw, sensor, plan_config, phase, first, last, registration, centres, depth
+    )
+
+
 def build_collected(
     scene: Mapping,
     store_path: str | Path,
@@ -79,82 +160,27 @@ def build_collected(
     """
     import json
 
-    from threedcal.collect.plan import dome_sag_at_px, plan_phases
-    from threedcal.collect.store import open_raw
     from threedcal.config import training_fractions
     from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.registration import register
     from threedcal.dataset.splits import in_field_of_view, split_points
-    from threedcal.profiles import load_profile
 
-    sensor = load_profile("sensor", scene["sensor"])
     radius_mm = float(scene["probe"]["radius_mm"])
-    raw = open_raw(store_path)
+    store = register_store(scene, store_path, progress)
+    raw, sensor, registration = store.raw, store.sensor, store.registration
+    fit, centres, px_per_mm = registration.fit, store.centres, store.px_per_mm
     frames = raw["frames"]
     height, width = frames.shape[1:3]
-    blank_frames = raw["blank_frames"].values
-    blank = blank_frames.astype(np.float32).mean(axis=0)
-    point_of_frame = raw["point"].values
-    n_points = int(point_of_frame.max()) + 1
-    collected = raw.attrs.get("config", {})
-    phase = plan_phases(
-        raw.attrs["plan"], collected.get("plan", {}), raw.attrs.get("sensor_profile", sensor)
-    )
-    grid_points = np.flatnonzero(phase == "grid")
-    touch_points = np.flatnonzero(phase == "touch")
     cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
     plan_xy = np.column_stack([raw["x_mm"].values, raw["y_mm"].values])
-    # One contact per point, from the mean of its frames (less noise than any single frame).
-    first = np.searchsorted(point_of_frame, np.arange(n_points))
-    last = np.searchsorted(point_of_frame, np.arange(n_points), side="right")
-
-    def mean_frame(p: int) -> np.ndarray:
-        stack = frames[first[p] : last[p]].values.astype(np.float32)
-        return np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8)
-
-    def whole(contact) -> bool:  # the rim and a margin inside the image
-        margin = contact.radius_px + 5
-        return (
-            margin <= contact.x_px <= width - 1 - margin
-            and margin <= contact.y_px <= height - 1 - margin
-        )
-
-    flat = sensor["gel"].get("dome") is None
-    registration = register(
-        cmd_xy[first[grid_points]],
-        [mean_frame(p) for p in grid_points],
-        blank,
-        accept=whole,
-        flat_gel=flat,
-        progress=progress,
-    )
-    fit = registration.fit
-    px_per_mm = float(np.mean(fit.px_per_mm))
-    centres = fit.apply(cmd_xy)
-    # Depth below the gel surface where the registration puts each press: the plan compensated
-    # the dome's sag at the nominal seating, the sensor sits where the registration says.
-    nominal_depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
-    touch = _touch_height(
-        collected.get("plan", {}),
-        raw,
-        touch_points,
-        grid_points,
-        first,
-        mean_frame,
-        blank_frames,
-        centres,
-        nominal_depth,
-        registration,
-        radius_mm,
-        progress,
-    )
+    method = "search" if len(store.rows("touch")) else "rim"
+    touch = touch_height(store, radius_mm, method, progress)
     offset = touch["touch_offset_mm"]
     # Labels for every grid frame whose probe centre the registration puts inside the image.
-    depth = np.clip(nominal_depth + offset, 0.0, None)
+    depth = np.clip(store.nominal_depth + offset, 0.0, None)
     inside = (
         in_field_of_view(centres[:, 0], centres[:, 1], width, height)
         & (depth > 0)
-        & (phase[point_of_frame] == "grid")
+        & (store.phase[raw["point"].values] == "grid")
     )
     keep = np.flatnonzero(inside)
     coords = pd.DataFrame({"x_mm": plan_xy[keep, 0], "y_mm": plan_xy[keep, 1]})
@@ -175,7 +201,7 @@ def build_collected(
     )
     trainset = TrainingSet(
         frames=frames.values[keep],
-        blank=blank,
+        blank=raw["blank_frames"].values.astype(np.float32).mean(axis=0),
         samples=samples.assign(frame=np.arange(len(keep))),
         px_per_mm=px_per_mm,
         sphere_radius_mm=radius_mm,
@@ -229,43 +255,30 @@ def build_collected(
     return record
 
 
-def _touch_height(
-    plan_config: Mapping,
-    raw,
-    touch_points: np.ndarray,
-    grid_points: np.ndarray,
-    first: np.ndarray,
-    mean_frame,
-    blank_frames: np.ndarray,
-    centres: np.ndarray,
-    nominal_depth: np.ndarray,
-    registration,
-    radius_mm: float,
-    progress: bool,
+def touch_height(
+    store: RegisteredStore, radius_mm: float, method: str, progress: bool = False
 ) -> dict:
-    """registration.json's touch fields: from the first-contact search when the plan has one
-    (`touch_method` "search"), else from the grid's contact radii ("rim", valid for d < R only)."""
+    """registration.json's touch fields, by `method`: "search" (the plan's first-contact search,
+    the default) or "rim" (the grid's contact radii; d < R only, see docs/registration.md)."""
     from threedcal.dataset.registration import estimate_touch, measure_touch_search
 
-    fit = registration.fit
-    px_per_mm = float(np.mean(fit.px_per_mm))
-    if len(touch_points):
-        search = plan_config["touch_search"]
-        rows = first[touch_points]
-        places, place = np.unique(
-            np.column_stack([raw["x_mm"].values[rows], raw["y_mm"].values[rows]]),
-            axis=0,
-            return_inverse=True,
-        )
+    fit = store.registration.fit
+    if method == "search":
+        touch = store.rows("touch")
+        if not len(touch):
+            raise ConfigError("the plan has no touch search (plan.touch_search.points is 0)")
+        rows = store.first[touch]
+        xy = np.column_stack([store.raw["x_mm"].values[rows], store.raw["y_mm"].values[rows]])
+        places, place = np.unique(xy, axis=0, return_inverse=True)
         result = measure_touch_search(
-            [mean_frame(p) for p in touch_points],
-            blank_frames,
-            nominal_depth[rows],
+            [store.mean_frame(p) for p in touch],
+            store.raw["blank_frames"].values,
+            store.nominal_depth[rows],
             place.ravel(),
-            centres[rows],
-            px_per_mm,
+            store.centres[rows],
+            store.px_per_mm,
             reach_mm=radius_mm,
-            span_mm=float(search["beyond_mm"]),
+            span_mm=float(store.plan_config["touch_search"]["beyond_mm"]),
             progress=progress,
         )
         return {
@@ -277,14 +290,16 @@ def _touch_height(
                 "offset_mm_by_place": result.place_offsets_mm.round(4).tolist(),
                 "onset_depth_mm_by_place": result.onset_depth_mm.round(4).tolist(),
                 "steps_fitted_by_place": result.steps_fitted.tolist(),
-                "frames": int(len(touch_points)),
+                "frames": int((store.last[touch] - store.first[touch]).sum()),
             },
         }
-    inliers = grid_points[np.flatnonzero(fit.inliers)]
-    contacts = [registration.contacts[i] for i in np.flatnonzero(fit.inliers)]
+    if method != "rim":
+        raise ConfigError(f"touch height method {method!r} is not allowed (allowed: search, rim)")
+    used = np.flatnonzero(fit.inliers)
+    grid = store.rows("grid")[used]
     estimate = estimate_touch(
-        nominal_depth[first[inliers]],
-        np.array([c.radius_px for c in contacts]) / px_per_mm,
+        store.nominal_depth[store.first[grid]],
+        np.array([store.registration.contacts[i].radius_px for i in used]) / store.px_per_mm,
         radius_mm,
     )
     return {
