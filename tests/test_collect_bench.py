@@ -241,7 +241,8 @@ def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_pa
     assert 0.02 < record["rim_edge_offset_mm"] < 0.1, record
 
 
-def collect_and_register(tmp_path, sensor, plan, seed, bench=None):
+def collect_on_bench(tmp_path, sensor, plan, seed, bench=None):
+    """Collect a scene into tmp_path/raw.zarr (its truth beside it); returns the scene."""
     scene = validate_config(
         {
             "seed": seed,
@@ -258,6 +259,11 @@ def collect_and_register(tmp_path, sensor, plan, seed, bench=None):
     collect_scene(
         "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
     )
+    return scene
+
+
+def collect_and_register(tmp_path, sensor, plan, seed):
+    scene = collect_on_bench(tmp_path, sensor, plan, seed)
     paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
     return build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
 
@@ -300,31 +306,15 @@ def test_touch_search_finds_the_hidden_touch_height(tmp_path, sensor, plan, seed
     assert record["frames_in_view"] <= raw.sizes["frame"] - record["touch_search"]["frames"]
 
 
-def elastic_surface(self, indenter, center_px, rotation_deg, depth_mm, window):
-    """A stand-in for an elastic gel: the Hertz solution for a sphere on a half-space. Contact
-    radius a = sqrt(R d) (not sqrt(2Rd − d²)), and the surface sinks outside the contact too:
-    d − r²/2R inside, ((2a² − r²) asin(a/r) + a sqrt(r² − a²)) / (π R) outside."""
-    y0, y1, x0, x1 = window
-    x = self.X[y0:y1, x0:x1] - (center_px[0] - self._cx) / self.px_per_mm
-    y = self.Y[y0:y1, x0:x1] - (center_px[1] - self._cy) / self.px_per_mm
-    r = np.hypot(x, y)
-    R = indenter.radius_mm
-    a = np.sqrt(R * depth_mm)
-    inside = r < a
-    safe = np.maximum(r, a)
-    outside = ((2 * a * a - safe**2) * np.arcsin(a / safe) + a * np.sqrt(safe**2 - a * a)) / (
-        np.pi * R
-    )
-    sink = np.where(inside, depth_mm - r * r / (2 * R), outside)
-    return (self.Z0[y0:y1, x0:x1] + sink).astype(np.float32), inside
+def touch_height_diagnostic():
+    """docs/diagnostics/touch_height.py, whose altered contact laws these tests use."""
+    import importlib.util
 
-
-def wide_window(self, indenter, center_px, depth_mm):
-    """The Hertz surface reaches far (1/r): re-shade 3 R around the contact."""
-    reach = 3 * indenter.radius_mm * self.px_per_mm
-    x0, x1 = max(int(center_px[0] - reach), 0), min(int(center_px[0] + reach) + 1, self.width)
-    y0, y1 = max(int(center_px[1] - reach), 0), min(int(center_px[1] + reach) + 1, self.height)
-    return (y0, y1, x0, x1) if x1 - x0 >= 3 and y1 - y0 >= 3 else None
+    path = REPO / "docs" / "diagnostics" / "touch_height.py"
+    spec = importlib.util.spec_from_file_location("touch_height_diagnostic", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def touch_error_with_true_centres(tmp_path, sensor, seed):
@@ -333,21 +323,8 @@ def touch_error_with_true_centres(tmp_path, sensor, seed):
     from threedcal.collect.plan import dome_sag_at_px, plan_phases
     from threedcal.dataset.registration import measure_touch_search
 
-    scene = validate_config(
-        {
-            "seed": seed,
-            "scenes": {
-                "s": {
-                    "sensor": sensor,
-                    "printer": "ender3",
-                    "plan": {"spacing_mm": 8.0, "depth_mm": 1.0, "frames": 1},
-                }
-            },
-        }
-    )["scenes"]["s"]
-    collect_scene(
-        "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
-    )
+    plan = {"spacing_mm": 8.0, "depth_mm": 1.0, "frames": 1}
+    scene = collect_on_bench(tmp_path, sensor, plan, seed)
     raw = open_raw(tmp_path / "raw.zarr")
     truth = json.loads((tmp_path / "truth.json").read_text())
     profile = raw.attrs["sensor_profile"]
@@ -380,14 +357,9 @@ def test_touch_search_does_not_assume_the_contact_law(tmp_path, monkeypatch, sen
     an elastic contact as half as deep: hundreds of micrometres off."""
     from threedcal.sim.optics import GelSimulator
 
-    if change == "elastic":
-        monkeypatch.setattr(GelSimulator, "surface", elastic_surface)
-        monkeypatch.setattr(GelSimulator, "window", wide_window)
-    else:
-        profile = yaml.safe_load(
-            (REPO / f"src/threedcal/profiles/sensors/{sensor}.yaml").read_text()
-        )
-        profile["gel"].update(skirt_width_per_thickness=0.3, rim_volume_fraction=0.8)
-        sensor = tmp_path / f"{sensor}_wide_skirt.yaml"
-        sensor.write_text(yaml.safe_dump(profile))
+    laws = touch_height_diagnostic()
+    if change == "elastic":  # the Hertz solution in place of the rigid gel
+        monkeypatch.setattr(GelSimulator, "surface", laws.elastic_surface)
+        monkeypatch.setattr(GelSimulator, "window", laws.wide_window)
+    sensor = laws.sensor_ref(sensor, change, tmp_path)  # a wide-skirt profile for "skirt"
     assert abs(touch_error_with_true_centres(tmp_path, str(sensor), seed)) <= 0.02

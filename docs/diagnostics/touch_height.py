@@ -69,9 +69,10 @@ def elastic_surface(self, indenter, center_px, rotation_deg, depth_mm, window):
     radius = indenter.radius_mm
     a = math.sqrt(radius * depth_mm)
     safe = np.maximum(r, a)
-    outside = ((2 * a * a - safe**2) * np.arcsin(a / safe) + a * np.sqrt(safe**2 - a * a)) / (
-        math.pi * radius
-    )
+    outside = (
+        (2 * a * a - safe**2) * np.arcsin(np.minimum(a / safe, 1.0))
+        + a * np.sqrt(np.maximum(safe**2 - a * a, 0.0))
+    ) / (math.pi * radius)
     sink = np.where(r < a, depth_mm - r * r / (2 * radius), outside)
     return (self.Z0[y0:y1, x0:x1] + sink).astype(np.float32), r < a
 

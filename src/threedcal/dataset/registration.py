@@ -543,7 +543,8 @@ class ChangeDetector:
         frames = np.asarray(blank_frames, dtype=np.float32)
         if frames.ndim != 4 or frames.shape[-1] != 3 or len(frames) < 3:
             raise RegistrationError(
-                f"the touch search needs >= 3 RGB blank frames (N, H, W, 3), got {frames.shape}"
+                f"the touch search needs >= 3 RGB blank frames (N, H, W, 3) to measure the "
+                f"noise, got {frames.shape} (the sensor profile's probing.n_blank)"
             )
         usable = ~((frames >= SATURATED_DN) | (frames <= DARK_DN)).any(axis=0)
         total = frames.sum(axis=0)
