@@ -24,8 +24,9 @@ import pandas as pd
 from threedcal.errors import ConfigError
 
 PLAN_COLUMNS = ("x_mm", "y_mm", "depth_mm", "frames")
-PHASES = ("touch", "grid")
 DEPTH_MODES = ("every", "cycle")
+# The sensor schema's default of `probing.touch_uncertainty_mm`.
+DEFAULT_TOUCH_UNCERTAINTY_MM = 0.2
 
 
 def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
@@ -199,22 +200,23 @@ def cross_plan(
     x, y = gx[keep], gy[keep]
     if _depth_mode(depth_mode) == "cycle":
         column, row = np.indices(gx.shape)[::-1]
-        passes = [(x, y, _cycled(depths, column[keep], row[keep]))]
+        passes = [_cycled(depths, column[keep], row[keep])]
     else:
-        passes = [(x, y, np.full(x.shape, depth)) for depth in depths]
+        passes = [np.full(x.shape, depth) for depth in depths]
+    sag = dome_sag_mm(sensor, x, y)
     return pd.concat(
         [
             serpentine(
                 pd.DataFrame(
                     {
-                        "x_mm": px,
-                        "y_mm": py,
-                        "depth_mm": np.round(pd_ + dome_sag_mm(sensor, px, py), 4),
+                        "x_mm": x,
+                        "y_mm": y,
+                        "depth_mm": np.round(depth + sag, 4),
                         "frames": int(frames),
                     }
                 )
             )
-            for px, py, pd_ in passes
+            for depth in passes
         ],
         ignore_index=True,
     )
@@ -223,10 +225,6 @@ def cross_plan(
 def touch_uncertainty_mm(sensor: Mapping) -> float:
     """How far the gel's true first touch may lie from the profile's nominal `mount.z_touch_mm`."""
     return float(sensor["probing"].get("touch_uncertainty_mm", DEFAULT_TOUCH_UNCERTAINTY_MM))
-
-
-# The sensor schema's default of `probing.touch_uncertainty_mm`.
-DEFAULT_TOUCH_UNCERTAINTY_MM = 0.2
 
 
 def touch_search_depths(sensor: Mapping, search: Mapping) -> np.ndarray:

@@ -727,7 +727,7 @@ def fit_touch_onset(
             raise RegistrationError(
                 f"touch search place {p}: contact already at the first step ({c[0]:+.3f} mm): "
                 "the gel sits higher than the search starts — raise the sensor profile's "
-                "probing.touch_uncertainty_mm"
+                "probing.touch_uncertainty_mm — or the image drifted from the blank frames"
             )
         if not on[-1]:
             raise RegistrationError(
