@@ -65,10 +65,9 @@ def reference(tmp_path_factory):
 
 def test_summary_counts_and_hardware_estimate(reference):
     _, summary = reference
-    assert (
-        summary["points"] == 42 and summary["frames"] == 84
-    )  # 7 x 6 grid on the Mini, 2 frames each
-    assert summary["estimated_hardware_s"] > 42 * (2 / 25)  # at least the capture time at 25 fps
+    # the touch search's 3 places x 26 steps of one frame, then a 7 x 6 grid on the Mini, 2 frames each
+    assert summary["points"] == 78 + 42 and summary["frames"] == 78 + 84
+    assert summary["estimated_hardware_s"] > 162 / 25  # at least the capture time at 25 fps
     assert summary["runs"] == 1
 
 
