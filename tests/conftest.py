@@ -16,6 +16,19 @@ SNAKEMAKE = Path(sys.executable).with_name("snakemake")
 
 
 @pytest.fixture
+def sim_firmware():
+    """A fault-free fake Marlin (no pacing) behind a fresh simmarlin:// name: (url, firmware)."""
+    import uuid
+
+    from threedcal.sim.marlin import SimMarlin, forget, register
+
+    name = f"f{uuid.uuid4().hex[:8]}"
+    firmware = register(name, SimMarlin("ender3", speedup=float("inf")))
+    yield f"simmarlin://{name}", firmware
+    forget(name)
+
+
+@pytest.fixture
 def repo() -> Path:
     return REPO
 
@@ -45,10 +58,8 @@ def tiny_study_config(tmp_path: Path) -> dict:
     return config
 
 
-def snakemake(
-    workdir: Path, configfile: Path, *args: str, check: bool = True
-) -> subprocess.CompletedProcess:
-    cmd = [
+def snakemake_command(workdir: Path, configfile: Path, *args: str, cores: int = 2) -> list[str]:
+    return [
         str(SNAKEMAKE),
         "-s",
         str(REPO / "Snakefile"),
@@ -57,9 +68,30 @@ def snakemake(
         "--configfile",
         str(configfile),
         "--cores",
-        "2",
+        str(cores),
         *args,
     ]
+
+
+def snapshot(path: Path) -> dict[str, tuple[int, int, str]]:
+    """Every file under `path` with its size, mtime and content hash: a store left untouched."""
+    import hashlib
+
+    return {
+        str(p.relative_to(path)): (
+            p.stat().st_size,
+            p.stat().st_mtime_ns,
+            hashlib.sha1(p.read_bytes()).hexdigest(),
+        )
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
+
+
+def snakemake(
+    workdir: Path, configfile: Path, *args: str, check: bool = True
+) -> subprocess.CompletedProcess:
+    cmd = snakemake_command(workdir, configfile, *args)
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir)
     if check and result.returncode != 0:
         raise AssertionError(
@@ -82,3 +114,32 @@ def scheduled_jobs(workdir: Path, configfile: Path, *args: str) -> list[tuple[st
         )
         jobs.append((match.group(1), values))
     return jobs
+
+
+@pytest.fixture(scope="session")
+def paper_digit_calibration(tmp_path_factory):
+    """A DIGIT calibrated on the bench at config/paper.yaml's depth (d = 2.0 mm = R: a vertical
+    contact rim), the default first-contact search first, a coarse grid (3 mm, one frame a point):
+    (scene, folder with raw.zarr, truth.json, reg.json, ..., the dataset stage's record)."""
+    from threedcal.collect.session import collect_scene
+    from threedcal.config import validate_config
+    from threedcal.dataset.build import build_collected
+
+    folder = tmp_path_factory.mktemp("paper_digit")
+    scene = validate_config(
+        {
+            "seed": 3,
+            "scenes": {
+                "s": {
+                    "sensor": "digit",
+                    "printer": "ender3",
+                    "plan": {"spacing_mm": 3.0, "depth_mm": 2.0, "frames": 1},
+                    "bench": {"touch_offset_mm": 0.1},
+                }
+            },
+        }
+    )["scenes"]["s"]
+    collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)
+    paths = [folder / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
+    record = build_collected(scene, folder / "raw.zarr", *paths, progress=False)
+    return scene, folder, record

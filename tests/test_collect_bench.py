@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO
+from conftest import REPO, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -39,7 +39,14 @@ def scene_config(**bench):
             "s": {
                 "sensor": "gelsight_mini",
                 "printer": "ender3",
-                "plan": {"spacing_mm": 3.0, "depth_mm": 1.0, "frames": 2},
+                # one touch-search place (26 one-frame steps): its rows go through every crash,
+                # fault and resume below like the grid's
+                "plan": {
+                    "spacing_mm": 3.0,
+                    "depth_mm": 1.0,
+                    "frames": 2,
+                    "touch_search": {"points": 1},
+                },
                 "bench": bench,
             }
         },
@@ -65,9 +72,9 @@ def reference(tmp_path_factory):
 
 def test_summary_counts_and_hardware_estimate(reference):
     _, summary = reference
-    # the touch search's 3 places x 26 steps of one frame, then a 7 x 6 grid on the Mini, 2 frames each
-    assert summary["points"] == 78 + 42 and summary["frames"] == 78 + 84
-    assert summary["estimated_hardware_s"] > 162 / 25  # at least the capture time at 25 fps
+    # the touch search's 26 steps of one frame, then a 7 x 6 grid on the Mini, 2 frames each
+    assert summary["points"] == 26 + 42 and summary["frames"] == 26 + 84
+    assert summary["estimated_hardware_s"] > 110 / 25  # at least the capture time at 25 fps
     assert summary["runs"] == 1
 
 
@@ -144,10 +151,25 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp
 
 
 def test_complete_store_is_never_overwritten(reference, tmp_path):
-    from threedcal.errors import ConfigError
+    from threedcal.collect.store import SettingsMismatch
 
-    with pytest.raises(ConfigError, match="refusing to overwrite"):
-        collect_scene("s", scene_config()["scenes"]["s"], reference[0], staging_path=tmp_path / "x")
+    before = snapshot(reference[0])
+    # Same settings: nothing is collected, the store's summary comes back.
+    summary = collect_scene(
+        "s", scene_config()["scenes"]["s"], reference[0], staging_path=tmp_path / "x"
+    )
+    assert summary["points"] == 26 + 42 and summary["frame_digest"] == reference[1]["frame_digest"]
+    assert not (tmp_path / "x").exists()
+    # Other settings: refused, naming the key (old → new) and how to recollect.
+    other = scene_config()
+    other["scenes"]["s"]["seed"] = 6
+    other["scenes"]["s"]["probe"]["radius_mm"] = 3.0
+    with pytest.raises(SettingsMismatch) as exc:
+        collect_scene("s", other["scenes"]["s"], reference[0], staging_path=tmp_path / "x")
+    message = str(exc.value)
+    assert "seed: 5 → 6" in message and "probe.radius_mm: 2.0 → 3.0" in message
+    assert f"mv {reference[0]} {reference[0]}.old" in message
+    assert snapshot(reference[0]) == before
 
 
 def test_invalid_plan_fails_before_any_motion(tmp_path):
@@ -267,42 +289,40 @@ def collect_and_register(tmp_path, sensor, plan, seed):
     return build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
 
 
-@pytest.mark.parametrize(
-    "sensor, plan, seed",
-    [
-        # config/paper.yaml's depth, d = R: the rim's radii tell nothing there (a = R)
-        ("digit", {"spacing_mm": 3.0, "depth_mm": 2.0, "frames": 1}, 3),
-        # a cross plan cycling d < R and d > R (a vertical contact rim)
-        (
-            "digit",
-            {
-                "pattern": "cross",
-                "spacing_mm": 2.0,
-                "depths_mm": [1.0, 3.0],
-                "depth_mode": "cycle",
-                "frames": 1,
-                "arm_width_mm": 2.0,
-            },
-            5,
-        ),
-    ],
-    ids=["grid-2.0", "cross-1.0+3.0"],
-)
-def test_touch_search_finds_the_hidden_touch_height(tmp_path, sensor, plan, seed):
-    """The default first-contact search (3 places) on the bench with grid and cross plans at d = R
-    and d > R: within 0.01 mm of the hidden touch height (target 0.02, measured 2-3 um in
-    docs/registration.md; the GelSight Mini's is checked in
-    test_registration_recovers_the_hidden_seating). The affine comes from the grid rows."""
-    record = collect_and_register(tmp_path, sensor, plan, seed)
+def assert_search_found_the_touch(record, folder):
+    """Within 0.01 mm of the hidden touch height (target 0.02; measured 2-3 um in
+    docs/registration.md), the affine from the grid rows, and no touch frame in the training set."""
     assert record["touch_method"] == "search"
     assert abs(record["touch_offset_error_mm"]) <= 0.01, record
     assert len(record["touch_search"]["offset_mm_by_place"]) == 3
     assert record["error_px"] < 0.5, record
     # touch frames only locate the gel: the training set holds grid frames alone
-    samples = (tmp_path / "ts" / "samples.csv").read_text().splitlines()
+    samples = (folder / "ts" / "samples.csv").read_text().splitlines()
     assert len(samples) - 1 == record["frames_in_view"]
-    raw = open_raw(tmp_path / "raw.zarr")
+    raw = open_raw(folder / "raw.zarr")
     assert record["frames_in_view"] <= raw.sizes["frame"] - record["touch_search"]["frames"]
+
+
+def test_touch_search_finds_the_hidden_touch_height_at_d_equal_r(paper_digit_calibration):
+    """config/paper.yaml's depth, d = R: the rim's radii tell nothing there (a = R), the default
+    first-contact search does (the GelSight Mini's is checked in
+    test_registration_recovers_the_hidden_seating)."""
+    _, folder, record = paper_digit_calibration
+    assert_search_found_the_touch(record, folder)
+
+
+def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path):
+    """A cross plan cycling d < R and d > R (a vertical contact rim)."""
+    plan = {
+        "pattern": "cross",
+        "spacing_mm": 2.0,
+        "depths_mm": [1.0, 3.0],
+        "depth_mode": "cycle",
+        "frames": 1,
+        "arm_width_mm": 2.0,
+    }
+    record = collect_and_register(tmp_path, "digit", plan, 5)
+    assert_search_found_the_touch(record, tmp_path)
 
 
 def touch_height_diagnostic():

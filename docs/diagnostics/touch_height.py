@@ -77,7 +77,7 @@ def elastic_surface(self, indenter, center_px, rotation_deg, depth_mm, window):
     return (self.Z0[y0:y1, x0:x1] + sink).astype(np.float32), r < a
 
 
-def wide_window(self, indenter, center_px, depth_mm):
+def wide_window(self, indenter, center_px, depth_mm, rotation_deg=0.0):
     reach = 3 * indenter.radius_mm * self.px_per_mm
     x0, x1 = max(int(center_px[0] - reach), 0), min(int(center_px[0] + reach) + 1, self.width)
     y0, y1 = max(int(center_px[1] - reach), 0), min(int(center_px[1] + reach) + 1, self.height)

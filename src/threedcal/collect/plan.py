@@ -27,6 +27,10 @@ PLAN_COLUMNS = ("x_mm", "y_mm", "depth_mm", "frames")
 DEPTH_MODES = ("every", "cycle")
 # The sensor schema's default of `probing.touch_uncertainty_mm`.
 DEFAULT_TOUCH_UNCERTAINTY_MM = 0.2
+# Size limits, checked before a plan is generated: the paper's densest plan has ~1,400 points and
+# ~40,000 frames; a mistyped spacing must not allocate gigabytes or queue months of printer time.
+MAX_PLAN_POINTS = 100_000
+MAX_PLAN_FRAMES = 1_000_000
 
 
 def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
@@ -130,7 +134,7 @@ def grid_plan(
     once, at the depth `_cycled` gives it: all depths over the whole area for the frames of one."""
     depths = _depths(depths_mm)
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
-        raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
+        raise ConfigError(f"plan spacing_mm must be a positive number, got {float(spacing_mm)}")
     width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
     ys = np.arange(0.0, height + 1e-9, spacing_mm)
@@ -170,7 +174,7 @@ def _depths(depths_mm) -> np.ndarray:
     if depths.size == 0:
         raise ConfigError("plan depths_mm must list at least one depth")
     if not np.all(np.isfinite(depths) & (depths > 0)):
-        raise ConfigError(f"plan depths must be positive numbers, got {list(depths)}")
+        raise ConfigError(f"plan depths must be positive numbers, got {depths.tolist()}")
     return depths
 
 
@@ -187,9 +191,9 @@ def cross_plan(
     pass serpentine ordered. 1 mm spacing, arms 6 mm wide over 16 x 16 mm give 189 points a depth.
     `depth_mode` "cycle" makes one pass, each point at one depth (as in `grid_plan`)."""
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
-        raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
+        raise ConfigError(f"plan spacing_mm must be a positive number, got {float(spacing_mm)}")
     if arm_width_mm < 0 or not np.isfinite(arm_width_mm):
-        raise ConfigError(f"plan arm_width_mm must be >= 0, got {arm_width_mm!r}")
+        raise ConfigError(f"plan arm_width_mm must be >= 0, got {float(arm_width_mm)}")
     depths = _depths(depths_mm)
     width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
@@ -360,14 +364,33 @@ def clearance_z(sensor: Mapping) -> float:
     return mount["z_touch_mm"] + mount["z_clearance_mm"]
 
 
+def check_plan_size(points: float, frames: float, what: str = "the plan") -> None:
+    """Refuse a plan over MAX_PLAN_POINTS points or MAX_PLAN_FRAMES frames, saying how many it has."""
+    if points > MAX_PLAN_POINTS or frames > MAX_PLAN_FRAMES:
+        raise ConfigError(
+            f"{what} would have {int(points):,} probe points and {int(frames):,} frames (limits: "
+            f"{MAX_PLAN_POINTS:,} points, {MAX_PLAN_FRAMES:,} frames); use a larger spacing_mm or "
+            "fewer frames"
+        )
+
+
 def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     """The plan a scene's `plan:` section describes: the touch search (vision sensors, when
     `touch_search.points` > 0), then the grid rows (CSV, grid or cross); column `phase` tells them apart."""
     if plan_config.get("csv"):
         rows = read_plan_csv(plan_config["csv"])
+        check_plan_size(len(rows), rows["frames"].sum(), str(plan_config["csv"]))
     else:
         depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
         mode = plan_config.get("depth_mode", "every")
+        spacing = float(plan_config["spacing_mm"])
+        if spacing > 0 and np.isfinite(spacing):
+            width, height = plan_area_mm(sensor)
+            points = (width // spacing + 1) * (height // spacing + 1)
+            points *= len(depths) if mode == "every" else 1
+            check_plan_size(
+                points, points * plan_config["frames"], f"spacing_mm={spacing:g}: the plan"
+            )
         if plan_config.get("pattern", "grid") == "cross":
             rows = cross_plan(
                 sensor,

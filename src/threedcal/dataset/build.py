@@ -95,17 +95,21 @@ def _mean_frame(raw, start: int, stop: int) -> np.ndarray:
 
 
 def register_store(
-    scene: Mapping, store_path: str | Path, progress: bool = True
+    scene: Mapping,
+    store_path: str | Path,
+    progress: bool = True,
+    expect_digest: str | None = None,
 ) -> RegisteredStore:
     """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
-    its frames), and each frame's depth below the gel where the affine places it."""
+    its frames), and each frame's depth below the gel where the affine places it. The store is
+    read whole and checked (`threedcal.collect.store.open_checked`)."""
     from threedcal.collect.plan import dome_sag_at_px, plan_phases
-    from threedcal.collect.store import open_raw
+    from threedcal.collect.store import open_checked
     from threedcal.dataset.registration import register
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])
-    raw = open_raw(store_path)
+    raw = open_checked(store_path, expect_digest)
     height, width = raw["frames"].shape[1:3]
     point_of_frame = raw["point"].values
     n_rows = int(point_of_frame.max()) + 1
@@ -149,6 +153,7 @@ def build_collected(
     figure_path: str | Path,
     truth_path: str | Path | None = None,
     progress: bool = True,
+    expect_digest: str | None = None,
 ) -> dict:
     """Raw store → registration (affine + touch height) → exact labels → splits → model-ready set.
 
@@ -156,7 +161,9 @@ def build_collected(
     The bench's hidden truth (simulated scenes) is read only to report the registration's error.
     The affine comes from the plan's grid rows; the touch height from its first-contact search
     (the touch rows, which only serve that: they are not training frames), or, for a plan
-    without one, from the grid's contact radii (docs/registration.md).
+    without one, from the grid's contact radii (docs/registration.md). The store is read back
+    whole and checked first (complete, every point captured, every chunk present and readable;
+    `expect_digest`: the frame settings collect/summary.json recorded).
     """
     import json
 
@@ -165,7 +172,7 @@ def build_collected(
     from threedcal.dataset.splits import in_field_of_view, split_points
 
     radius_mm = float(scene["probe"]["radius_mm"])
-    store = register_store(scene, store_path, progress)
+    store = register_store(scene, store_path, progress, expect_digest)
     raw, sensor, registration = store.raw, store.sensor, store.registration
     fit, centres, px_per_mm = registration.fit, store.centres, store.px_per_mm
     frames = raw["frames"]
