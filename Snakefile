@@ -4,14 +4,9 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import (
-    canonical_json,
-    is_imported,
-    load_yaml,
-    training_fractions,
-    validate_config,
-)
-from threedcal.provenance import source_digest
+from threedcal.config import is_imported, training_fractions, validate_config
+from threedcal.provenance import script_digest
+from threedcal.schema import canonical_json, load_yaml
 from threedcal.scenes import (
     ablation_scenes,
     has_objects,
@@ -59,7 +54,7 @@ include: "rules/common.smk"
 include: "rules/scene.smk"
 include: "rules/collect.smk"
 include: "rules/dataset.smk"
-include: "rules/integrate.smk"
+include: "rules/integration_study.smk"
 include: "rules/train.smk"
 include: "rules/stats.smk"
 include: "rules/objects.smk"

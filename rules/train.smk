@@ -20,7 +20,7 @@ rule train:
             key: config["scenes"][wildcards.scene][key]
             for key in ("model", "seed", "torch_threads")
         },
-        code=source_digest("model", "dataset"),
+        code=code_digest("train.py"),
     script:
         "../scripts/train.py"
 
@@ -41,6 +41,6 @@ rule ball_eval:
         CONDA_ENV
     params:
         seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        code=source_digest("model", "dataset"),
+        code=code_digest("ball_eval.py"),
     script:
         "../scripts/ball_eval.py"

@@ -56,7 +56,9 @@ def ball_eval(
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        lookup = train(ts, tmp, percent, TrainSettings(preset="lookup", seed=seed), progress=False)
+        lookup = train(
+            ts, tmp, percent, TrainSettings.of(preset="lookup", seed=seed), progress=False
+        )
     result["lookup"] = evaluate(DepthEstimator(lookup, device="cpu"), ts, test)
     result["P"] = percent
     Path(out_path).parent.mkdir(parents=True, exist_ok=True)
