@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO, snapshot
+from conftest import REPO, collect_and_register, collect_on_bench, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -104,7 +104,13 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp
                     "s": {
                         "sensor": "gelsight_mini",
                         "printer": "ender3",
-                        "plan": {"spacing_mm": 3.0, "depth_mm": 1.0, "frames": 2},
+                        # the reference's plan: kills land in the touch search and the grid
+                        "plan": {
+                            "spacing_mm": 3.0,
+                            "depth_mm": 1.0,
+                            "frames": 2,
+                            "touch_search": {"points": 1},
+                        },
                     }
                 },
             }
@@ -124,7 +130,7 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp
         str(store),
     ]
     # Kill at an early moment (before or while the store is made), then after k captured points.
-    targets = [0, 3, 11, 26, 37]
+    targets = [0, 3, 11, 26, 37, 50]
     kills = 0
     for target in targets:
         process = subprocess.Popen(
@@ -233,60 +239,17 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
 def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_path):
     """One depth: the rim's edge offset reads as 0.09 mm of extra depth (README, registration).
     Several: both are fitted, and the touch height comes out within 0.05 mm."""
-    scene = validate_config(
-        {
-            "seed": 3,
-            "scenes": {
-                "s": {
-                    "sensor": "digit",
-                    "printer": "ender3",
-                    "plan": {
-                        "spacing_mm": 2.0,
-                        "depths_mm": [0.5, 1.0, 1.5],
-                        "frames": 1,
-                        "touch_search": {"points": 0},  # the radii's estimate, for plans without
-                    },
-                    "bench": {"touch_offset_mm": 0.1},
-                }
-            },
-        }
-    )["scenes"]["s"]
-    collect_scene(
-        "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
-    )
-    paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
-    record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
+    plan = {
+        "spacing_mm": 2.0,
+        "depths_mm": [0.5, 1.0, 1.5],
+        "frames": 1,
+        "touch_search": {"points": 0},  # the radii's estimate, for plans without
+    }
+    record = collect_and_register(tmp_path, "digit", plan, 3)
     assert record["touch_method"] == "rim" and record["touch_search"] is None
     assert abs(record["touch_offset_error_mm"]) < 0.05, record
     # the located rim sits outside the true edge by about a pixel (19.5 px/mm)
     assert 0.02 < record["rim_edge_offset_mm"] < 0.1, record
-
-
-def collect_on_bench(tmp_path, sensor, plan, seed, bench=None):
-    """Collect a scene into tmp_path/raw.zarr (its truth beside it); returns the scene."""
-    scene = validate_config(
-        {
-            "seed": seed,
-            "scenes": {
-                "s": {
-                    "sensor": sensor,
-                    "printer": "ender3",
-                    "plan": plan,
-                    "bench": bench or {"touch_offset_mm": 0.1},
-                }
-            },
-        }
-    )["scenes"]["s"]
-    collect_scene(
-        "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
-    )
-    return scene
-
-
-def collect_and_register(tmp_path, sensor, plan, seed):
-    scene = collect_on_bench(tmp_path, sensor, plan, seed)
-    paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
-    return build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
 
 
 def assert_search_found_the_touch(record, folder):
