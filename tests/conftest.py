@@ -114,3 +114,41 @@ def scheduled_jobs(workdir: Path, configfile: Path, *args: str) -> list[tuple[st
         )
         jobs.append((match.group(1), values))
     return jobs
+
+
+def bench_scene(sensor, plan, seed, bench=None):
+    """A validated scene on the simulated bench (hidden touch height up to ±0.1 mm by default)."""
+    from threedcal.config import validate_config
+
+    scene = {"sensor": sensor, "printer": "ender3", "plan": plan}
+    scene["bench"] = bench or {"touch_offset_mm": 0.1}
+    return validate_config({"seed": seed, "scenes": {"s": scene}})["scenes"]["s"]
+
+
+def collect_on_bench(folder, sensor, plan, seed, bench=None):
+    """Collect a scene on the simulated bench into folder/raw.zarr (its truth beside it)."""
+    from threedcal.collect.session import collect_scene
+
+    scene = bench_scene(sensor, plan, seed, bench)
+    collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)
+    return scene
+
+
+def collect_and_register(folder, sensor, plan, seed):
+    """collect_on_bench, then the dataset stage (folder/reg.json, ts/, ...): its record."""
+    from threedcal.dataset.build import build_collected
+
+    scene = collect_on_bench(folder, sensor, plan, seed)
+    paths = [folder / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
+    return build_collected(scene, folder / "raw.zarr", *paths, progress=False)
+
+
+@pytest.fixture(scope="session")
+def paper_digit_calibration(tmp_path_factory):
+    """A DIGIT calibrated on the bench at config/paper.yaml's depth (d = 2.0 mm = R: a vertical
+    contact rim), the default first-contact search first, a coarse grid (3 mm, one frame a point):
+    (scene, folder with raw.zarr, truth.json, reg.json, ..., the dataset stage's record)."""
+    folder = tmp_path_factory.mktemp("paper_digit")
+    plan = {"spacing_mm": 3.0, "depth_mm": 2.0, "frames": 1}
+    record = collect_and_register(folder, "digit", plan, 3)
+    return bench_scene("digit", plan, 3), folder, record

@@ -20,7 +20,7 @@ def scene(sensor="gelsight_mini", seed=4, **overrides):
     plan = (
         {"pattern": "cross", "spacing_mm": 2.0, "depths_mm": [1.0], "frames": 2}
         if sensor == "reskin"
-        else {"spacing_mm": 4.0, "depth_mm": 1.0, "frames": 2}
+        else {"spacing_mm": 4.0, "depth_mm": 1.0, "frames": 2, "touch_search": {"points": 1}}
     )
     raw = {"sensor": sensor, "printer": "ender3", "plan": plan, **overrides}
     return validate_config({"seed": seed, "scenes": {"s": raw}})["scenes"]["s"]
@@ -143,8 +143,9 @@ def small_store(tmp_path_factory):
     return path, config
 
 
+# frame 6 is the seventh touch-search step (one frame each) ahead of the grid
 @pytest.mark.parametrize(
-    "array, words", [("frames", "point 3 (frames, frame 6)"), ("cmd_x_mm", "cmd_x_mm")]
+    "array, words", [("frames", "point 6 (frames, frame 6)"), ("cmd_x_mm", "cmd_x_mm")]
 )
 def test_the_dataset_stage_refuses_a_store_with_a_missing_chunk(
     tmp_path, small_store, array, words

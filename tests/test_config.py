@@ -188,7 +188,8 @@ def test_depth_beyond_the_sensors_penetration_is_refused(tmp_path, capsys):
     """Repro: a depth beyond the sensor's maximum penetration was "valid"."""
     text = "scenes:\n  s: {sensor: gelsight_mini, printer: ender3, plan: {depth_mm: 9.0}}\n"
     code, err = check(tmp_path, text, capsys)
-    assert code == 1 and "scenes.s.plan, point 0: depth 9 mm" in err
+    # point 78: the first grid row, after the touch search's 3 x 26 rows
+    assert code == 1 and "scenes.s.plan, point 78: depth 9 mm" in err
     assert "beyond the sensor's maximum" in err
 
 

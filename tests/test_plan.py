@@ -5,9 +5,12 @@ import pytest
 from threedcal.collect.plan import (
     dome_sag_mm,
     grid_plan,
+    plan_from_config,
+    plan_phases,
     plan_to_printer,
     read_plan_csv,
     serpentine,
+    touch_search_plan,
     validate_plan,
 )
 from threedcal.errors import ConfigError
@@ -144,3 +147,87 @@ def test_target_outside_printer_travel_is_refused():
 
 def test_plan_to_printer_uses_mount_offsets():
     assert plan_to_printer(SENSOR, 1.0, 2.0, 1.5) == (111.0, 113.5, 135.5)
+
+
+MINI_LIKE = {**SENSOR, "type": "vision", "gel": {"max_penetration_mm": 3.5, "dome": None}}
+SEARCH = {"points": 3, "spread_mm": 1.5, "step_mm": 0.02, "beyond_mm": 0.1, "frames": 1}
+
+
+def test_touch_search_steps_through_the_nominal_touch_at_places_near_the_centre():
+    sensor = {
+        **SENSOR,
+        "type": "vision",
+        "probing": {**SENSOR["probing"], "touch_uncertainty_mm": 0.2},
+    }
+    rows = touch_search_plan(sensor, SEARCH)
+    assert (rows["phase"] == "touch").all() and len(rows) == 3 * 26
+    places = rows[["x_mm", "y_mm"]].drop_duplicates().to_numpy()
+    np.testing.assert_allclose(np.hypot(places[:, 0] - 8.0, places[:, 1] - 9.0), 1.5)
+    for x, y in places:  # each place: -0.2 .. +0.3 mm below the nominal touch, shallowest first
+        one = rows[(rows["x_mm"] == x) & (rows["y_mm"] == y)]
+        steps = one["depth_mm"].to_numpy() - dome_sag_mm(sensor, x, y)
+        np.testing.assert_allclose(steps, -0.2 + 0.02 * np.arange(26), atol=1e-6)
+    assert (
+        len(touch_search_plan(sensor, {**SEARCH, "points": 1})[["x_mm", "y_mm"]].drop_duplicates())
+        == 1
+    )
+    assert touch_search_plan(sensor, {**SEARCH, "points": 1})["x_mm"].iloc[0] == 8.0  # the centre
+
+
+def test_plan_from_config_starts_with_the_search_for_vision_sensors_only():
+    config = {"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 2, "touch_search": SEARCH}
+    plan = plan_from_config(config, MINI_LIKE)
+    touch = plan["phase"] == "touch"
+    assert touch.sum() == 78 and touch.iloc[:78].all() and not touch.iloc[78:].any()
+    validate_plan(plan, MINI_LIKE, PRINTER)  # steps above the gel are allowed for the search
+    magnetic = {**MINI_LIKE, "type": "magnetic"}
+    assert (plan_from_config(config, magnetic)["phase"] == "grid").all()
+    off = {**config, "touch_search": {**SEARCH, "points": 0}}
+    assert (plan_from_config(off, MINI_LIKE)["phase"] == "grid").all()
+
+
+def test_plan_phases_are_checked_against_the_collected_plan():
+    config = {"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 2, "touch_search": SEARCH}
+    plan = plan_from_config(config, MINI_LIKE)
+    stored = plan[["x_mm", "y_mm", "depth_mm", "frames"]].to_dict("list")
+    np.testing.assert_array_equal(plan_phases(stored, config, MINI_LIKE), plan["phase"])
+    other = {**config, "touch_search": {**SEARCH, "step_mm": 0.025}}
+    with pytest.raises(ConfigError, match="does not start with the touch search"):
+        plan_phases(stored, other, MINI_LIKE)
+
+
+def test_only_search_steps_may_sit_above_the_gel_and_never_above_clearance():
+    with pytest.raises(ConfigError, match="point 1: depth -0.1 mm is negative"):
+        validate_plan(plan_of((1, 1, 1, 1), (1, 1, -0.1, 1)), SENSOR, PRINTER, source="p")
+    high = {**SENSOR, "probing": {**SENSOR["probing"], "touch_uncertainty_mm": 2.5}}
+    rows = touch_search_plan(high, SEARCH)
+    with pytest.raises(ConfigError, match="touch search row 0: .* above the clearance height"):
+        validate_plan(rows, high, PRINTER, source="p")
+
+
+def test_cycled_depths_press_each_point_once_with_every_depth_over_the_area():
+    depths = [1.0, 2.0, 3.0]
+    every = grid_plan(MINI_LIKE, 1.0, depths, frames=3)
+    cycled = grid_plan(MINI_LIKE, 1.0, depths, frames=3, depth_mode="cycle")
+    one = grid_plan(MINI_LIKE, 1.0, 1.0, frames=3)
+    assert len(cycled) == len(one) == len(every) // 3  # the frame count of one depth
+    assert not cycled.duplicated(["x_mm", "y_mm"]).any()
+    # point (column i, row j) at depths[(i + j) mod 3]: every depth forms a diagonal lattice
+    expected = np.asarray(depths)[(cycled["x_mm"] + cycled["y_mm"]).round().astype(int) % 3]
+    np.testing.assert_array_equal(cycled["depth_mm"], expected)
+    counts = cycled["depth_mm"].value_counts()
+    assert counts.max() - counts.min() <= 1
+    # any half of the area (a training fraction) holds every depth in nearly equal shares
+    half = cycled[cycled["x_mm"] < 8]
+    assert half["depth_mm"].value_counts().max() / half["depth_mm"].value_counts().min() < 1.1
+    with pytest.raises(ConfigError, match="depth_mode 'sometimes' is not allowed"):
+        grid_plan(MINI_LIKE, 1.0, depths, frames=3, depth_mode="sometimes")
+
+
+def test_a_cycled_cross_is_one_pass_with_every_depth():
+    from threedcal.collect.plan import cross_plan
+
+    one_pass = cross_plan(MINI_LIKE, 1.0, [1.0], 1, arm_width_mm=6.0)
+    cycled = cross_plan(MINI_LIKE, 1.0, [1.0, 2.0, 3.0], 1, arm_width_mm=6.0, depth_mode="cycle")
+    assert len(cycled) == len(one_pass) and not cycled.duplicated(["x_mm", "y_mm"]).any()
+    assert set(cycled["depth_mm"]) == {1.0, 2.0, 3.0}

@@ -5,10 +5,12 @@ import pytest
 
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import (
+    ChangeDetector,
     RegistrationError,
     estimate_touch,
     find_contact,
     fit_affine,
+    fit_touch_onset,
     locate_contact,
     refine_by_symmetry,
     register,
@@ -213,3 +215,92 @@ def test_register_uses_only_the_rim_on_a_domed_gel():
     assert result.unmixing is None
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     assert error.max() < 0.5
+
+
+# ---------------------------------------------------------------- first-contact search
+
+
+def onset_series(delta, alphas=(12.0, 9.0, 15.0), step=0.02, uncertainty=0.2, beyond=0.1):
+    """Steps of a search at each place with area α (c + δ) once c + δ > 0 (a 0.01 mm² detection floor)."""
+    c = np.round(-uncertainty + step * np.arange(int((2 * uncertainty + beyond) / step) + 1), 6)
+    depth, place, area = [], [], []
+    for p, alpha in enumerate(alphas):
+        a = alpha * (c + delta)
+        depth.append(c)
+        place.append(np.full(c.shape, p))
+        area.append(np.where(a > 0.01, a, 0.0))
+    area = np.concatenate(area)
+    return np.concatenate(depth), np.concatenate(place), area, area > 0
+
+
+@pytest.mark.parametrize("delta", [-0.19, -0.0374, 0.0, 0.0831, 0.17])
+def test_touch_onset_is_where_the_contact_area_line_meets_zero(delta):
+    depth, place, area, touching = onset_series(delta)
+    result = fit_touch_onset(depth, place, area, touching, span_mm=0.1)
+    assert result.offset_mm == pytest.approx(delta, abs=1e-9)
+    np.testing.assert_allclose(result.place_offsets_mm, delta, atol=1e-9)
+    assert np.all(result.steps_fitted >= 5)  # 0.1 mm past the onset at 0.02 mm steps
+    # the onset step is the first with contact: within one step below -δ
+    assert np.all(
+        (result.onset_depth_mm > -delta) & (result.onset_depth_mm <= -delta + 0.02 + 1e-9)
+    )
+
+
+def test_touch_onset_takes_the_median_over_places():
+    depth, place, area, touching = onset_series(0.05)
+    area[place == 1] *= 1.3  # a place that reads every area 30 % large still meets zero there
+    area[(place == 2) & touching] += 0.5  # one whose areas carry a constant halo is off...
+    result = fit_touch_onset(depth, place, area, touching, span_mm=0.1)
+    assert result.place_offsets_mm[2] > 0.05 + 0.02
+    assert result.offset_mm == pytest.approx(0.05, abs=1e-9)  # ...and outvoted
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ("early", "contact already at the first step .* probing.touch_uncertainty_mm"),
+        ("late", "no contact even at the last step"),
+        ("short", "at least 3 are needed"),
+    ],
+)
+def test_a_search_that_misses_the_onset_says_which_setting_to_change(change, message):
+    delta = {"early": 0.25, "late": -0.32, "short": -0.19}[change]
+    depth, place, area, touching = onset_series(delta, beyond=0.1 if change != "short" else 0.02)
+    with pytest.raises(RegistrationError, match=message):
+        fit_touch_onset(depth, place, area, touching, span_mm=0.1 if change != "short" else 0.02)
+
+
+@pytest.fixture(scope="module")
+def mini_sim():
+    from threedcal.profiles import load_profile
+    from threedcal.sim.optics import GelSimulator
+
+    sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=2)
+    blanks = np.stack([sim.blank(frame_index=100 + i) for i in range(10)])
+    return sim, blanks
+
+
+def test_change_detector_sees_no_contact_in_blank_frames(mini_sim):
+    from scipy import stats
+
+    sim, blanks = mini_sim
+    detector = ChangeDetector.from_blanks(blanks, smooth_px=1.0)
+    assert detector.threshold >= stats.chi2.isf(1e-6, 3)
+    centre = (sim.width / 2, sim.height / 2)
+    for k in range(5):  # other noise, another exposure (the simulator's 1 % flicker)
+        assert detector.contact_radius_px(sim.blank(frame_index=500 + k), centre, 40.0) == 0.0
+
+
+@pytest.mark.parametrize("depth", [0.02, 0.06, 0.12])
+def test_change_detector_sizes_a_shallow_contact_by_its_half_peak_radius(mini_sim, depth):
+    """The half-peak radius of the change follows the contact radius a = sqrt(2Rd − d²): its
+    square grows in proportion to the depth (the blur adds a constant), which the search fits."""
+    from threedcal.sim.indenters import Sphere
+
+    sim, blanks = mini_sim
+    detector = ChangeDetector.from_blanks(blanks, smooth_px=1.0)
+    centre = (sim.width / 2 + 0.3, sim.height / 2 - 0.4)
+    frame = sim.render(Sphere(2.0), centre, 0.0, depth, frame_index=7)
+    radius_mm = detector.contact_radius_px(frame, centre, 40.0) / sim.px_per_mm
+    a = math.sqrt(2 * 2.0 * depth - depth**2)
+    assert 0.9 * a < radius_mm < 1.1 * a + 0.1  # + the blur's share

@@ -23,8 +23,22 @@ def coverage_figure(plan, sensor: Mapping, path: str | Path, title: str = "") ->
     width, height = sensor["probing"]["plan_area_mm"]
     fig, ax = plt.subplots(figsize=(5, 5 * height / width + 0.6), dpi=120)
     ax.add_patch(plt.Rectangle((0, 0), width, height, fill=False, lw=1, ec="0.5", ls="--"))
-    points = ax.scatter(plan["x_mm"], plan["y_mm"], c=plan["depth_mm"], s=12, cmap="viridis")
-    ax.plot(plan["x_mm"], plan["y_mm"], lw=0.3, c="0.7", zorder=0)  # the serpentine path
+    touch = plan["phase"] == "touch" if "phase" in plan else np.zeros(len(plan), dtype=bool)
+    grid = plan[~touch]
+    points = ax.scatter(grid["x_mm"], grid["y_mm"], c=grid["depth_mm"], s=12, cmap="viridis")
+    ax.plot(grid["x_mm"], grid["y_mm"], lw=0.3, c="0.7", zorder=0)  # the serpentine path
+    if touch.any():
+        places = plan.loc[touch, ["x_mm", "y_mm"]].drop_duplicates()
+        steps = int(touch.sum()) // len(places)
+        ax.scatter(
+            places["x_mm"],
+            places["y_mm"],
+            marker="x",
+            c="red",
+            s=40,
+            label=f"touch search ({steps} steps each)",
+        )
+        ax.legend(loc="upper right", fontsize=7)
     fig.colorbar(points, ax=ax, label="commanded depth (mm)")
     ax.set(
         xlabel="plan x (mm)",

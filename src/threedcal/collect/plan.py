@@ -5,6 +5,12 @@ A plan is a table in *plan-relative* millimetres (origin at the sensor's plan or
 apex the probe is commanded; on a domed gel the surface away from the apex sits lower, so a grid
 with dome compensation commands ``depth + sag(x, y)`` to keep the penetration even — the rule the
 authors' DIGIT plan follows. py3DCal plan CSVs (``x, y, depth, frames`` with a ``#`` header) load as is.
+
+A scene's plan (`plan_from_config`) also has a ``phase`` column: ``touch`` rows come first — a
+first-contact search that steps the probe down through the nominal touch height at a few places,
+one row per step, from which the dataset stage measures where the gel really is — then the
+``grid`` rows (grid, cross or CSV) that the model trains on. Touch rows may sit above the gel
+(negative depth); the collection loop and store carry them like any other row.
 """
 
 from __future__ import annotations
@@ -18,6 +24,9 @@ import pandas as pd
 from threedcal.errors import ConfigError
 
 PLAN_COLUMNS = ("x_mm", "y_mm", "depth_mm", "frames")
+DEPTH_MODES = ("every", "cycle")
+# The sensor schema's default of `probing.touch_uncertainty_mm`.
+DEFAULT_TOUCH_UNCERTAINTY_MM = 0.2
 # Size limits, checked before a plan is generated: the paper's densest plan has ~1,400 points and
 # ~40,000 frames; a mistyped spacing must not allocate gigabytes or queue months of printer time.
 MAX_PLAN_POINTS = 100_000
@@ -38,6 +47,23 @@ def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
     width, height = plan_area_mm(sensor)
     u = x - width / 2 - dome.get("apex_x_mm", 0.0)
     v = -(y - height / 2) - dome.get("apex_y_mm", 0.0)
+    return dome["kx_per_mm"] * u**2 + dome["ky_per_mm"] * v**2
+
+
+def dome_sag_at_px(sensor: Mapping, col, row) -> np.ndarray:
+    """How far the gel surface at image pixel (col, row) lies below its apex (the profile's
+    `gel.dome`, in image axes about the image centre at the profile's px/mm; 0 for a flat gel).
+
+    Where the registration has placed a press, this is its sag — the plan's `dome_sag_mm` assumes
+    the sensor sits exactly where its base puts it nominally."""
+    dome = sensor.get("gel", {}).get("dome")
+    col = np.asarray(col, dtype=float)
+    row = np.asarray(row, dtype=float)
+    if not dome:
+        return np.zeros(np.broadcast(col, row).shape)
+    scale = float(sensor["px_per_mm"])
+    u = (col - (sensor["image"]["width_px"] - 1) / 2) / scale - dome.get("apex_x_mm", 0.0)
+    v = (row - (sensor["image"]["height_px"] - 1) / 2) / scale - dome.get("apex_y_mm", 0.0)
     return dome["kx_per_mm"] * u**2 + dome["ky_per_mm"] * v**2
 
 
@@ -98,12 +124,14 @@ def grid_plan(
     depths_mm,
     frames: int,
     dome_compensation: bool = True,
+    depth_mode: str = "every",
 ) -> pd.DataFrame:
     """A regular grid over the sensor's probe area (profile `probing.plan_area_mm`), serpentine ordered.
 
-    With several depths each point is pressed at every one in the order listed before the
-    gantry moves on: a model trained on one depth learns that depth's contact size as a shape prior
-    and misjudges shallower or deeper objects."""
+    With several depths and `depth_mode` "every", each point is pressed at every one in the order
+    listed before the gantry moves on: a model trained on one depth learns that depth's contact
+    size as a shape prior and misjudges shallower or deeper objects. "cycle" presses each point
+    once, at the depth `_cycled` gives it: all depths over the whole area for the frames of one."""
     depths = _depths(depths_mm)
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
         raise ConfigError(f"plan spacing_mm must be a positive number, got {float(spacing_mm)}")
@@ -111,14 +139,34 @@ def grid_plan(
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
     ys = np.arange(0.0, height + 1e-9, spacing_mm)
     gx, gy = np.meshgrid(xs, ys)
-    x, y = np.repeat(gx.ravel(), len(depths)), np.repeat(gy.ravel(), len(depths))
-    depth = np.tile(depths, gx.size)
+    if _depth_mode(depth_mode) == "cycle":
+        x, y = gx.ravel(), gy.ravel()
+        depth = _cycled(depths, *np.indices(gx.shape)[::-1]).ravel()
+    else:
+        x, y = np.repeat(gx.ravel(), len(depths)), np.repeat(gy.ravel(), len(depths))
+        depth = np.tile(depths, gx.size)
     if dome_compensation:
         depth = depth + dome_sag_mm(sensor, x, y)
     plan = pd.DataFrame(
         {"x_mm": x, "y_mm": y, "depth_mm": np.round(depth, 4), "frames": int(frames)}
     )
     return serpentine(plan)  # stable: a point's depths keep their order
+
+
+def _depth_mode(mode: str) -> str:
+    if mode not in DEPTH_MODES:
+        raise ConfigError(
+            f"plan depth_mode {mode!r} is not allowed (allowed: {', '.join(DEPTH_MODES)})"
+        )
+    return mode
+
+
+def _cycled(depths: np.ndarray, column: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """The depth of grid point (column, row) when each point gets one: depths[(column + row) mod n].
+
+    Every depth then forms a diagonal lattice over the whole area, so any subset of coordinates
+    (the training fractions) holds every depth in nearly equal shares."""
+    return depths[(np.asarray(column) + np.asarray(row)) % len(depths)]
 
 
 def _depths(depths_mm) -> np.ndarray:
@@ -136,10 +184,12 @@ def cross_plan(
     depths_mm,
     frames: int,
     arm_width_mm: float,
+    depth_mode: str = "every",
 ) -> pd.DataFrame:
     """The authors' ReSkin plan shape: a grid over the probe area, kept where it lies within
     `arm_width_mm`/2 of the area's centre lines (a plus sign), repeated at every depth in turn, each
-    pass serpentine ordered. 1 mm spacing, arms 6 mm wide over 16 x 16 mm give 189 points a depth."""
+    pass serpentine ordered. 1 mm spacing, arms 6 mm wide over 16 x 16 mm give 189 points a depth.
+    `depth_mode` "cycle" makes one pass, each point at one depth (as in `grid_plan`)."""
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
         raise ConfigError(f"plan spacing_mm must be a positive number, got {float(spacing_mm)}")
     if arm_width_mm < 0 or not np.isfinite(arm_width_mm):
@@ -152,18 +202,77 @@ def cross_plan(
     half = arm_width_mm / 2 + 1e-9
     keep = (np.abs(gx - width / 2) <= half) | (np.abs(gy - height / 2) <= half)
     x, y = gx[keep], gy[keep]
-    passes = []
-    for depth in depths:
-        one = pd.DataFrame(
-            {
-                "x_mm": x,
-                "y_mm": y,
-                "depth_mm": np.round(depth + dome_sag_mm(sensor, x, y), 4),
-                "frames": int(frames),
-            }
+    if _depth_mode(depth_mode) == "cycle":
+        column, row = np.indices(gx.shape)[::-1]
+        passes = [_cycled(depths, column[keep], row[keep])]
+    else:
+        passes = [np.full(x.shape, depth) for depth in depths]
+    sag = dome_sag_mm(sensor, x, y)
+    return pd.concat(
+        [
+            serpentine(
+                pd.DataFrame(
+                    {
+                        "x_mm": x,
+                        "y_mm": y,
+                        "depth_mm": np.round(depth + sag, 4),
+                        "frames": int(frames),
+                    }
+                )
+            )
+            for depth in passes
+        ],
+        ignore_index=True,
+    )
+
+
+def touch_uncertainty_mm(sensor: Mapping) -> float:
+    """How far the gel's true first touch may lie from the profile's nominal `mount.z_touch_mm`."""
+    return float(sensor["probing"].get("touch_uncertainty_mm", DEFAULT_TOUCH_UNCERTAINTY_MM))
+
+
+def touch_search_depths(sensor: Mapping, search: Mapping) -> np.ndarray:
+    """Commanded depths (below the nominal touch) of one place's search, shallowest first: from
+    `touch_uncertainty_mm` above the nominal surface to `beyond_mm` past that much below it."""
+    uncertainty = touch_uncertainty_mm(sensor)
+    step, beyond = float(search["step_mm"]), float(search["beyond_mm"])
+    if not (np.isfinite(step) and step > 0 and np.isfinite(beyond) and beyond > 0):
+        raise ConfigError(
+            f"plan.touch_search: step_mm and beyond_mm must be positive, got {step!r}, {beyond!r}"
         )
-        passes.append(serpentine(one))
-    return pd.concat(passes, ignore_index=True)
+    count = int(np.floor((2 * uncertainty + beyond) / step + 1e-9)) + 1
+    return np.round(-uncertainty + step * np.arange(count), 6)
+
+
+def touch_search_plan(sensor: Mapping, search: Mapping) -> pd.DataFrame:
+    """The first-contact search rows (phase "touch"): `points` places on a circle of `spread_mm`
+    about the probe area's centre (one place: the centre), each stepped down through the nominal
+    touch height in `step_mm` steps (`touch_search_depths`), `frames` frames a step.
+
+    Near the centre: on a domed gel the apex sits there, where a seating error changes the sag
+    least. Each step is its own press (the probe lifts between rows), approached from above."""
+    points = int(search.get("points", 0))
+    columns = [*PLAN_COLUMNS, "phase"]
+    if points <= 0:
+        return pd.DataFrame({c: [] for c in columns}).astype({"frames": int})
+    width, height = plan_area_mm(sensor)
+    spread = float(search["spread_mm"])
+    angles = 2 * np.pi * np.arange(points) / points
+    cx = width / 2 + (spread * np.cos(angles) if points > 1 else np.zeros(1))
+    cy = height / 2 + (spread * np.sin(angles) if points > 1 else np.zeros(1))
+    steps = touch_search_depths(sensor, search)
+    x = np.repeat(np.round(cx, 6), len(steps))
+    y = np.repeat(np.round(cy, 6), len(steps))
+    depth = np.tile(steps, points) + dome_sag_mm(sensor, x, y)
+    return pd.DataFrame(
+        {
+            "x_mm": x,
+            "y_mm": y,
+            "depth_mm": np.round(depth, 6),
+            "frames": int(search["frames"]),
+            "phase": "touch",
+        }
+    )[columns]
 
 
 def serpentine(plan: pd.DataFrame, row_tolerance_mm: float = 1e-6) -> pd.DataFrame:
@@ -177,9 +286,15 @@ def serpentine(plan: pd.DataFrame, row_tolerance_mm: float = 1e-6) -> pd.DataFra
 
 
 def _describe_row(plan: pd.DataFrame, i: int, source: str) -> str:
-    if "line" in plan:
+    if _phase(plan, i) == "touch":
+        return f"{source}, touch search row {i}"
+    if "line" in plan and pd.notna(plan["line"].iloc[i]):
         return f"{source}, line {int(plan['line'].iloc[i])}"
     return f"{source}, point {i}"
+
+
+def _phase(plan: pd.DataFrame, i: int) -> str:
+    return str(plan["phase"].iloc[i]) if "phase" in plan else "grid"
 
 
 def validate_plan(
@@ -200,7 +315,16 @@ def validate_plan(
                 f"{where}: x, y, depth and frames must be finite numbers (got {x}, {y}, {depth}, {frames})"
             )
         penetration = depth - float(dome_sag_mm(sensor, x, y))
-        if depth < 0 or penetration > max_depth + margin:
+        if _phase(plan, i) == "touch":  # a search step may sit above the gel, never above clearance
+            if depth <= -float(sensor["mount"]["z_clearance_mm"]):
+                raise ConfigError(
+                    f"{where}: depth {depth:g} mm lies at or above the clearance height "
+                    f"({sensor['mount']['z_clearance_mm']:g} mm over the touch): lower "
+                    "probing.touch_uncertainty_mm"
+                )
+        elif depth < 0:
+            raise ConfigError(f"{where}: depth {depth:g} mm is negative (above the gel)")
+        if penetration > max_depth + margin:
             raise ConfigError(
                 f"{where}: depth {depth:g} mm gives {penetration:g} mm penetration, beyond the "
                 f"sensor's maximum of {max_depth:g} mm"
@@ -251,25 +375,65 @@ def check_plan_size(points: float, frames: float, what: str = "the plan") -> Non
 
 
 def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
-    """The plan a scene's `plan:` section describes (CSV, grid or cross)."""
+    """The plan a scene's `plan:` section describes: the touch search (vision sensors, when
+    `touch_search.points` > 0), then the grid rows (CSV, grid or cross); column `phase` tells them apart."""
     if plan_config.get("csv"):
-        plan = read_plan_csv(plan_config["csv"])
-        check_plan_size(len(plan), plan["frames"].sum(), str(plan_config["csv"]))
-        return plan
-    depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
-    spacing = float(plan_config["spacing_mm"])
-    if spacing > 0 and np.isfinite(spacing):
-        width, height = plan_area_mm(sensor)
-        points = (width // spacing + 1) * (height // spacing + 1) * len(depths)
-        check_plan_size(points, points * plan_config["frames"], f"spacing_mm={spacing:g}: the plan")
-    if plan_config.get("pattern", "grid") == "cross":
-        return cross_plan(
-            sensor,
-            spacing_mm=plan_config["spacing_mm"],
-            depths_mm=depths,
-            frames=plan_config["frames"],
-            arm_width_mm=plan_config.get("arm_width_mm", 6.0),
+        rows = read_plan_csv(plan_config["csv"])
+        check_plan_size(len(rows), rows["frames"].sum(), str(plan_config["csv"]))
+    else:
+        depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
+        mode = plan_config.get("depth_mode", "every")
+        spacing = float(plan_config["spacing_mm"])
+        if spacing > 0 and np.isfinite(spacing):
+            width, height = plan_area_mm(sensor)
+            points = (width // spacing + 1) * (height // spacing + 1)
+            points *= len(depths) if mode == "every" else 1
+            check_plan_size(
+                points, points * plan_config["frames"], f"spacing_mm={spacing:g}: the plan"
+            )
+        if plan_config.get("pattern", "grid") == "cross":
+            rows = cross_plan(
+                sensor,
+                spacing_mm=plan_config["spacing_mm"],
+                depths_mm=depths,
+                frames=plan_config["frames"],
+                arm_width_mm=plan_config.get("arm_width_mm", 6.0),
+                depth_mode=mode,
+            )
+        else:
+            rows = grid_plan(
+                sensor,
+                spacing_mm=plan_config["spacing_mm"],
+                depths_mm=depths,
+                frames=plan_config["frames"],
+                depth_mode=mode,
+            )
+    rows = rows.assign(phase="grid")
+    search = touch_search_of(plan_config, sensor)
+    if search.empty:
+        return rows
+    return pd.concat([search, rows], ignore_index=True)
+
+
+def touch_search_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
+    """The touch-search rows a scene's plan starts with (none for a magnetic sensor or 0 points)."""
+    search = plan_config.get("touch_search") or {}
+    if sensor.get("type") != "vision" or int(search.get("points", 0)) <= 0:
+        return touch_search_plan(sensor, {"points": 0})
+    return touch_search_plan(sensor, search)
+
+
+def plan_phases(stored_plan: Mapping, plan_config: Mapping, sensor: Mapping) -> np.ndarray:
+    """The phase of every row of a collected plan (a store's ``plan`` attribute: x_mm, y_mm,
+    depth_mm, frames lists), checked against the touch search its config describes."""
+    n_rows = len(stored_plan["x_mm"])
+    search = touch_search_of(plan_config, sensor)
+    n_touch = len(search)
+    stored = np.column_stack([np.asarray(stored_plan[c], dtype=float) for c in PLAN_COLUMNS])
+    expected = search[list(PLAN_COLUMNS)].to_numpy(dtype=float)
+    if n_touch > n_rows or not np.allclose(stored[:n_touch], expected, atol=1e-6):
+        raise ConfigError(
+            "the collected plan does not start with the touch search its plan.touch_search "
+            f"describes ({n_touch} rows): was the store collected with another config?"
         )
-    return grid_plan(
-        sensor, spacing_mm=plan_config["spacing_mm"], depths_mm=depths, frames=plan_config["frames"]
-    )
+    return np.array(["touch"] * n_touch + ["grid"] * (n_rows - n_touch))

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from threedcal.dataset.importers import load_imported
+from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
+from threedcal.errors import ConfigError
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -34,7 +37,7 @@ def build_imported(
         fractions=tuple(training_fractions(scene)),
         replicates=ablation_replicates(scene),
     )
-    trainset.max_slope_deg = float(scene["dataset"]["max_slope_deg"])
+    trainset.max_slope_deg = check_max_slope(scene["dataset"]["max_slope_deg"])
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
     xy = np.full((int(data.point.max()) + 1, 2), np.nan)
@@ -65,6 +68,89 @@ def _registration_figure(
     plt.close(fig)
 
 
+@dataclass
+class RegisteredStore:
+    """A collected store with its registration: what labels and the touch height are made from.
+
+    Frames are indexed as in the store; `phase` and `first`/`last` (frame range) per plan row."""
+
+    raw: object  # the store as an xarray Dataset
+    sensor: dict
+    plan_config: dict  # the plan section the store was collected with
+    phase: np.ndarray  # per plan row: "touch" or "grid"
+    first: np.ndarray
+    last: np.ndarray
+    registration: object  # threedcal.dataset.registration.Registration (grid rows only)
+    centres: np.ndarray  # (frames, 2) where the affine puts each frame's probe, px
+    nominal_depth: np.ndarray  # (frames,) commanded depth below the gel surface there, mm
+
+    @property
+    def px_per_mm(self) -> float:
+        return float(np.mean(self.registration.fit.px_per_mm))
+
+    def rows(self, phase: str) -> np.ndarray:
+        return np.flatnonzero(self.phase == phase)
+
+    def mean_frame(self, row: int) -> np.ndarray:
+        """One plan row's frames averaged (less noise than any one), uint8."""
+        return _mean_frame(self.raw, self.first[row], self.last[row])
+
+
+def _mean_frame(raw, start: int, stop: int) -> np.ndarray:
+    stack = raw["frames"][start:stop].values.astype(np.float32)
+    return np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8)
+
+
+def register_store(
+    scene: Mapping,
+    store_path: str | Path,
+    progress: bool = True,
+    expect_digest: str | None = None,
+) -> RegisteredStore:
+    """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
+    its frames), and each frame's depth below the gel where the affine places it. The store is
+    read whole and checked (`threedcal.collect.store.open_checked`)."""
+    from threedcal.collect.plan import dome_sag_at_px, plan_phases
+    from threedcal.collect.store import open_checked
+    from threedcal.dataset.registration import register
+    from threedcal.profiles import load_profile
+
+    sensor = load_profile("sensor", scene["sensor"])
+    raw = open_checked(store_path, expect_digest)
+    height, width = raw["frames"].shape[1:3]
+    point_of_frame = raw["point"].values
+    n_rows = int(point_of_frame.max()) + 1
+    plan_config = raw.attrs.get("config", {}).get("plan", {})
+    phase = plan_phases(raw.attrs["plan"], plan_config, raw.attrs.get("sensor_profile", sensor))
+    first = np.searchsorted(point_of_frame, np.arange(n_rows))
+    last = np.searchsorted(point_of_frame, np.arange(n_rows), side="right")
+    cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
+
+    def whole(contact) -> bool:  # the rim and a margin inside the image
+        margin = contact.radius_px + 5
+        return (
+            margin <= contact.x_px <= width - 1 - margin
+            and margin <= contact.y_px <= height - 1 - margin
+        )
+
+    grid = np.flatnonzero(phase == "grid")
+    registration = register(
+        cmd_xy[first[grid]],
+        [_mean_frame(raw, first[p], last[p]) for p in grid],
+        raw["blank_frames"].values.astype(np.float32).mean(axis=0),
+        accept=whole,
+        flat_gel=sensor["gel"].get("dome") is None,
+        progress=progress,
+    )
+    centres = registration.fit.apply(cmd_xy)
+    # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
+    # registration says, and the sag there is what the press's depth is measured from.
+    depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
+    return RegisteredStore(
+        raw, sensor, plan_config, phase, first, last, registration, centres, depth
+    )
+
+
 def build_collected(
     scene: Mapping,
     store_path: str | Path,
@@ -80,66 +166,37 @@ def build_collected(
 
     Labels use only what a real user knows: the sphere, the plan and the registration fitted here.
     The bench's hidden truth (simulated scenes) is read only to report the registration's error.
-    The store is read back whole and checked first (complete, every point captured, every chunk
-    present and readable; `expect_digest`: the frame settings collect/summary.json recorded).
+    The affine comes from the plan's grid rows; the touch height from its first-contact search
+    (the touch rows, which only serve that: they are not training frames), or, for a plan
+    without one, from the grid's contact radii (docs/registration.md). The store is read back
+    whole and checked first (complete, every point captured, every chunk present and readable;
+    `expect_digest`: the frame settings collect/summary.json recorded).
     """
     import json
 
-    from threedcal.collect.plan import dome_sag_mm
-    from threedcal.collect.store import open_checked
     from threedcal.config import ablation_replicates, training_fractions
     from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.registration import estimate_touch, register
     from threedcal.dataset.splits import in_field_of_view, min_p_column, split_points
-    from threedcal.profiles import load_profile
 
-    sensor = load_profile("sensor", scene["sensor"])
     radius_mm = float(scene["probe"]["radius_mm"])
-    raw = open_checked(store_path, expect_digest)
+    store = register_store(scene, store_path, progress, expect_digest)
+    raw, sensor, registration = store.raw, store.sensor, store.registration
+    fit, centres, px_per_mm = registration.fit, store.centres, store.px_per_mm
     frames = raw["frames"]
     height, width = frames.shape[1:3]
-    blank = raw["blank_frames"].values.astype(np.float32).mean(axis=0)
-    point_of_frame = raw["point"].values
-    n_points = int(point_of_frame.max()) + 1
     cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
     plan_xy = np.column_stack([raw["x_mm"].values, raw["y_mm"].values])
-    nominal_depth = raw["depth_mm"].values - dome_sag_mm(sensor, plan_xy[:, 0], plan_xy[:, 1])
-    # One contact per point, from the mean of its frames (less noise than any single frame).
-    first = np.searchsorted(point_of_frame, np.arange(n_points))
-    last = np.searchsorted(point_of_frame, np.arange(n_points), side="right")
-    means = [
-        np.clip(
-            frames[first[p] : last[p]].values.astype(np.float32).mean(axis=0) + 0.5, 0, 255
-        ).astype(np.uint8)
-        for p in range(n_points)
-    ]
-
-    def whole(contact) -> bool:  # the rim and a margin inside the image
-        margin = contact.radius_px + 5
-        return (
-            margin <= contact.x_px <= width - 1 - margin
-            and margin <= contact.y_px <= height - 1 - margin
-        )
-
-    flat = sensor["gel"].get("dome") is None
-    registration = register(
-        cmd_xy[first], means, blank, accept=whole, flat_gel=flat, progress=progress
+    method = "search" if len(store.rows("touch")) else "rim"
+    touch = touch_height(store, radius_mm, method, progress)
+    offset = touch["touch_offset_mm"]
+    # Labels for every grid frame whose probe centre the registration puts inside the image.
+    depth = np.clip(store.nominal_depth + offset, 0.0, None)
+    inside = (
+        in_field_of_view(centres[:, 0], centres[:, 1], width, height)
+        & (depth > 0)
+        & (store.phase[raw["point"].values] == "grid")
     )
-    fit = registration.fit
-    inlier_points = np.flatnonzero(fit.inliers)
-    estimate = estimate_touch(
-        nominal_depth[first][inlier_points],
-        np.array([registration.contacts[p].radius_px for p in inlier_points])
-        / np.mean(fit.px_per_mm),
-        radius_mm,
-    )
-    touch = estimate.offset_mm
-    # Labels for every frame whose probe centre the registration puts inside the image.
-    centres = fit.apply(cmd_xy)
-    depth = np.clip(nominal_depth + touch, 0.0, None)
-    inside = in_field_of_view(centres[:, 0], centres[:, 1], width, height) & (depth > 0)
     keep = np.flatnonzero(inside)
-    px_per_mm = float(np.mean(fit.px_per_mm))
     coords = pd.DataFrame({"x_mm": plan_xy[keep, 0], "y_mm": plan_xy[keep, 1]})
     coordinate_id = coords.groupby(["x_mm", "y_mm"], sort=True).ngroup().to_numpy()
     unique = coords.assign(point=coordinate_id).drop_duplicates("point").sort_values("point")
@@ -164,11 +221,11 @@ def build_collected(
     )
     trainset = TrainingSet(
         frames=frames.values[keep],
-        blank=blank,
+        blank=raw["blank_frames"].values.astype(np.float32).mean(axis=0),
         samples=samples.assign(frame=np.arange(len(keep))),
         px_per_mm=px_per_mm,
         sphere_radius_mm=radius_mm,
-        max_slope_deg=float(scene["dataset"]["max_slope_deg"]),
+        max_slope_deg=check_max_slope(scene["dataset"]["max_slope_deg"]),
         meta={"source": "collected", "store_frames": keep.tolist()},
     )
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
@@ -189,9 +246,9 @@ def build_collected(
         "channel_unmixing": None
         if registration.unmixing is None
         else registration.unmixing.round(4).tolist(),
-        "touch_offset_mm": round(touch, 4),
-        "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + touch, 4),
-        "rim_edge_offset_mm": None if estimate.edge_mm is None else round(estimate.edge_mm, 4),
+        **{k: v for k, v in touch.items() if k != "touch_offset_mm"},
+        "touch_offset_mm": round(offset, 4),
+        "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + offset, 4),
         "frames_in_view": int(len(keep)),
         "probe_points_in_view": int(len(unique)),
     }
@@ -204,7 +261,7 @@ def build_collected(
             error = np.linalg.norm(fit.apply(probe) - true_px, axis=1)
             record["error_px"] = round(float(np.sqrt(np.mean(error**2))), 4)
             record["error_px_max"] = round(float(error.max()), 4)
-            record["touch_offset_error_mm"] = round(touch - float(truth["touch_offset_mm"]), 4)
+            record["touch_offset_error_mm"] = round(offset - float(truth["touch_offset_mm"]), 4)
     Path(registration_path).write_text(json.dumps(record, indent=2) + "\n")
     picks = (
         np.linspace(0, len(trainset.samples) - 1, min(5, len(trainset.samples))).round().astype(int)
@@ -213,6 +270,61 @@ def build_collected(
         trainset,
         list(picks),
         figure_path,
-        f"registration: residual {fit.residual_px:.2f} px, touch offset {touch:+.3f} mm",
+        f"registration: residual {fit.residual_px:.2f} px, touch offset {offset:+.3f} mm",
     )
     return record
+
+
+def touch_height(
+    store: RegisteredStore, radius_mm: float, method: str, progress: bool = False
+) -> dict:
+    """registration.json's touch fields, by `method`: "search" (the plan's first-contact search,
+    the default) or "rim" (the grid's contact radii; d < R only, see docs/registration.md)."""
+    from threedcal.dataset.registration import estimate_touch, measure_touch_search
+
+    fit = store.registration.fit
+    if method == "search":
+        touch = store.rows("touch")
+        if not len(touch):
+            raise ConfigError("the plan has no touch search (plan.touch_search.points is 0)")
+        rows = store.first[touch]
+        xy = np.column_stack([store.raw["x_mm"].values[rows], store.raw["y_mm"].values[rows]])
+        places, place = np.unique(xy, axis=0, return_inverse=True)
+        result = measure_touch_search(
+            [store.mean_frame(p) for p in touch],
+            store.raw["blank_frames"].values,
+            store.nominal_depth[rows],
+            place.ravel(),
+            store.centres[rows],
+            store.px_per_mm,
+            reach_mm=radius_mm,
+            span_mm=float(store.plan_config["touch_search"]["beyond_mm"]),
+            progress=progress,
+        )
+        return {
+            "touch_offset_mm": result.offset_mm,
+            "touch_method": "search",
+            "rim_edge_offset_mm": None,
+            "touch_search": {
+                "places_mm": places.round(4).tolist(),
+                "offset_mm_by_place": result.place_offsets_mm.round(4).tolist(),
+                "onset_depth_mm_by_place": result.onset_depth_mm.round(4).tolist(),
+                "steps_fitted_by_place": result.steps_fitted.tolist(),
+                "frames": int((store.last[touch] - store.first[touch]).sum()),
+            },
+        }
+    if method != "rim":
+        raise ConfigError(f"touch height method {method!r} is not allowed (allowed: search, rim)")
+    used = np.flatnonzero(fit.inliers)
+    grid = store.rows("grid")[used]
+    estimate = estimate_touch(
+        store.nominal_depth[store.first[grid]],
+        np.array([store.registration.contacts[i].radius_px for i in used]) / store.px_per_mm,
+        radius_mm,
+    )
+    return {
+        "touch_offset_mm": estimate.offset_mm,
+        "touch_method": "rim",
+        "rim_edge_offset_mm": None if estimate.edge_mm is None else round(estimate.edge_mm, 4),
+        "touch_search": None,
+    }

@@ -642,3 +642,252 @@ def estimate_touch(
         residual, start, bounds=([low, -R / 2], [R, R / 2]), loss="soft_l1", f_scale=0.02
     )
     return TouchEstimate(float(fit.x[0]), float(fit.x[1]))
+
+
+# Pixels at or beyond these levels in a blank or a frame carry no shading change: left out.
+DARK_DN = 3
+
+
+@dataclass(frozen=True)
+class ChangeDetector:
+    """Where a frame differs from the blank beyond its noise, measured on the blank frames themselves.
+
+    A frame's change is frame − g · blank per channel (g: the frame's exposure gain, a median ratio,
+    so an LED or exposure flicker is not taken for contact), smoothed over `smooth_px`, saturated or
+    black pixels left out. Its noise `sigma` (per channel) is measured by the same recipe on each
+    blank frame against the mean of the others. A pixel is significant where the sum over channels
+    of (change / sigma)² exceeds `threshold`: the larger of the χ²(3) level of `false_alarm` per
+    pixel and twice the largest value any blank frame reached, so correlated noise or a flickering
+    hot spot raises the bar instead of reading as contact.
+    """
+
+    blank: np.ndarray  # (H, W, 3) float32, the mean of the blank frames
+    usable: np.ndarray  # (H, W, 3) bool: neither saturated nor black in any blank frame
+    sigma: np.ndarray  # (3,) noise of one frame's smoothed change
+    threshold: float
+    smooth_px: float
+
+    @classmethod
+    def from_blanks(
+        cls, blank_frames: np.ndarray, smooth_px: float = 1.5, false_alarm: float = 1e-6
+    ) -> ChangeDetector:
+        from scipy import stats
+
+        frames = np.asarray(blank_frames, dtype=np.float32)
+        if frames.ndim != 4 or frames.shape[-1] != 3 or len(frames) < 3:
+            raise RegistrationError(
+                f"the touch search needs >= 3 RGB blank frames (N, H, W, 3) to measure the "
+                f"noise, got {frames.shape} (the sensor profile's probing.n_blank)"
+            )
+        usable = ~((frames >= SATURATED_DN) | (frames <= DARK_DN)).any(axis=0)
+        total = frames.sum(axis=0)
+        changes = [
+            _smoothed_change(f, (total - f) / (len(frames) - 1), usable, smooth_px) for f in frames
+        ]
+        sigma = np.median(
+            [
+                [1.4826 * float(np.median(np.abs(c[..., k][usable[..., k]]))) for k in range(3)]
+                for c in changes
+            ],
+            axis=0,
+        )
+        sigma = np.maximum(sigma, 1e-3)
+        # One blank frame against the mean of the others has (1 + 1/(n − 1)) / (1 + 1/n) the
+        # variance of a frame against the mean of all: the levels below are conservative.
+        blank_peak = max(float((((c / sigma) ** 2).sum(axis=-1)).max()) for c in changes)
+        threshold = max(float(stats.chi2.isf(false_alarm, 3)), 2.0 * blank_peak)
+        return cls(frames.mean(axis=0), usable, sigma, threshold, float(smooth_px))
+
+    def significance(self, frame: np.ndarray, window=None) -> np.ndarray:
+        """Sum over channels of (smoothed change / noise)²: ~χ²(3) where nothing changed.
+
+        (H, W), or the (y0, y1, x0, x1) `window` of it (the exposure gain is still the frame's)."""
+        frame = np.asarray(frame, dtype=np.float32)
+        if frame.shape != self.blank.shape:
+            raise RegistrationError(
+                f"frame shape {frame.shape} differs from blank shape {self.blank.shape}"
+            )
+        usable = self.usable & (frame < SATURATED_DN) & (frame > DARK_DN)
+        change = _smoothed_change(frame, self.blank, usable, self.smooth_px, window)
+        return ((change / self.sigma) ** 2).sum(axis=-1)
+
+    def contact_radius_px(
+        self, frame: np.ndarray, centre_px, reach_px: float, level: float = 0.5, bin_px: float = 0.5
+    ) -> float:
+        """Radius of the contact about `centre_px`: where the ring-averaged change magnitude falls
+        to `level` of its peak on the way out; 0 when nothing within `reach_px` is significant.
+
+        A fraction of the peak, not of the noise: a noise-relative edge moves outward as the
+        contrast grows (the change of a shallow sphere has no sharp border), a peak-relative one
+        scales with the contact. Averaging over rings keeps the one-sided patterns of the LEDs
+        (bright toward one, dark away from it) from splitting the contact into lobes."""
+        height, width = self.blank.shape[:2]
+        cx, cy = (float(v) for v in centre_px)
+        y0, y1 = max(int(cy - reach_px) - 1, 0), min(int(cy + reach_px) + 2, height)
+        x0, x1 = max(int(cx - reach_px) - 1, 0), min(int(cx + reach_px) + 2, width)
+        if y1 <= y0 or x1 <= x0:
+            return 0.0
+        q = self.significance(frame, (y0, y1, x0, x1))
+        rows, cols = np.ogrid[y0:y1, x0:x1]
+        r = np.sqrt((cols - cx) ** 2 + (rows - cy) ** 2)
+        near = r <= reach_px
+        if not near.any() or float(q[near].max()) <= self.threshold:
+            return 0.0
+        ring = (r[near] / bin_px).astype(np.int64)
+        counts = np.bincount(ring)
+        profile = np.bincount(ring, weights=np.sqrt(q[near])) / np.maximum(counts, 1)
+        peak = int(np.argmax(profile))
+        edge = level * profile[peak]
+        below = np.flatnonzero(profile[peak:] < edge)
+        if below.size == 0:
+            return float(reach_px)
+        j = peak + int(below[0]) - 1  # last ring above the edge; interpolate to the crossing
+        fraction = (profile[j] - edge) / (profile[j] - profile[j + 1])
+        return float((j + 0.5 + fraction) * bin_px)
+
+
+def _smoothed_change(frame, reference, usable, smooth_px: float, window=None) -> np.ndarray:
+    """frame − (g · reference + o) per channel over usable pixels, normalised-Gaussian smoothed:
+    (H, W, 3), or (h, w, 3) over `window` (y0, y1, x0, x1). Gain g and offset o (an exposure or
+    LED flicker is no contact) are medians over the whole frame, every other pixel each way."""
+    height, width, channels = frame.shape
+    y0, y1, x0, x1 = window or (0, height, 0, width)
+    pad = int(np.ceil(4 * smooth_px))
+    py0, py1, px0, px1 = (
+        max(y0 - pad, 0),
+        min(y1 + pad, height),
+        max(x0 - pad, 0),
+        min(x1 + pad, width),
+    )
+    out = np.zeros((y1 - y0, x1 - x0, channels), dtype=np.float32)
+    for k in range(channels):
+        ok = usable[..., k]
+        sample = ok[::2, ::2]
+        if not sample.any():
+            continue
+        f, ref = frame[::2, ::2, k][sample], reference[::2, ::2, k][sample]
+        gain = float(np.median(f)) / max(float(np.median(ref)), 1e-6)
+        offset = float(np.median(f - gain * ref))
+        ok = ok[py0:py1, px0:px1]
+        change = frame[py0:py1, px0:px1, k] - gain * reference[py0:py1, px0:px1, k] - offset
+        change = np.where(ok, change, 0.0).astype(np.float32)
+        weight = ndimage.gaussian_filter(ok.astype(np.float32), smooth_px)
+        smooth = ndimage.gaussian_filter(change, smooth_px)
+        smooth = np.where(weight > 0.5, smooth / np.maximum(weight, 1e-6), 0.0)
+        out[..., k] = smooth[y0 - py0 : y1 - py0, x0 - px0 : x1 - px0]
+    return out
+
+
+@dataclass(frozen=True)
+class TouchSearch:
+    """The first-contact search's answer: δ with true depth = commanded + δ, and how it was found."""
+
+    offset_mm: float  # the median over places
+    place_offsets_mm: np.ndarray  # δ of each place
+    onset_depth_mm: np.ndarray  # per place: the commanded depth of the first step with contact
+    steps_fitted: np.ndarray  # per place: steps in the fit
+    area_mm2: np.ndarray  # per step: the contact area the fit saw (0 without contact)
+
+
+# The two smoothing widths (px) the contact size is measured at; see `measure_touch_search`.
+TOUCH_SMOOTHING_PX = (1.0, 2.0)
+
+
+def measure_touch_search(
+    frames,
+    blank_frames: np.ndarray,
+    depth_mm: np.ndarray,
+    place: np.ndarray,
+    centres_px: np.ndarray,
+    px_per_mm: float,
+    reach_mm: float,
+    span_mm: float,
+    progress: bool = False,
+) -> TouchSearch:
+    """δ from the frames of a first-contact search: one frame per step (`frames[i]` at commanded
+    depth `depth_mm[i]`, below the nominal touch and corrected for the gel's sag there, at place
+    `place[i]`, its contact expected at `centres_px[i]` from the registration).
+
+    Each frame's contact is detected against the blank's own noise (`ChangeDetector`) and sized by
+    its half-peak radius, at two smoothing widths s₁ < s₂. Smoothing (like the camera's blur)
+    widens a contact's image, adding to its area a constant ∝ s² — which a linear fit of area
+    against depth cannot tell from δ. The two widths remove that share: A₀ = A₁ − (A₂ − A₁) s₁² /
+    (s₂² − s₁²). `fit_touch_onset` then finds where A₀ grows from.
+    """
+    s1, s2 = TOUCH_SMOOTHING_PX
+    detectors = [ChangeDetector.from_blanks(blank_frames, smooth_px=s) for s in (s1, s2)]
+    reach_px = reach_mm * px_per_mm
+    radii = np.zeros((len(depth_mm), 2))
+    for i in tqdm(range(len(depth_mm)), desc="touch search", unit="frame", disable=not progress):
+        frame = np.asarray(frames[i])
+        for k, detector in enumerate(detectors):
+            radii[i, k] = detector.contact_radius_px(frame, centres_px[i], reach_px)
+    touching = (radii > 0).all(axis=1)
+    areas = np.pi * (radii / px_per_mm) ** 2
+    area0 = np.where(
+        touching, areas[:, 0] - (areas[:, 1] - areas[:, 0]) * s1**2 / (s2**2 - s1**2), 0
+    )
+    return fit_touch_onset(depth_mm, place, area0, touching, span_mm)
+
+
+def fit_touch_onset(
+    depth_mm: np.ndarray,
+    place: np.ndarray,
+    area_mm2: np.ndarray,
+    touching: np.ndarray,
+    span_mm: float,
+) -> TouchSearch:
+    """δ from the contact area A against commanded depth c at each place of a first-contact search.
+
+    Contact begins where c + δ = 0. At small depths the contact area of a sphere grows in
+    proportion to the depth whatever the gel's mechanics (rigid: πa² = π(2Rd − d²); an elastic
+    half-space: a² ≈ Rd), so A = α (c + δ) near the onset, α free per place (the law, the LEDs).
+    From the first step after which every step shows contact (`touching`), the steps within
+    `span_mm` are fitted by least squares and δ is the line's zero; the median over places is
+    returned. Contact at a place's first step, none at its last, or fewer than 3 steps to fit
+    are errors that say which setting to change.
+    """
+    depth = np.asarray(depth_mm, dtype=float)
+    area = np.asarray(area_mm2, dtype=float)
+    touching = np.asarray(touching, dtype=bool)
+    place = np.asarray(place)
+    offsets, onsets, used = [], [], []
+    for p in np.unique(place):
+        rows = np.flatnonzero(place == p)
+        rows = rows[np.argsort(depth[rows], kind="stable")]
+        c, a, on = depth[rows], area[rows], touching[rows]
+        if on[0]:
+            raise RegistrationError(
+                f"touch search place {p}: contact already at the first step ({c[0]:+.3f} mm): "
+                "the gel sits higher than the search starts — raise the sensor profile's "
+                "probing.touch_uncertainty_mm — or the image drifted from the blank frames"
+            )
+        if not on[-1]:
+            raise RegistrationError(
+                f"touch search place {p}: no contact even at the last step ({c[-1]:+.3f} mm): "
+                "the gel sits lower than the search reaches — raise probing.touch_uncertainty_mm "
+                "or plan.touch_search.beyond_mm"
+            )
+        onset = int(np.flatnonzero(~on)[-1]) + 1  # contact from here on
+        fit = np.flatnonzero((np.arange(len(c)) >= onset) & (c <= c[onset] + span_mm + 1e-9))
+        if len(fit) < 3:
+            raise RegistrationError(
+                f"touch search place {p}: {len(fit)} steps with contact within {span_mm:g} mm "
+                "of its onset; at least 3 are needed (a smaller step_mm or a larger beyond_mm)"
+            )
+        slope, intercept = np.polyfit(c[fit], a[fit], 1)
+        if not slope > 0:
+            raise RegistrationError(
+                f"touch search place {p}: the contact does not grow with depth (slope {slope:.3g})"
+            )
+        offsets.append(intercept / slope)
+        onsets.append(c[onset])
+        used.append(len(fit))
+    offsets = np.asarray(offsets)
+    return TouchSearch(
+        offset_mm=float(np.median(offsets)),
+        place_offsets_mm=offsets,
+        onset_depth_mm=np.asarray(onsets),
+        steps_fitted=np.asarray(used),
+        area_mm2=area,
+    )

@@ -7,10 +7,10 @@ On disk (``results/{scene}/dataset/``)::
     samples.csv   one row per frame: frame, point, center_x_px, center_y_px, depth_mm,
                   eval_radius_px, split (train/val), min_p (and min_p_r1 ... for replicates
                   1 .. R-1, threedcal.dataset.splits) — parsed once, into arrays
-    meta.json     px_per_mm, sphere_radius_mm, max_slope_deg, downscale, source
+    meta.json     px_per_mm, sphere_radius_mm, max_slope_deg (null: no clamp), downscale, source
 
-Labels are not stored: they are the exact sphere gradients of (centre, depth, radius) computed on
-demand for any window (threedcal.dataset.labels), so a sub-pixel registration change never leaves
+Labels are not stored: they are the exact sphere gradients (each pixel's mean slope) of
+(centre, depth, radius) computed on demand for any window (threedcal.dataset.labels), so a sub-pixel registration change never leaves
 stale label images behind. Inputs are (frame − blank)/255 as three channels plus two coordinate
 channels, x and y of each pixel normalised to [-1, 1] over the full image — the network learns
 position-dependent illumination from them, also when it trains on patches.
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.dataset.labels import DEFAULT_MAX_SLOPE_DEG, sphere_gradients
+from threedcal.dataset.labels import DEFAULT_MAX_SLOPE_DEG, check_max_slope, sphere_gradients
 from threedcal.errors import ConfigError
 
 SAMPLE_COLUMNS = (
@@ -70,7 +70,7 @@ class TrainingSet:
     samples: pd.DataFrame  # SAMPLE_COLUMNS
     px_per_mm: float
     sphere_radius_mm: float
-    max_slope_deg: float = DEFAULT_MAX_SLOPE_DEG
+    max_slope_deg: float | None = DEFAULT_MAX_SLOPE_DEG  # None: physical labels, no clamp
     meta: dict | None = None
 
     def __post_init__(self) -> None:
@@ -174,7 +174,7 @@ class TrainingSet:
             samples=samples,
             px_per_mm=float(meta["px_per_mm"]),
             sphere_radius_mm=float(meta["sphere_radius_mm"]),
-            max_slope_deg=float(meta.get("max_slope_deg", DEFAULT_MAX_SLOPE_DEG)),
+            max_slope_deg=check_max_slope(meta.get("max_slope_deg", DEFAULT_MAX_SLOPE_DEG)),
             meta=meta,
         )
 
