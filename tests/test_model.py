@@ -354,3 +354,20 @@ def test_skirt_reach_moves_contact_patches_off_the_contact():
     assert np.abs(offsets(0.0)).max() <= 12 / 3 + 1
     far = np.abs(offsets(2.0))
     assert far.max() > 8 and far.max() <= 2.0 * 6.0 + 1  # eval_radius_px is 6
+
+
+def test_multiscale_sees_past_the_contact_at_a_fraction_of_its_cost():
+    # the quarter-resolution branch reaches about +-70 px (context: +-33), where a 40 px contact ends
+    torch.manual_seed(0)
+    model = build_model("multiscale").eval()
+    x = torch.zeros(1, 5, 161, 161)
+    bumped = x.clone()
+    bumped[0, :3, 80, 80] = 1.0
+    with torch.no_grad():
+        changed = (model(bumped) - model(x)).abs().amax(dim=(0, 1)) > 0
+    rows, cols = torch.nonzero(changed, as_tuple=True)
+    assert int((rows - 80).abs().min()) == 0
+    assert 60 <= int((rows - 80).abs().max()) <= 80 and 60 <= int((cols - 80).abs().max()) <= 80
+    # an odd-sized input keeps its size (the pooled branch is upsampled back to it)
+    with torch.no_grad():
+        assert model(torch.zeros(1, 5, 37, 45)).shape == (1, 2, 37, 45)

@@ -28,6 +28,10 @@ def build_imported(
     data = load_imported(scene["import"]["format"], scene["import"]["path"])
     trainset = from_imported(data, seed=scene["seed"])
     trainset.max_slope_deg = float(scene["dataset"]["max_slope_deg"])
+    if scene["dataset"].get("refine_labels"):
+        from threedcal.dataset.refine import refine_labels
+
+        trainset = refine_labels(trainset)
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
     xy = np.full((int(data.point.max()) + 1, 2), np.nan)
