@@ -5,6 +5,7 @@ from pathlib import Path
 from snakemake.utils import min_version, validate
 
 from threedcal.config import is_imported, training_fractions, validate_config
+from threedcal.model.crossval import CV_METHODS, method_settings
 from threedcal.provenance import source_digest
 from threedcal.scenes import (
     ablation_scenes,
@@ -50,6 +51,7 @@ include: "rules/collect.smk"
 include: "rules/dataset.smk"
 include: "rules/integrate.smk"
 include: "rules/train.smk"
+include: "rules/ball.smk"
 include: "rules/stats.smk"
 include: "rules/objects.smk"
 include: "rules/presets.smk"

@@ -23,24 +23,3 @@ rule train:
         code=source_digest("model", "dataset"),
     script:
         "../scripts/train.py"
-
-
-rule ball_eval:
-    input:
-        model=lambda wildcards: (
-            f"results/{wildcards.scene}/models/P{max(training_fractions(config['scenes'][wildcards.scene]))}/model.pt"
-        ),
-        trainset="results/{scene}/dataset/trainset",
-    output:
-        "results/{scene}/ball_eval.json",
-    log:
-        "results/{scene}/logs/ball_eval.log",
-    wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",
-    conda:
-        CONDA_ENV
-    params:
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        code=source_digest("model", "dataset"),
-    script:
-        "../scripts/ball_eval.py"
