@@ -4,7 +4,13 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import is_imported, training_fractions, validate_config
+from threedcal.config import (
+    canonical_json,
+    is_imported,
+    load_yaml,
+    training_fractions,
+    validate_config,
+)
 from threedcal.model.crossval import CV_METHODS, method_settings
 from threedcal.provenance import source_digest
 from threedcal.scenes import (
@@ -23,6 +29,11 @@ if not workflow.overwrite_configfiles:
 
     configfile: "config.yaml"
 
+
+# Snakemake's YAML loader keeps the last of two equal keys (two scenes of one name) silently; ours
+# refuses them, naming the line.
+for _config_file in workflow.configfiles:
+    load_yaml(_config_file)
 
 # Our validation first (messages name the key and the allowed values), then Snakemake's own.
 CONFIG_SOURCE = ", ".join(map(str, workflow.overwrite_configfiles)) or "config.yaml"

@@ -1,12 +1,15 @@
 # Stage `collect`: probe the plan on the (simulated or real) printer into results/{scene}/raw.zarr.
-# The store is filled under results/{scene}/.partial/ (not a declared output, so a failed job never
-# deletes captured frames) and moved into place when complete; rerunning resumes. The finished
-# store is protected: Snakemake refuses to overwrite it.
+# The store is a source, not an output: Snakemake deletes the outputs of a job it reruns (changed
+# params, --forcerun, --rerun-incomplete), so it never learns the store's name. The library fills it
+# under results/{scene}/.partial/ (a killed run resumes there, with the same settings only) and moves
+# it into place when complete. A rerun with a finished store writes summary.json again and leaves
+# the store alone, or stops naming the settings that changed (see docs/reliability.md).
+# Downstream rules read summary.json, which names the store and the digest of its frame settings.
+from threedcal.config import canonical_json
 
 
 rule collect:
     output:
-        store=protected(directory("results/{scene}/raw.zarr")),
         summary="results/{scene}/collect/summary.json",
         coverage=report(
             "results/{scene}/collect/coverage.png",
@@ -30,9 +33,11 @@ rule collect:
     resources:
         printer=1,
     params:
-        scene=lambda wildcards: stage_config(
-            config["scenes"][wildcards.scene], "collect"
+        # Canonical JSON (sorted keys): reordering keys in the config never reruns anything.
+        scene=lambda wildcards: canonical_json(
+            stage_config(config["scenes"][wildcards.scene], "collect")
         ),
+        store=lambda wildcards: f"results/{wildcards.scene}/raw.zarr",
         staging=lambda wildcards: f"results/{wildcards.scene}/.partial/raw.zarr",
         code=source_digest("collect", "sim", "hardware"),
     script:

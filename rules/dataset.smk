@@ -22,7 +22,8 @@ rule dataset_import:
 
 rule dataset_collected:
     input:
-        store="results/{scene}/raw.zarr",
+        # names the store (a source, see rules/collect.smk) and the digest of its frame settings
+        collected="results/{scene}/collect/summary.json",
         truth="results/{scene}/collect/bench_truth.json",
     output:
         trainset=directory("results/{scene}/dataset/trainset"),

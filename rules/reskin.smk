@@ -1,10 +1,11 @@
-# Stage `reskin`: magnetic-sensor scenes. The readings in results/{scene}/raw.zarr train a small MLP
+# Stage `reskin`: magnetic-sensor scenes. The readings in results/{scene}/raw.zarr (named by
+# collect/summary.json: the store is a source, see rules/collect.smk) train a small MLP
 # (contact x, y and depth), scored on held-out probe coordinates: results/{scene}/reskin_eval.json.
 
 
 rule reskin_train:
     input:
-        store="results/{scene}/raw.zarr",
+        collected="results/{scene}/collect/summary.json",
     output:
         model="results/{scene}/reskin/model.pt",
         losses="results/{scene}/reskin/losses.csv",
@@ -29,7 +30,7 @@ rule reskin_train:
 
 rule reskin_eval:
     input:
-        store="results/{scene}/raw.zarr",
+        collected="results/{scene}/collect/summary.json",
         model="results/{scene}/reskin/model.pt",
         splits="results/{scene}/reskin/splits.csv",
     output:

@@ -1,4 +1,6 @@
-"""Rule `collect`: probe one scene into its store; summary and figures beside it."""
+"""Rule `collect`: probe one scene into its store (a source beside the outputs); summary and figures."""
+
+import json
 
 from threedcal.collect.session import collect_stage
 from threedcal.logs import stage_log
@@ -6,8 +8,8 @@ from threedcal.logs import stage_log
 with stage_log(snakemake.log[0]):
     collect_stage(
         snakemake.wildcards.scene,
-        snakemake.params.scene,
-        store=snakemake.output.store,
+        json.loads(snakemake.params.scene),
+        store=snakemake.params.store,
         staging=snakemake.params.staging,
         summary=snakemake.output.summary,
         coverage=snakemake.output.coverage,

@@ -1,11 +1,12 @@
 """Rule `reskin_train`: split a ReSkin store by coordinate and train the MLP → model.pt, losses, splits."""
 
+from threedcal.collect.store import collected_store
 from threedcal.logs import stage_log
 from threedcal.reskin.stage import train_stage
 
 with stage_log(snakemake.log[0]):
     train_stage(
-        snakemake.input.store,
+        collected_store(snakemake.input.collected)[0],
         snakemake.params.settings,
         seed=snakemake.params.seed,
         torch_threads=snakemake.params.torch_threads,

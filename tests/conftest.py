@@ -16,6 +16,19 @@ SNAKEMAKE = Path(sys.executable).with_name("snakemake")
 
 
 @pytest.fixture
+def sim_firmware():
+    """A fault-free fake Marlin (no pacing) behind a fresh simmarlin:// name: (url, firmware)."""
+    import uuid
+
+    from threedcal.sim.marlin import SimMarlin, forget, register
+
+    name = f"f{uuid.uuid4().hex[:8]}"
+    firmware = register(name, SimMarlin("ender3", speedup=float("inf")))
+    yield f"simmarlin://{name}", firmware
+    forget(name)
+
+
+@pytest.fixture
 def repo() -> Path:
     return REPO
 
@@ -45,10 +58,8 @@ def tiny_study_config(tmp_path: Path) -> dict:
     return config
 
 
-def snakemake(
-    workdir: Path, configfile: Path, *args: str, check: bool = True
-) -> subprocess.CompletedProcess:
-    cmd = [
+def snakemake_command(workdir: Path, configfile: Path, *args: str, cores: int = 2) -> list[str]:
+    return [
         str(SNAKEMAKE),
         "-s",
         str(REPO / "Snakefile"),
@@ -57,9 +68,30 @@ def snakemake(
         "--configfile",
         str(configfile),
         "--cores",
-        "2",
+        str(cores),
         *args,
     ]
+
+
+def snapshot(path: Path) -> dict[str, tuple[int, int, str]]:
+    """Every file under `path` with its size, mtime and content hash: a store left untouched."""
+    import hashlib
+
+    return {
+        str(p.relative_to(path)): (
+            p.stat().st_size,
+            p.stat().st_mtime_ns,
+            hashlib.sha1(p.read_bytes()).hexdigest(),
+        )
+        for p in sorted(path.rglob("*"))
+        if p.is_file()
+    }
+
+
+def snakemake(
+    workdir: Path, configfile: Path, *args: str, check: bool = True
+) -> subprocess.CompletedProcess:
+    cmd = snakemake_command(workdir, configfile, *args)
     result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir)
     if check and result.returncode != 0:
         raise AssertionError(

@@ -63,3 +63,11 @@ def test_profiles_list_shows_builtins(capsys):
     assert main(["profiles", "list"]) == 0
     out = capsys.readouterr().out
     assert "digit" in out and "gelsight_mini" in out and "ender3" in out
+
+
+@pytest.mark.parametrize("count", ["0", "-3"])
+def test_reskin_read_count_must_be_positive(capsys, count):
+    """Repro: `reskin read --count 0` gave a traceback."""
+    assert main(["reskin", "read", "--port", "sim", "--count", count]) == 1
+    err = capsys.readouterr().err
+    assert f"--count must be a whole number >= 1, got {count}" in err and "Traceback" not in err

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO
+from conftest import REPO, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -145,10 +145,25 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp
 
 
 def test_complete_store_is_never_overwritten(reference, tmp_path):
-    from threedcal.errors import ConfigError
+    from threedcal.collect.store import SettingsMismatch
 
-    with pytest.raises(ConfigError, match="refusing to overwrite"):
-        collect_scene("s", scene_config()["scenes"]["s"], reference[0], staging_path=tmp_path / "x")
+    before = snapshot(reference[0])
+    # Same settings: nothing is collected, the store's summary comes back.
+    summary = collect_scene(
+        "s", scene_config()["scenes"]["s"], reference[0], staging_path=tmp_path / "x"
+    )
+    assert summary["points"] == 42 and summary["frame_digest"] == reference[1]["frame_digest"]
+    assert not (tmp_path / "x").exists()
+    # Other settings: refused, naming the key (old → new) and how to recollect.
+    other = scene_config()
+    other["scenes"]["s"]["seed"] = 6
+    other["scenes"]["s"]["probe"]["radius_mm"] = 3.0
+    with pytest.raises(SettingsMismatch) as exc:
+        collect_scene("s", other["scenes"]["s"], reference[0], staging_path=tmp_path / "x")
+    message = str(exc.value)
+    assert "seed: 5 → 6" in message and "probe.radius_mm: 2.0 → 3.0" in message
+    assert f"mv {reference[0]} {reference[0]}.old" in message
+    assert snapshot(reference[0]) == before
 
 
 def test_invalid_plan_fails_before_any_motion(tmp_path):

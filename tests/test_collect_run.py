@@ -1,16 +1,17 @@
 """The collection loop against the fake Marlin firmware, with a camera that draws the head position."""
 
-import uuid
+import os
+import signal
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from threedcal.collect.plan import grid_plan, plan_to_printer
-from threedcal.collect.run import MotionSettings, collect
+from threedcal.collect.plan import clearance_z, grid_plan, plan_to_printer
+from threedcal.collect.run import CollectionInterrupted, MotionSettings, collect
 from threedcal.collect.store import RawStore, open_raw
-from threedcal.hardware.printer import MarlinHost
-from threedcal.sim.marlin import SimMarlin, forget, register
+from threedcal.hardware.printer import MarlinHost, PrinterTimeout, printer_profile
+from threedcal.sim.marlin import SimMarlin
 
 SENSOR = {
     "probing": {"plan_area_mm": [2.0, 1.0]},
@@ -60,26 +61,28 @@ class FirmwareClock:
 
 
 @pytest.fixture
-def bench():
-    name = f"c{uuid.uuid4().hex[:8]}"
-    firmware = register(name, SimMarlin("ender3", speedup=float("inf")))
-    yield f"simmarlin://{name}", firmware
-    forget(name)
+def bench(sim_firmware):
+    return sim_firmware
 
 
 def run(store, url, firmware, **kwargs):
     with MarlinHost(url) as host:
-        return collect(
-            store,
-            SENSOR,
-            host,
-            PositionCamera(firmware),
-            SETTINGS,
-            hardware_clock=firmware.clock.now,
-            clock=FirmwareClock(firmware),
-            progress=False,
-            **kwargs,
-        )
+        return run_on(host, store, firmware, **kwargs)
+
+
+def run_on(host, store, firmware, camera=None, **kwargs):
+    """collect() on an open host, on the firmware's clock, with a camera that sees the head."""
+    return collect(
+        store,
+        SENSOR,
+        host,
+        camera or PositionCamera(firmware),
+        SETTINGS,
+        hardware_clock=firmware.clock.now,
+        clock=FirmwareClock(firmware),
+        progress=False,
+        **kwargs,
+    )
 
 
 def test_frames_are_taken_at_rest_at_the_commanded_press(tmp_path, bench):
@@ -142,3 +145,115 @@ def test_finished_store_runs_nothing(tmp_path, bench):
     result = run(store, url, firmware)
     assert result.points == 0
     assert len(firmware.executed) - executed <= 4  # handshake only: no motion
+
+
+# ---- issue 22: the printer always stops safe ----------------------------------------------
+
+
+class InterruptingCamera(PositionCamera):
+    """Raises `error` (or sends `signum` to this process) during the `at`-th capture: while the
+    probe is pressed into the gel."""
+
+    def __init__(self, firmware, at=2, error=None, signum=None):
+        super().__init__(firmware)
+        self.at, self.error, self.signum, self.calls = at, error, signum, 0
+        self.pressed_z = None
+
+    def capture(self, count):
+        self.calls += 1
+        if self.calls == self.at:
+            self.pressed_z = self.firmware.position()[2]
+            if self.signum is not None:
+                os.kill(os.getpid(), self.signum)
+            if self.error is not None:
+                raise self.error
+        return super().capture(count)
+
+
+def numbered_log(firmware):
+    return [(n, c) for n, c in firmware.executed if n is not None and n >= 1]
+
+
+@pytest.mark.parametrize(
+    "error, signum",
+    [
+        (KeyboardInterrupt(), None),
+        (None, signal.SIGINT),
+        (None, signal.SIGTERM),
+        (OSError("usb"), None),
+    ],
+    ids=["keyboard-interrupt", "sigint", "sigterm", "camera-error"],
+)
+def test_stop_while_pressed_lifts_to_the_safe_height_and_releases(tmp_path, bench, error, signum):
+    """Repro: Ctrl-C (or any error) while pressed left the probe 1.4 mm in the gel, steppers held."""
+    url, firmware = bench
+    plan = grid_plan(SENSOR, 1.0, 1.5, frames=1)
+    store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
+    camera = InterruptingCamera(firmware, at=3, error=error, signum=signum)
+    expected = (
+        OSError
+        if error is not None and not isinstance(error, KeyboardInterrupt)
+        else KeyboardInterrupt
+    )
+    with MarlinHost(url) as host, pytest.raises(expected):
+        run_on(host, store, firmware, camera)
+    assert camera.pressed_z == pytest.approx(20.0 - 1.5, abs=0.01)  # it was pressed
+    assert firmware.position()[2] == pytest.approx(clearance_z(SENSOR))  # now at the safe height
+    assert firmware.executed_commands()[-3:] == ["G1 Z22.000 F300.0", "M400", "M84"]
+    assert not firmware.motors_on and not firmware.halted
+    assert store.first_uncaptured() == 1  # the point before the stop is kept: a rerun resumes
+    assert store.runs[-1]["stopped"]
+
+
+def test_a_signal_during_an_exchange_waits_for_the_line_to_settle(tmp_path, bench):
+    url, firmware = bench
+    plan = grid_plan(SENSOR, 1.0, 1.5, frames=1)
+    store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
+    with MarlinHost(url) as host:
+        original, sent = host._readline, {"done": False}
+
+        def readline(deadline):
+            if (
+                host._history[host._next - 1] == "M400"
+                and not sent["done"]
+                and store.captured.any()
+            ):
+                sent["done"] = True
+                os.kill(os.getpid(), signal.SIGINT)  # arrives while M400's reply is awaited
+            return original(deadline)
+
+        host._readline = readline
+        with pytest.raises(CollectionInterrupted):
+            run_on(host, store, firmware, PositionCamera(firmware))
+        acked = [(n, c) for n, c in host.acked if n >= 1]
+    assert sent["done"]
+    assert acked == numbered_log(firmware)  # host and firmware in step: each line once, in order
+    assert firmware.position()[2] == pytest.approx(clearance_z(SENSOR))
+
+
+def test_an_unrecoverable_printer_error_sends_m112(tmp_path, bench):
+    url, firmware = bench
+    plan = grid_plan(SENSOR, 1.0, 1.5, frames=1)
+    store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
+
+    class SilencingCamera(PositionCamera):
+        def capture(self, count):
+            if store.captured.sum() == 2:
+                firmware.kinds, firmware.rate = ("drop_line",), 1.0  # the printer goes silent
+            return super().capture(count)
+
+    with MarlinHost(url, retries=1) as host, pytest.raises(PrinterTimeout):
+        run_on(host, store, firmware, SilencingCamera(firmware))
+    assert firmware.halted and firmware.executed[-1] == (None, "M112")
+
+
+def test_the_end_of_a_run_releases_as_the_profile_says(tmp_path, bench):
+    url, firmware = bench
+    plan = grid_plan(SENSOR, 2.0, 1.5, frames=1)
+    profile = printer_profile("ender3")
+    profile["safe_stop"] = {"release": "idle_timeout", "idle_timeout_s": 60}
+    store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
+    with MarlinHost(url, profile) as host:
+        run_on(host, store, firmware, PositionCamera(firmware))
+    assert firmware.executed_commands()[-1] == "M84 S60" and firmware.idle_timeout_s == 60
+    assert firmware.position()[2] == pytest.approx(clearance_z(SENSOR))

@@ -1,4 +1,5 @@
 import copy
+import re
 
 import pytest
 import yaml
@@ -116,3 +117,77 @@ def test_invalid_profile_names_file_and_key(tmp_path):
         load_profile("sensor", path)
     assert "cam.yaml: invalid sensor profile" in str(exc.value)
     assert "type: 'optical' is not allowed (allowed: vision, magnetic)" in str(exc.value)
+
+
+# ---- issue 22: `config check` catches what a run would ------------------------------------
+
+
+def check(tmp_path, text, capsys):
+    from threedcal.cli import main
+
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    code = main(["config", "check", str(path)])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    return code, captured.err
+
+
+def test_duplicate_scene_names_are_refused(tmp_path, capsys):
+    """Repro: two scenes of one name were "valid" (YAML kept the last one silently)."""
+    text = "scenes:\n  a: {sensor: digit, printer: ender3}\n  a: {sensor: gelsight_mini, printer: ender3}\n"
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1 and "line 3: duplicate key 'a' (first on line 2)" in err
+
+
+def test_duplicate_keys_are_refused_in_profiles_too(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("name: x\nname: y\n")
+    with pytest.raises(ConfigError, match=r"p.yaml: line 2: duplicate key 'name'"):
+        load_profile("printer", path)
+
+
+def test_depth_beyond_the_sensors_penetration_is_refused(tmp_path, capsys):
+    """Repro: a depth beyond the sensor's maximum penetration was "valid"."""
+    text = "scenes:\n  s: {sensor: gelsight_mini, printer: ender3, plan: {depth_mm: 9.0}}\n"
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1 and "scenes.s.plan, point 0: depth 9 mm" in err
+    assert "beyond the sensor's maximum" in err
+
+
+def test_points_outside_the_gel_are_refused(tmp_path, capsys):
+    plan = tmp_path / "plan.csv"
+    plan.write_text("x,y,depth,frames\n1,1,1,1\n500,1,1,1\n")
+    text = f"scenes:\n  s: {{sensor: digit, printer: ender3, plan: {{csv: {plan}}}}}\n"
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1 and "plan.csv), line 3: point (500, 1) mm lies outside the gel" in err
+
+
+def test_missing_import_path_is_refused(tmp_path, capsys):
+    """Repro: a missing import.path was "valid"."""
+    text = f"scenes:\n  b: {{sensor: gelsight_mini, import: {{format: ball_folder, path: {tmp_path / 'nope'}}}}}\n"
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1 and "scenes.b.import.path:" in err and "nope: does not exist" in err
+
+
+def test_bad_fault_name_is_refused(tmp_path, capsys):
+    """Repro: a bad bench.faults name was "valid" (and left an empty store behind at run time)."""
+    text = "scenes:\n  s: {sensor: digit, printer: ender3, bench: {faults: 'checksum,chksum'}}\n"
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1 and "scenes.s.bench.faults: unknown fault kind(s) 'chksum'" in err
+    assert not (tmp_path / "results").exists()
+
+
+def test_plans_over_the_size_limit_are_refused_with_their_point_count(tmp_path, capsys):
+    """Repro: plan.spacing_mm 0.0001 tried to allocate 215 GiB."""
+    text = "scenes:\n  s: {sensor: digit, printer: ender3, plan: {spacing_mm: 0.0001}}\n"
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1 and "scenes.s.plan: spacing_mm=0.0001: the plan would have" in err
+    assert re.search(r"would have [\d,]{14,} probe points", err) and "limits: 100,000 points" in err
+
+
+def test_the_shipped_configs_pass_config_check(repo, capsys):
+    from threedcal.cli import main
+
+    for path in (repo / "config.yaml", repo / "config/paper.yaml", repo / "tests/config/test.yaml"):
+        assert main(["config", "check", str(path)]) == 0, capsys.readouterr().err

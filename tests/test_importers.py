@@ -1,4 +1,5 @@
 import json
+import re
 
 import cv2
 import numpy as np
@@ -122,3 +123,106 @@ def test_vendored_real_dataset_loads(real_data):
     assert data.frames.shape == (42, 320, 240, 3)
     assert data.px_per_mm == pytest.approx(19.58) and data.sphere_radius_mm == pytest.approx(2.35)
     assert np.all((data.depth_mm > 0) & (data.depth_mm < 2.35))
+
+
+# ---- issue 22: every bad import is named with its file and row --------------------------------
+
+
+@pytest.mark.parametrize(
+    "row, message",
+    [
+        (
+            ("0000.png", 24, 10, 5),
+            "row 2: contact centre (center_x_px=24, center_y_px=10) px lies outside the 24 x 32 px image",
+        ),
+        (
+            ("0000.png", 10, -1, 5),
+            "row 2: contact centre (center_x_px=10, center_y_px=-1) px lies outside",
+        ),
+    ],
+)
+def test_ball_centres_outside_the_image_are_refused(tmp_path, row, message):
+    make_ball_folder(tmp_path, rows=[row])
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_ball_folder(tmp_path)
+
+
+def test_ball_duplicate_rows_are_refused(tmp_path):
+    make_ball_folder(
+        tmp_path, rows=[("0000.png", 10, 10, 5), ("0001.png", 10, 10, 5), ("0000.png", 11, 10, 5)]
+    )
+    with pytest.raises(
+        ConfigError, match=r"labels.csv, row 4: image '0000.png' is listed again \(first on row 2\)"
+    ):
+        load_ball_folder(tmp_path)
+
+
+@pytest.mark.parametrize("name", ["../0000.png", "/etc/passwd", "sub/../../x.png"])
+def test_ball_image_names_must_stay_inside_the_folder(tmp_path, name):
+    make_ball_folder(tmp_path / "set", rows=[(name, 10, 10, 5)])
+    with pytest.raises(
+        ConfigError, match=r"labels.csv, row 2: image name .* must be a relative file name inside"
+    ):
+        load_ball_folder(tmp_path / "set")
+
+
+@pytest.mark.parametrize(
+    "image, message",
+    [
+        (np.full((32, 24), 128, np.uint8), "a grey image"),
+        (np.full((32, 24, 3), 40000, np.uint16), "a 16-bit image"),
+        (
+            np.dstack([np.full((32, 24, 3), 9, np.uint8), np.full((32, 24), 100, np.uint8)]),
+            "has transparent pixels",
+        ),
+    ],
+    ids=["grey", "16-bit", "alpha"],
+)
+def test_ball_images_must_be_8_bit_rgb(tmp_path, image, message):
+    make_ball_folder(tmp_path)
+    assert cv2.imwrite(str(tmp_path / "0001.png"), image)
+    with pytest.raises(ConfigError, match=f"0001.png: {message}"):
+        load_ball_folder(tmp_path)
+
+
+def test_opaque_rgba_images_are_read_as_rgb(tmp_path):
+    frames, _ = make_ball_folder(tmp_path)
+    bgra = cv2.cvtColor(frames[1], cv2.COLOR_RGB2BGRA)
+    assert cv2.imwrite(str(tmp_path / "0001.png"), bgra)
+    np.testing.assert_array_equal(load_ball_folder(tmp_path).frames[1], frames[1])
+
+
+@pytest.mark.parametrize("content", ["[1, 2]", '"text"', "null"])
+def test_py3dcal_metadata_must_be_an_object(tmp_path, content):
+    """Repro: a metadata.json holding a list gave an AttributeError."""
+    make_py3dcal_folder(tmp_path)
+    (tmp_path / "annotations/metadata.json").write_text(content)
+    with pytest.raises(ConfigError, match="metadata.json: must be a JSON object"):
+        load_py3dcal_folder(tmp_path)
+
+
+def test_py3dcal_duplicate_and_escaping_rows_are_named(tmp_path):
+    make_py3dcal_folder(tmp_path)
+    table = tmp_path / "annotations/annotations.csv"
+    rows = pd.read_csv(table)
+    rows.loc[len(rows)] = rows.iloc[0]
+    rows.to_csv(table, index=False)
+    with pytest.raises(
+        ConfigError, match=r"annotations.csv, row 7: image .* is listed again \(first on row 2\)"
+    ):
+        load_py3dcal_folder(tmp_path)
+    rows = rows.iloc[:-1].copy()
+    rows.loc[1, "img_name"] = "../../blank_images/blank.png"
+    rows.to_csv(table, index=False)
+    with pytest.raises(
+        ConfigError, match=r"annotations.csv, row 3: image name '../../blank_images"
+    ):
+        load_py3dcal_folder(tmp_path)
+
+
+def test_non_numbers_in_messages_are_plain(tmp_path):
+    make_ball_folder(tmp_path, rows=[("0000.png", float("nan"), 10, 5)])
+    with pytest.raises(ConfigError) as exc:
+        load_ball_folder(tmp_path)
+    assert "center_x_px=nan must be a finite number" in str(exc.value)
+    assert "np.float64" not in str(exc.value)

@@ -52,6 +52,11 @@ def test_table_ii_markdown():
     assert "| pawn | 50 | 20 | 150 | — | — | — |" in lines
     with pytest.raises(ConfigError, match="P = 50"):
         table_ii_markdown(rows, p=50)
+    # with a protocol column: the printer protocol unless asked, and the table says which
+    both = pd.concat([rows.assign(protocol="printer"), rows.assign(protocol="paper", type2_um=1.0)])
+    text = table_ii_markdown(both)
+    assert "printer protocol" in text and "| pill | 30 | 10 | 60 | 40 | 20 | 80 |" in text
+    assert "| pill | 30 | 10 | 1 | 40 | 20 | 1 |" in table_ii_markdown(both, protocol="paper")
 
 
 def test_cli_export_writes_printable_stls(tmp_path, capsys):

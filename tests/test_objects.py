@@ -183,3 +183,23 @@ def test_too_deep_and_negative_indentations_are_refused():
     assert not surface.depth(0.0).any()
     with pytest.raises(ConfigError, match="px_per_mm"):
         surface_height(sphere(2.0), (20, 20), 0.0)
+
+
+def test_linear_pose_matches_scale_and_rotation_and_mirrors_exactly(objects):
+    """A registration's linear map: px/mm times a rotation is the rotated pose; a mirroring map
+    (a flipped camera) gives the mirror image, not an empty raster; a singular map is refused."""
+    pawn, shape, center = objects["pawn"], (150, 200), (99.5, 74.5)
+    c, s = np.cos(np.radians(25.0)), np.sin(np.radians(25.0))
+    turned = surface_height(pawn, shape, PX_PER_MM, center, 25.0)
+    linear = surface_height(pawn, shape, 1.0, center, 0.0, PX_PER_MM * np.array([[c, -s], [s, c]]))
+    np.testing.assert_array_equal(turned.height_mm, linear.height_mm)
+    assert linear.rotation_deg == pytest.approx(25.0) and linear.px_per_mm == pytest.approx(19.5)
+    plain = surface_height(pawn, shape, PX_PER_MM, center).depth(1.0)
+    mirrored = surface_height(pawn, shape, 1.0, center, 0.0, PX_PER_MM * np.diag([-1.0, 1.0]))
+    assert (plain > 0).sum() > 1000
+    np.testing.assert_allclose(mirrored.depth(1.0), plain[:, ::-1], atol=1e-9)
+    # an anisotropic map stretches the footprint by its scale along each axis
+    wide = surface_height(pawn, shape, 1.0, center, 0.0, np.diag([1.0, 1.2]) * PX_PER_MM)
+    assert (wide.depth(1.0) > 0).sum() == pytest.approx(1.2 * (plain > 0).sum(), rel=0.03)
+    with pytest.raises(ConfigError, match="singular"):
+        surface_height(pawn, shape, 1.0, center, 0.0, np.zeros((2, 2)))

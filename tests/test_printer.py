@@ -41,7 +41,8 @@ def script(host):
         host.move_to(10 + 5 * i, 200 - 4 * i, 2 + (i % 3), feed_mm_s=(20, 100, 5)[i % 3])
         if i % 10 == 9:
             host.wait_until_idle()
-            host.position()
+        # an M114 after every move (ok_report acts on M114 lines only)
+        assert tuple(host.position()) == host.commanded
     host.wait_until_idle()
     return host.position()
 

@@ -354,7 +354,7 @@ def test_localisation_errors_exact():
 def test_reskin_scene_targets_have_no_image_stages():
     config = validate_config({"scenes": {"rs": {"sensor": "reskin", "printer": "ender3"}}})
     targets = scene_targets("rs", config["scenes"]["rs"])
-    assert "results/rs/reskin_eval.json" in targets and "results/rs/raw.zarr" in targets
+    assert "results/rs/reskin_eval.json" in targets and "results/rs/collect/summary.json" in targets
     assert "results/rs/collect/frames.png" in targets
     assert not any("registration" in t or "models/" in t or "stats/" in t for t in targets)
 

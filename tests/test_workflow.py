@@ -96,20 +96,31 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         "models/inference.json",
     ):
         assert (tmp_path / f"results/{collected}/{leaf}").exists(), leaf
-    # errors.csv: per object and P, the mean over the object's presses (two pill presses here)
+    # errors.csv: per object, P and protocol, the mean over the object's reporting presses (two
+    # pill presses here; the tuning press is in presses.csv and tuning.csv only)
     objects = tmp_path / f"results/{collected}/objects"
     presses = pd.read_csv(objects / "presses.csv")
-    assert sorted(presses["press"].unique()) == [0, 1]
-    assert presses["center_x_px"].nunique() == 2
-    errors = pd.read_csv(objects / "errors.csv").set_index(["object", "P"])
-    means = presses.groupby(["object", "P"])[["overall_um", "type1_um", "type2_um"]].mean()
-    pd.testing.assert_frame_equal(errors.sort_index(), means.sort_index())
+    reporting = presses[presses["set"] == "reporting"]
+    assert sorted(reporting["press"].unique()) == [0, 1]
+    assert reporting["registered_x_px"].nunique() == 2
+    assert set(presses["set"]) == {"tuning", "reporting"}
+    errors = pd.read_csv(objects / "errors.csv")
+    assert list(errors["protocol"].unique()) == ["printer", "paper"]
+    metrics = ["overall_um", "type1_um", "type2_um"]
+    means = reporting.groupby(["object", "P", "protocol"])[metrics].mean()
+    pd.testing.assert_frame_equal(
+        errors.set_index(["object", "P", "protocol"])[metrics].sort_index(), means.sort_index()
+    )
+    assert (errors["presses"] == 2).all() and (errors["type2_um_lo"] <= errors["type2_um"]).all()
+    tuning = pd.read_csv(objects / "tuning.csv")
+    assert (tuning["presses"] == 1).all()
     for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
         assert (tmp_path / f"results/{leaf}").is_file(), leaf
     assert collected in (tmp_path / "results/summary.md").read_text()
     # Nothing changed: nothing to do.
     assert scheduled_jobs(tmp_path, path) == []
-    # A model setting of one scene: its trainings and what reads them rerun, not its collection.
+    # A model setting of one scene: its trainings and what reads them rerun, not its collection
+    # nor the test-object presses (the frames are kept; only their scores are redone).
     config["scenes"][collected]["model"]["epochs_base"] = 2
     path = write_config(tmp_path, config)
     jobs = scheduled_jobs(tmp_path, path)
@@ -117,6 +128,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert {"train", "stats", "objects"} <= rules
     assert not rules & {
         "collect",
+        "object_presses",
         "dataset_collected",
         "dataset_import",
         "integration_study",

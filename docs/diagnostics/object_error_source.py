@@ -2,11 +2,14 @@
 
     .venv/bin/python docs/diagnostics/object_error_source.py digit_sim
 
-For every object press of the scene it scores, with the same protocol as the `objects` stage:
-the simulator's own gel surface (exact in contact: the limit of ground truth, alignment and depth
-fit), and the P = 80 model's prediction, with the model's signed error by true depth (where in
-the contact it sits). Then, on validation frames of the scene's training set, the
-mean predicted slope magnitude against the label in rings around the probe centre.
+For every reporting press of the scene (results/{scene}/objects/pressing/) it scores, under both
+protocols of the `objects` stage: the simulator's own gel surface where the bench put the object
+(exact in contact: the limit of the ground truth, the registration and, for `paper`, the
+alignment and depth fit), and the P = 80 model's prediction, with the model's signed error by
+ground-truth depth (where in the contact it sits). Then, on validation frames of the scene's
+training set, the mean predicted slope magnitude against the label in rings around the probe
+centre. It reads the bench's truth (where the object really was), so it is a diagnosis, never a
+reported figure.
 """
 
 import json
@@ -16,9 +19,18 @@ from pathlib import Path
 import numpy as np
 
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.evaluate.object_errors import evaluate_press
-from threedcal.evaluate.objects import load_object
-from threedcal.evaluate.pressing import plan_presses, relief_indenter, render_press
+from threedcal.evaluate.groundtruth import surface_height
+from threedcal.evaluate.pressing import (
+    PrinterFrame,
+    head_position,
+    load_object,
+    read_presses,
+    read_registration,
+    relief_indenter,
+    scene_mount,
+    score_press,
+)
+from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
 from threedcal.profiles import load_profile
 from threedcal.sim.optics import GelSimulator
@@ -27,38 +39,47 @@ from threedcal.sim.optics import GelSimulator
 def main(scene_name: str, p: int = 80) -> None:
     root = Path("results") / scene_name
     scene = json.loads((root / "scene.json").read_text())["config"]
-    sim = GelSimulator(load_profile("sensor", scene["sensor"]), seed=scene["seed"])
-    est = DepthEstimator.from_checkpoint(root / "models" / f"P{p}" / "model.pt", device="cpu")
-    presses = plan_presses(
-        scene["objects"], (sim.height, sim.width), scene["pressing"], scene["seed"]
+    sensor = load_profile("sensor", scene["sensor"])
+    sim = GelSimulator(sensor, seed=scene["seed"])
+    frame = PrinterFrame(
+        sensor, read_registration(root / "dataset" / "registration.json"), scene_mount(scene)
     )
+    plan, frames, blanks, truth = read_presses(root / "objects" / "pressing")
+    checkpoint = read_checkpoint(root / "models" / f"P{p}" / "model.pt")
+    est = DepthEstimator(checkpoint, device="cpu", blank=blanks["reporting"])
+    limit = sim.max_penetration_mm
     print(f"{scene_name}: Type 2 / Type 1 MAE (um) of the simulator's own surface and of P = {p}")
-    for index, press in enumerate(presses):
-        mesh = load_object(press.name)
-        window = (0, sim.height, 0, sim.width)
-        depth_mm = sim.effective_depth_mm(press.depth_mm, 0)
-        indenter = relief_indenter(mesh, sim.px_per_mm, press.rotation_deg)
-        z, contact = sim.surface(indenter, press.center_px, 0.0, depth_mm, window)
-        u = (press.center_px[0] - (sim.width - 1) / 2) / sim.px_per_mm
-        v = (press.center_px[1] - (sim.height - 1) / 2) / sim.px_per_mm
-        # in contact the model's labels describe the object's shape (flat reference); outside, the gel
-        surface = np.where(contact, z - float(sim.sag_mm(u, v)), z - sim.Z0).astype(np.float64)
-        kwargs = dict(
-            px_per_mm=sim.px_per_mm,
-            nominal_indentation_mm=press.nominal_depth_mm,
-            max_penetration_mm=sim.max_penetration_mm,
-            center_px=press.center_px,
-            rotation_deg=press.rotation_deg,
+    for press in plan[plan["set"] == "reporting"].itertuples():
+        mesh, true = load_object(press.object), truth["presses"][press.frame]
+        placed = frame.placement(head_position(press))
+        surface_gt = surface_height(
+            mesh, frames.shape[1:3], 1.0, placed.center_px, 0.0, placed.linear_px_per_mm
         )
-        frame = render_press(sim, press, frame_index=index)
-        name = f"{press.name} #{press.number}"
-        for label, depth in (("simulator surface", surface), (f"model P{p}", est.depth(frame))):
-            evaluation = evaluate_press(depth, mesh, **kwargs)
-            e = evaluation.errors
-            print(
-                f"  {name:15s} {label:18s} {e['type2_um']:7.1f} / {e['type1_um']:6.1f}"
-                f"   fitted depth {evaluation.indentation_mm:.2f} mm"
+        window = (0, sim.height, 0, sim.width)
+        indenter = relief_indenter(mesh, sim.px_per_mm)
+        z, contact = sim.surface(
+            indenter, true["center_px"], true["rotation_deg"], true["depth_mm"], window
+        )
+        u = (true["center_px"][0] - (sim.width - 1) / 2) / sim.px_per_mm
+        v = (true["center_px"][1] - (sim.height - 1) / 2) / sim.px_per_mm
+        # in contact the model's labels describe the object's shape (flat reference); outside, the gel
+        gel = np.where(contact, z - float(sim.sag_mm(u, v)), z - sim.Z0).astype(np.float64)
+        name = f"{press.label} #{press.press}"
+        for label, depth in (
+            ("simulator surface", gel),
+            (f"model P{p}", est.depth(frames[press.frame])),
+        ):
+            scored = score_press(
+                depth, mesh, placed, surface_gt, px_per_mm=est.px_per_mm, max_penetration_mm=limit
             )
+            printer, paper = scored["printer"], scored["paper"]
+            e, f = printer.errors, paper.errors
+            print(
+                f"  {name:15s} {label:18s} printer {e['type2_um']:7.1f} / {e['type1_um']:6.1f}"
+                f"   paper {f['type2_um']:7.1f} / {f['type1_um']:6.1f}"
+                f" (fitted depth {paper.indentation_mm:.2f} of {true['depth_mm']:.2f} mm)"
+            )
+        evaluation = printer
         # where the model's Type 2 error sits: signed mean (prediction - truth) by true depth
         gt, err = evaluation.gt_mm, (depth - evaluation.gt_mm) * 1000
         bands = [(0.0, 0.1), (0.1, 0.3), (0.3, 0.6), (0.6, np.inf)]

@@ -7,6 +7,7 @@ workflow accepts, and vice versa.
 from __future__ import annotations
 
 import copy
+import json
 from collections.abc import Iterator, Mapping
 from importlib.resources import files
 from pathlib import Path
@@ -25,16 +26,66 @@ FULL_TRAINING_P = 80
 IMPORT_IRRELEVANT = ("printer", "port", "camera", "probe", "plan", "bench", "pressing")
 
 
+def plain(value: Any) -> Any:
+    """numpy scalars and arrays as plain Python values, so messages read `nan`, not `np.float64(nan)`."""
+    item = getattr(value, "item", None)
+    if item is not None and type(value).__module__ == "numpy":
+        return value.item() if getattr(value, "ndim", 0) == 0 else value.tolist()
+    return value
+
+
+def canonical_json(value: Any) -> str:
+    """One text per value whatever the order of its keys: what digests and Snakemake params compare."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=plain)
+
+
+class DuplicateKeyError(ConfigError):
+    """A YAML mapping names the same key twice: plain YAML keeps the last one silently."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a key given twice in one mapping (e.g. two scenes of one name)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # `<<: *anchor` merges may override on purpose
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    earlier = first.setdefault(key, line)
+                except TypeError:
+                    continue  # an unhashable key: SafeLoader reports it below
+                if earlier != line:
+                    raise DuplicateKeyError(
+                        f"line {line}: duplicate key {key!r} (first on line {earlier}); YAML would "
+                        "keep only the last one: remove or rename one of them"
+                    )
+        return super().construct_mapping(node, deep=deep)
+
+
+def parse_yaml(text: str, source: str = "YAML") -> Any:
+    """Parse YAML text like yaml.safe_load, but refuse duplicate keys; errors name `source`."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise DuplicateKeyError(f"{source}: {exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML: {exc}") from exc
+
+
 def load_yaml(path: str | Path) -> Any:
+    """Read a YAML file (configs, profiles, dataset descriptions): duplicate keys are an error."""
     path = Path(path)
     try:
         text = path.read_text()
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (YAML expected)") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    return parse_yaml(text, source=str(path))
 
 
 def load_schema(path: Path = SCHEMA_PATH) -> dict:
@@ -94,8 +145,18 @@ def _fill_defaults(instance: Any, schema: Mapping, root: Mapping) -> None:
                 _fill_defaults(value, extra, root)
 
 
-def validate_config(config: Mapping, source: str = "config") -> dict:
-    """Return a validated copy of `config` with defaults filled; raise ConfigError naming every bad key."""
+def validate_config(config: Mapping, source: str = "config", *, check_files: bool = False) -> dict:
+    """Return a validated copy of `config` with defaults filled; raise ConfigError naming every bad key.
+
+    Beyond the schema this finds what a run would refuse: unknown serial fault names, plans over the
+    size limit, deeper than the sensor allows or outside the gel or the printer's travel.
+    `check_files` (``threedcal config check``) also reads every imported dataset as its stage would.
+    """
+    if not isinstance(config, Mapping):
+        raise ConfigError(
+            f"{source}: invalid config\n  (top level): must be a mapping of keys to values, "
+            f"got {type(config).__name__}"
+        )
     schema = load_schema()
     problems = schema_errors(config, schema)
     if problems:
@@ -115,7 +176,52 @@ def validate_config(config: Mapping, source: str = "config") -> dict:
         if is_imported(scene):  # no printer, probe or plan: the data exists already
             for key in IMPORT_IRRELEVANT:
                 scene.pop(key, None)
+    problems = [
+        f"scenes.{name}.{msg}"
+        for name, scene in config["scenes"].items()
+        for msg in _run_problems(scene, check_files)
+    ]
+    if problems:
+        raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
     return config
+
+
+def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
+    """What the scene's stages would refuse at run time, found before anything runs."""
+    from threedcal.profiles import load_profile
+
+    try:
+        sensor = load_profile("sensor", scene["sensor"])
+        printer = load_profile("printer", scene["printer"]) if scene.get("printer") else None
+    except ConfigError as exc:
+        return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
+    if is_imported(scene):
+        if not check_files:
+            return []  # read by `config check` and by the import stage itself
+        from threedcal.dataset.importers import check_import
+
+        try:
+            check_import(scene["import"]["format"], scene["import"]["path"])
+        except ConfigError as exc:
+            return [f"import.path: {exc}"]
+        return []
+    problems = []
+    from threedcal.sim.marlin import parse_faults
+
+    try:
+        parse_faults(scene["bench"].get("faults", ""))
+    except ConfigError as exc:
+        problems.append(f"bench.faults: {exc}")
+    from threedcal.collect.plan import plan_from_config, validate_plan
+
+    try:
+        plan = plan_from_config(scene["plan"], sensor)
+        csv = scene["plan"].get("csv")
+        validate_plan(plan, sensor, printer, source=f"plan ({csv})" if csv else "plan")
+    except ConfigError as exc:
+        text = str(exc)
+        problems.append(text if text.startswith("plan") else f"plan: {text}")
+    return problems
 
 
 def _scene_problems(scene: Mapping) -> list[str]:
@@ -139,6 +245,10 @@ def _scene_problems(scene: Mapping) -> list[str]:
             problems.append(f"{kind}: {exc}")
     if scene.get("sensor") is not None and not problems:
         problems += _magnetic_problems(scene)
+    if not imported and scene.get("objects"):
+        from threedcal.evaluate.pressing import mount_problem
+
+        problems += [p for p in [mount_problem(scene)] if p]
     return problems
 
 
@@ -157,8 +267,8 @@ def _magnetic_problems(scene: Mapping) -> list[str]:
     ]
 
 
-def load_config(path: str | Path) -> dict:
-    return validate_config(load_yaml(path) or {}, source=str(path))
+def load_config(path: str | Path, *, check_files: bool = False) -> dict:
+    return validate_config(load_yaml(path) or {}, source=str(path), check_files=check_files)
 
 
 def scene_config(config: Mapping, scene: str) -> dict:

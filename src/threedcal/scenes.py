@@ -34,8 +34,19 @@ STATS_FILES = (
     "mse_kde.png",
     "error_vs_cost.png",
 )
-# Outputs of the objects stage (rules/objects.smk).
-OBJECT_FILES = ("errors.csv", "presses.csv", "integrators.csv", "violins.png", "figures")
+# Outputs of the objects stage (rules/objects.smk): the presses, then their scores.
+OBJECT_FILES = (
+    "pressing/frames.npz",
+    "pressing/plan.csv",
+    "pressing/truth.json",
+    "pressing/summary.json",
+    "errors.csv",
+    "tuning.csv",
+    "presses.csv",
+    "integrators.csv",
+    "violins.png",
+    "figures",
+)
 # Versions recorded with every scene: the packages whose behaviour changes numbers.
 RECORDED_PACKAGES = (
     "threedcal",
@@ -54,7 +65,18 @@ RECORDED_PACKAGES = (
 STAGE_KEYS = {
     "collect": ("sensor", "printer", "port", "camera", "probe", "plan", "bench", "seed"),
     "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
-    "objects": ("sensor", "objects", "pressing", "integrators", "seed", "torch_threads"),
+    "object_presses": (
+        "sensor",
+        "printer",
+        "port",
+        "camera",
+        "probe",
+        "bench",
+        "objects",
+        "pressing",
+        "seed",
+    ),
+    "objects": ("sensor", "port", "objects", "pressing", "integrators", "seed", "torch_threads"),
 }
 
 
@@ -71,7 +93,9 @@ RESKIN_FILES = (
     "reskin_eval.json",
     "reskin_eval.png",
 )
-COLLECT_FILES = ("raw.zarr", "collect/summary.json", "collect/coverage.png", "collect/frames.png")
+# The store (raw.zarr) is not among them: it is a source the collect stage keeps beside its outputs,
+# never a product Snakemake may delete (rules/collect.smk).
+COLLECT_FILES = ("collect/summary.json", "collect/coverage.png", "collect/frames.png")
 
 
 def is_magnetic_scene(scene: Mapping) -> bool:
@@ -111,8 +135,9 @@ def is_vision(scene: Mapping) -> bool:
 
 
 def has_objects(scene: Mapping) -> bool:
-    """Scenes whose test objects the simulated bench presses (real presses are not automated)."""
-    return bool(scene.get("objects")) and not is_imported(scene) and scene.get("port") == "sim"
+    """Scenes whose test objects the printer presses: on the simulated bench, or on a real rig
+    (the user mounts each object when asked)."""
+    return bool(scene.get("objects")) and not is_imported(scene)
 
 
 def has_ablation(scene: Mapping) -> bool:

@@ -11,7 +11,9 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="study config (e.g. config.yaml)")
     parser.add_argument("--scene", required=True, help="scene name in the config")
     parser.add_argument(
-        "--out", help="store path (default results/<scene>/raw.zarr); resumed when it exists"
+        "--out",
+        help="store path (default results/<scene>/raw.zarr); resumed when it exists with the "
+        "same settings, never overwritten",
     )
     parser.add_argument(
         "--estimate",

@@ -11,7 +11,7 @@ def _check(args: argparse.Namespace) -> int:
     from threedcal.config import load_config
     from threedcal.scenes import scene_targets
 
-    config = load_config(args.config)
+    config = load_config(args.config, check_files=True)
     print(f"{args.config}: valid, {len(config['scenes'])} scene(s)")
     for name, scene in config["scenes"].items():
         print(
@@ -36,7 +36,8 @@ def _list_profiles(args: argparse.Namespace) -> int:
 COMMANDS = [
     Command(
         ("config", "check"),
-        "validate a study config and list each scene's result files",
+        "validate a study config as a run would (schema, duplicate keys, plans, fault names, "
+        "imported data) and list each scene's result files",
         _check,
         lambda p: p.add_argument("config", help="config YAML (e.g. config.yaml)"),
     ),

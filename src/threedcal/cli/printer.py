@@ -39,14 +39,21 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _soak(args: argparse.Namespace) -> int:
-    from threedcal.sim.soak import run_soak
+    from threedcal.sim.marlin import RECOVERABLE_FAULTS, parse_faults
+    from threedcal.sim.soak import check_soak_arguments, soak_table, table_header
 
-    result = run_soak(args.faults, args.seed, rate=args.rate, speedup=args.speedup)
-    print(", ".join(f"{k}={v}" for k, v in result.fault_counts.items()), file=sys.stderr)
-    if result.reordered:
-        print("executed commands are out of order", file=sys.stderr)
-    print(result.line())
-    return 0 if result.ok else 1
+    check_soak_arguments(args.faults, args.rate, args.speedup)
+    kinds = parse_faults(args.kinds) if args.kinds else RECOVERABLE_FAULTS
+    results = soak_table(args.faults, args.seed, rate=args.rate, kinds=kinds, speedup=args.speedup)
+    print(table_header())
+    for result in results:
+        print(result.row())
+        if result.reordered:
+            print(f"  {result.kind}: executed commands are out of order", file=sys.stderr)
+    bad = [r.kind for r in results if not r.ok]
+    if bad:
+        print(f"FAILED: {', '.join(bad)}", file=sys.stderr)
+    return 1 if bad else 0
 
 
 def _configure_check(parser: argparse.ArgumentParser) -> None:
@@ -65,19 +72,30 @@ def _configure_check(parser: argparse.ArgumentParser) -> None:
 
 def _configure_soak(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--faults", type=int, required=True, help="inject at least this many faults"
+        "--faults",
+        type=int,
+        required=True,
+        help="inject at least this many faults of each class",
     )
     parser.add_argument(
         "--seed", type=int, default=0, help="seed of the faults and the moves (default 0)"
     )
     parser.add_argument(
-        "--rate", type=float, default=0.2, help="fault probability per line (default 0.2)"
+        "--rate",
+        type=float,
+        default=0.2,
+        help="fault probability per line, in (0, 1] (default 0.2)",
+    )
+    parser.add_argument(
+        "--kinds",
+        default="",
+        help="comma-separated fault classes (default: every recoverable class, then all mixed)",
     )
     parser.add_argument(
         "--speedup",
         type=float,
         default=1e5,
-        help="simulated seconds per real second (default 1e5; inf: no pacing)",
+        help="simulated seconds per real second, > 0 (default 1e5; inf: no pacing)",
     )
 
 
@@ -91,7 +109,8 @@ COMMANDS = [
     ),
     Command(
         ("sim", "soak"),
-        "drive the host against the fake firmware with N injected faults; fail if a command is lost, repeated or reordered",
+        "drive the host against the fake firmware with N injected faults of each class; print a "
+        "table per class; fail if a command is lost, repeated, reordered or acknowledged before it ran",
         _soak,
         _configure_soak,
     ),

@@ -14,7 +14,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         help="the board's serial device (/dev/ttyACM0, COM4) or pyserial URL; 'sim' = the simulated board",
     )
     parser.add_argument("--sensor", default="reskin", help="magnetic sensor profile (name or YAML)")
-    parser.add_argument("--count", type=int, default=5, help="readings to print")
+    parser.add_argument("--count", type=int, default=5, help="readings to print (>= 1)")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -23,6 +23,10 @@ def _run(args: argparse.Namespace) -> int:
     from threedcal.hardware.reskin import ReSkinReader, value_names
     from threedcal.profiles import load_profile
 
+    if args.count < 1:
+        from threedcal.errors import ConfigError
+
+        raise ConfigError(f"--count must be a whole number >= 1, got {args.count}")
     sensor = load_profile("sensor", args.sensor)
     with contextlib.ExitStack() as stack:
         port = args.port

@@ -18,6 +18,10 @@ import pandas as pd
 from threedcal.errors import ConfigError
 
 PLAN_COLUMNS = ("x_mm", "y_mm", "depth_mm", "frames")
+# Size limits, checked before a plan is generated: the paper's densest plan has ~1,400 points and
+# ~40,000 frames; a mistyped spacing must not allocate gigabytes or queue months of printer time.
+MAX_PLAN_POINTS = 100_000
+MAX_PLAN_FRAMES = 1_000_000
 
 
 def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
@@ -102,7 +106,7 @@ def grid_plan(
     and misjudges shallower or deeper objects."""
     depths = _depths(depths_mm)
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
-        raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
+        raise ConfigError(f"plan spacing_mm must be a positive number, got {float(spacing_mm)}")
     width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
     ys = np.arange(0.0, height + 1e-9, spacing_mm)
@@ -122,7 +126,7 @@ def _depths(depths_mm) -> np.ndarray:
     if depths.size == 0:
         raise ConfigError("plan depths_mm must list at least one depth")
     if not np.all(np.isfinite(depths) & (depths > 0)):
-        raise ConfigError(f"plan depths must be positive numbers, got {list(depths)}")
+        raise ConfigError(f"plan depths must be positive numbers, got {depths.tolist()}")
     return depths
 
 
@@ -137,9 +141,9 @@ def cross_plan(
     `arm_width_mm`/2 of the area's centre lines (a plus sign), repeated at every depth in turn, each
     pass serpentine ordered. 1 mm spacing, arms 6 mm wide over 16 x 16 mm give 189 points a depth."""
     if spacing_mm <= 0 or not np.isfinite(spacing_mm):
-        raise ConfigError(f"plan spacing_mm must be a positive number, got {spacing_mm!r}")
+        raise ConfigError(f"plan spacing_mm must be a positive number, got {float(spacing_mm)}")
     if arm_width_mm < 0 or not np.isfinite(arm_width_mm):
-        raise ConfigError(f"plan arm_width_mm must be >= 0, got {arm_width_mm!r}")
+        raise ConfigError(f"plan arm_width_mm must be >= 0, got {float(arm_width_mm)}")
     depths = _depths(depths_mm)
     width, height = plan_area_mm(sensor)
     xs = np.arange(0.0, width + 1e-9, spacing_mm)
@@ -236,11 +240,28 @@ def clearance_z(sensor: Mapping) -> float:
     return mount["z_touch_mm"] + mount["z_clearance_mm"]
 
 
+def check_plan_size(points: float, frames: float, what: str = "the plan") -> None:
+    """Refuse a plan over MAX_PLAN_POINTS points or MAX_PLAN_FRAMES frames, saying how many it has."""
+    if points > MAX_PLAN_POINTS or frames > MAX_PLAN_FRAMES:
+        raise ConfigError(
+            f"{what} would have {int(points):,} probe points and {int(frames):,} frames (limits: "
+            f"{MAX_PLAN_POINTS:,} points, {MAX_PLAN_FRAMES:,} frames); use a larger spacing_mm or "
+            "fewer frames"
+        )
+
+
 def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     """The plan a scene's `plan:` section describes (CSV, grid or cross)."""
     if plan_config.get("csv"):
-        return read_plan_csv(plan_config["csv"])
+        plan = read_plan_csv(plan_config["csv"])
+        check_plan_size(len(plan), plan["frames"].sum(), str(plan_config["csv"]))
+        return plan
     depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
+    spacing = float(plan_config["spacing_mm"])
+    if spacing > 0 and np.isfinite(spacing):
+        width, height = plan_area_mm(sensor)
+        points = (width // spacing + 1) * (height // spacing + 1) * len(depths)
+        check_plan_size(points, points * plan_config["frames"], f"spacing_mm={spacing:g}: the plan")
     if plan_config.get("pattern", "grid") == "cross":
         return cross_plan(
             sensor,

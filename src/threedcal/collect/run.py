@@ -6,14 +6,23 @@ Timing is synchronised, not guessed: a press is captured only after Marlin repor
 done (M400), and the travel to the next point is queued right after the capture, so the printer
 moves while the store writes. The path is short: the probe lifts only to the clearance height above
 the gel and rows are serpentine-ordered.
+
+Stopping is safe: on SIGINT (Ctrl-C), SIGTERM or any error the probe is lifted to the sensor's
+clearance height, the move is waited for and the steppers are released as the printer profile's
+`safe_stop.release` says; an error that leaves the printer untrustworthy (halted, reset, gone
+silent or disconnected) sends M112 instead. A signal that arrives while a G-code line is in flight
+takes effect once that line is settled, so host and firmware stay in step; a second one stops at once.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import signal
+import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -21,7 +30,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_to_printer
-from threedcal.collect.store import PointRecord, RawStore
+from threedcal.collect.store import PointRecord, RawStore, StoreError
 
 
 class FrameSource(Protocol):
@@ -48,6 +57,14 @@ class WallClock:
         time.sleep(seconds)
 
 
+class CollectionInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped a collection (raised after the probe was made safe)."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(f"{signal.Signals(signum).name} during collection")
+
+
 @dataclass(frozen=True)
 class MotionSettings:
     """Feeds and waits of a probing run (from the sensor profile's `probing` section)."""
@@ -71,6 +88,75 @@ class RunResult:
     duration_s: float  # wall time of this run
     hardware_s: float  # printer clock elapsed (the motion model's on the simulated bench)
     resumed_at: int
+    replayed: bool = False  # the run went through the plan from its start (see `collect`)
+
+
+@contextlib.contextmanager
+def stop_on_signals(printer) -> Iterator[None]:
+    """SIGINT and SIGTERM raise CollectionInterrupted — between printer exchanges, never inside one
+    (the host defers it until the line in flight is settled); a second signal raises at once.
+    Outside the main thread (where Python cannot install handlers) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def handle(signum, frame) -> None:
+        received.append(signum)
+        error = CollectionInterrupted(signum)
+        defer = getattr(printer, "interrupt_after_exchange", None)
+        if len(received) == 1 and defer is not None and defer(error):
+            return
+        raise error
+
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, handle) for s in signals}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def unrecoverable(error: BaseException) -> bool:
+    """A printer fault after which no G-code can be trusted to run: halted, reset, silent, gone."""
+    from threedcal.hardware.printer import (
+        PrinterDisconnected,
+        PrinterHalted,
+        PrinterReset,
+        PrinterTimeout,
+    )
+
+    return isinstance(error, PrinterHalted | PrinterReset | PrinterTimeout | PrinterDisconnected)
+
+
+def make_safe(printer, safe_z: float, feed_mm_s: float, cause: BaseException | None) -> str:
+    """Lift to `safe_z`, wait for the move, release the steppers (printer profile); M112 when the
+    printer cannot be trusted or the lift itself fails. Returns what was done, for the log."""
+    if cause is not None and unrecoverable(cause):
+        _emergency_stop(printer)
+        return "emergency stop (M112): the printer could not be trusted to move"
+    if not getattr(printer, "homed", True):
+        return "nothing to lift: the printer was not homed"
+    try:
+        printer.move_to(z=safe_z, feed_mm_s=feed_mm_s)
+        printer.wait_until_idle()
+        release = getattr(printer, "release_motors", None)
+        if release is not None:
+            release()
+    except BaseException as exc:  # noqa: BLE001 - a failed lift (or a second Ctrl-C): stop hard
+        _emergency_stop(printer)
+        return f"emergency stop (M112): lifting failed ({type(exc).__name__}: {exc})"
+    return f"probe lifted to Z={safe_z:g} mm, steppers released as the printer profile says"
+
+
+def _emergency_stop(printer) -> None:
+    stop = getattr(printer, "emergency_stop", None)
+    if stop is not None:
+        try:
+            stop()
+        except Exception:  # noqa: BLE001 - M112 is the last resort; nothing more can be done
+            pass
 
 
 def collect(
@@ -84,96 +170,181 @@ def collect(
     clock: Clock | None = None,
     attach_probe: Callable[[], None] | None = None,
     progress: bool = True,
+    replay: bool = False,
 ) -> RunResult:
+    """Probe every point the store has not captured.
+
+    `replay` (the simulated bench): go through the whole plan from its start — blank included —
+    moving and sampling as an uninterrupted run would, writing only what is missing and checking
+    that the rest comes out as stored. The simulated sensor then sees the same timeline as an
+    uninterrupted run, so a resumed store is byte-identical to one collected in one go.
+    """
     clock = clock or WallClock()
-    hardware_clock = hardware_clock or clock.now
-    plan: pd.DataFrame = store.plan
-    start = store.first_uncaptured()
-    started_wall, started_clock, started_hw = time.monotonic(), clock.now(), hardware_clock()
-    if start is None:
-        return RunResult(0, 0, 0.0, 0.0, len(plan))
-    safe_z = clearance_z(sensor)
-    printer.home()
-    printer.hold_motors()
-    if attach_probe is not None:
-        attach_probe()
-    if not store.has_blank():
-        cx, cy = (v / 2 for v in plan_area_mm(sensor))
-        x, y, _ = plan_to_printer(sensor, cx, cy, 0.0)
-        printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
-        printer.move_to(x=x, y=y, feed_mm_s=settings.travel_feed_mm_s)
-        printer.wait_until_idle()
-        clock.sleep(settings.settle_s)
-        camera.flush()
-        blank, _ = camera.capture(settings.n_blank)
-        store.write_blank(blank)
-    frames_done = 0
-    offsets = store.offsets
+    run = _Run(store, sensor, printer, camera, settings, clock, hardware_clock or clock.now, replay)
+    if run.start is None:
+        return RunResult(0, 0, 0.0, 0.0, len(store.plan))
+    run.record(new=True)
     bar = tqdm(
-        total=len(plan),
-        initial=start,
+        total=len(store.plan),
+        initial=run.start,
         desc="collect",
         unit="pt",
         disable=not progress,
         dynamic_ncols=True,
     )
-    # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed gel
-    # sits lower away from its apex), never above the clearance height.
-    surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
-    try:
-        for point in range(start, len(plan)):
+    with stop_on_signals(printer):
+        try:
+            printer.home()
+            printer.hold_motors()
+            if attach_probe is not None:
+                attach_probe()
+            run.blank()
+            run.probe(bar)
+            printer.move_to(z=run.safe_z, feed_mm_s=settings.plunge_feed_mm_s)
+            printer.wait_until_idle()
+            release = getattr(printer, "release_motors", None)
+            if release is not None:
+                release()
+        except BaseException as exc:
+            outcome = make_safe(printer, run.safe_z, settings.plunge_feed_mm_s, exc)
+            run.record(stopped=f"{type(exc).__name__}: {exc}".strip(": "), safe_stop=outcome)
+            bar.close()
+            logging.getLogger("threedcal").warning(
+                "collection stopped (%s); %s", type(exc).__name__, outcome
+            )
+            raise
+    bar.close()
+    run.record()
+    return run.result()
+
+
+class _Run:
+    """One collection run's state: where it started, what it has written, its clocks."""
+
+    def __init__(self, store, sensor, printer, camera, settings, clock, hardware_clock, replay):
+        self.store, self.sensor, self.printer, self.camera = store, sensor, printer, camera
+        self.settings, self.clock, self.hardware_clock, self.replay = (
+            settings,
+            clock,
+            hardware_clock,
+            replay,
+        )
+        self.plan: pd.DataFrame = store.plan
+        self.start = store.first_uncaptured()
+        self.started_wall = time.monotonic()
+        self.started_clock, self.started_hw = clock.now(), hardware_clock()
+        self.done = np.asarray(store.captured, dtype=bool)
+        self.safe_z = clearance_z(sensor)
+        self.points = self.frames = 0
+
+    def record(self, new: bool = False, **extra: Any) -> None:
+        """Keep this run's record in the store up to date (a killed run still counts)."""
+        self.store.record_run(
+            {
+                "resumed_at": self.start,
+                "replayed": self.replay or self.start == 0,
+                "points": self.points,
+                "frames": self.frames,
+                "duration_s": round(time.monotonic() - self.started_wall, 3),
+                "hardware_s": round(self.hardware_clock() - self.started_hw, 3),
+                **extra,
+            },
+            new=new,
+        )
+
+    def result(self) -> RunResult:
+        return RunResult(
+            points=self.points,
+            frames=self.frames,
+            duration_s=time.monotonic() - self.started_wall,
+            hardware_s=self.hardware_clock() - self.started_hw,
+            resumed_at=self.start,
+            replayed=self.replay,
+        )
+
+    def blank(self) -> None:
+        """No-contact frames at the clearance height over the plan's centre (passed over when
+        stored already, on a replay)."""
+        store, settings, printer = self.store, self.settings, self.printer
+        if not (self.replay or not store.has_blank()):
+            return
+        cx, cy = (v / 2 for v in plan_area_mm(self.sensor))
+        x, y, _ = plan_to_printer(self.sensor, cx, cy, 0.0)
+        printer.move_to(z=self.safe_z, feed_mm_s=settings.plunge_feed_mm_s)
+        printer.move_to(x=x, y=y, feed_mm_s=settings.travel_feed_mm_s)
+        printer.wait_until_idle()
+        self.clock.sleep(settings.settle_s)
+        self.camera.flush()
+        if store.has_blank():
+            _pass_over(self.camera, settings.n_blank)
+        else:
+            blank, _ = self.camera.capture(settings.n_blank)
+            store.write_blank(blank)
+
+    def probe(self, bar) -> None:
+        store, sensor, printer, settings, plan = (
+            self.store,
+            self.sensor,
+            self.printer,
+            self.settings,
+            self.plan,
+        )
+        offsets = store.offsets
+        first = 0 if self.replay else self.start
+        # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed
+        # gel sits lower away from its apex), never above the clearance height.
+        surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
+        for point in range(first, len(plan)):
             row = plan.iloc[point]
             target = plan_to_printer(sensor, row.x_mm, row.y_mm, row.depth_mm)
-            previous = surface_z[point - 1] if point > start else np.inf
-            hop_z = min(safe_z, max(previous, surface_z[point]) + settings.hop_mm)
+            previous = surface_z[point - 1] if point > first else np.inf
+            hop_z = min(self.safe_z, max(previous, surface_z[point]) + settings.hop_mm)
             printer.move_to(z=hop_z, feed_mm_s=settings.plunge_feed_mm_s)
             printer.move_to(x=target[0], y=target[1], feed_mm_s=settings.travel_feed_mm_s)
             printer.move_to(z=target[2], feed_mm_s=settings.plunge_feed_mm_s)
             printer.wait_until_idle()
-            clock.sleep(settings.settle_s)
+            self.clock.sleep(settings.settle_s)
             reported = tuple(printer.position())
-            camera.flush()
+            self.camera.flush()
             count = int(offsets[point + 1] - offsets[point])
-            frames, stamps = camera.capture(count)
-            hw_now = hardware_clock() - started_hw
+            if self.done[point]:
+                samples = _pass_over(self.camera, count)
+            else:
+                frames, stamps = self.camera.capture(count)
+            hw_now = self.hardware_clock() - self.started_hw
             lift_to = surface_z[point + 1] if point + 1 < len(plan) else np.inf
-            lift_z = min(safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
+            lift_z = min(self.safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
             printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
+            if self.done[point]:
+                if samples is not None and not np.array_equal(samples, store.read_point(point)):
+                    raise StoreError(
+                        f"{store.path}: replaying point {point} of the simulated bench did not "
+                        "give the samples stored for it (was the simulator changed since?); move "
+                        "the store away to collect it anew"
+                    )
+                continue
             store.write_point(
                 point,
                 PointRecord(
                     frames=frames,
                     cmd_xyz=target,
                     reported_xyz=reported,
-                    t_s=np.asarray(stamps, dtype=float) - started_clock,
+                    t_s=np.asarray(stamps, dtype=float) - self.started_clock,
                     hardware_s=np.full(count, hw_now),
                 ),
             )
-            frames_done += count
+            self.points += 1
+            self.frames += count
+            self.record()
             bar.update(1)
-        printer.move_to(z=safe_z, feed_mm_s=settings.plunge_feed_mm_s)
-        printer.wait_until_idle()
-    finally:
-        bar.close()
-    return RunResult(
-        points=len(plan) - start,
-        frames=frames_done,
-        duration_s=time.monotonic() - started_wall,
-        hardware_s=hardware_clock() - started_hw,
-        resumed_at=start,
-    )
 
 
-def summary(store: RawStore, runs: list[RunResult], estimated_hardware_s: float) -> dict[str, Any]:
-    """results/{scene}/collect/summary.json content (the results layout in the README)."""
-    frames = int(store.offsets[-1])
-    duration = sum(r.duration_s for r in runs)
-    return {
-        "points": len(store.plan),
-        "frames": frames,
-        "duration_s": round(duration, 3),
-        "frames_per_s": round(sum(r.frames for r in runs) / duration, 3) if duration > 0 else None,
-        "estimated_hardware_s": round(estimated_hardware_s, 1),
-        "resumed_at": [r.resumed_at for r in runs],
-        "store": str(Path(store.path)),
-    }
+def _pass_over(camera, count: int):
+    """Sample `count` times without keeping anything; returns the samples when the source could
+    only be read (to check), None when it skipped them (the simulated camera skips rendering)."""
+    skip = getattr(camera, "skip", None)
+    if skip is not None:
+        skip(count)
+        return None
+    samples, _ = camera.capture(count)
+    return samples

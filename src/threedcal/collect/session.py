@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
-import shutil
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,10 +19,23 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import zarr
 
 from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.collect.run import MotionSettings, RunResult, collect
-from threedcal.collect.store import IMAGE_LAYOUT, RawStore, frame_offsets, readings_layout
+from threedcal.collect.store import (
+    IMAGE_LAYOUT,
+    RawStore,
+    SettingsMismatch,
+    StoreError,
+    canonical_json,
+    check_settings,
+    frame_offsets,
+    plan_digest,
+    readings_layout,
+    settings_digest,
+    store_summary,
+)
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
@@ -41,6 +55,13 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
     plan = plan_from_config(scene["plan"], sensor)
     plan_source = scene["plan"].get("csv") or f"{source} grid plan"
     validate_plan(plan, sensor, printer, source=str(plan_source))
+    if scene["port"] == "sim":
+        from threedcal.sim.marlin import parse_faults
+
+        try:
+            parse_faults(scene.get("bench", {}).get("faults", ""))
+        except ConfigError as exc:
+            raise ConfigError(f"{source}.bench.faults: {exc}") from None
     if scene["port"] != "sim" and str(scene.get("camera", "sim")) == "sim":
         device = (
             "set the scene's `camera` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
@@ -79,6 +100,57 @@ def _store_attrs(name: str, scene: Mapping, prepared: ScenePlan) -> dict[str, An
     }
 
 
+def frame_settings(scene: Mapping, prepared: ScenePlan) -> dict[str, Any]:
+    """Everything the collected frames depend on, canonical: the plan (its points, not how the
+    config spells it), the probe, the full sensor and printer profiles and, on the simulated
+    bench, the seed and the bench settings. Recorded in the store: a resume or a rerun with other
+    settings is refused, naming the keys. Device names (port, camera path) are not included: they
+    change when a cable moves, the frames do not."""
+    plan = prepared.plan
+    simulated = scene["port"] == "sim"
+    settings: dict[str, Any] = {
+        "plan": {
+            "points": len(plan),
+            "frames": int(plan["frames"].sum()),
+            "digest": plan_digest(plan),
+        },
+        "probe": dict(scene["probe"]),
+        "sensor": _profile_content(prepared.sensor),
+        "printer": _profile_content(prepared.printer),
+        "simulated": simulated,
+    }
+    if simulated:
+        settings["seed"] = int(scene["seed"])
+        settings["bench"] = dict(scene.get("bench", {}))
+    return json.loads(canonical_json(settings))
+
+
+# Profile keys no frame depends on: where the file was read from, words, and how the host talks to
+# the printer and stops it. Changing them never blocks a resume or a rerun.
+NOT_FRAME_SETTINGS = ("source", "description", "timeouts_s", "safe_stop")
+
+
+def _profile_content(profile: Mapping) -> dict:
+    """A profile's content that frames can depend on."""
+    return {k: v for k, v in profile.items() if k not in NOT_FRAME_SETTINGS}
+
+
+def _refuse_foreign(path: Path) -> None:
+    """`path` may be absent or a collection store; anything else is never written into."""
+    if not path.exists():
+        return
+    if not path.is_dir():
+        raise ConfigError(
+            f"{path}: exists and is a file, not a collection store; refusing to write there "
+            "(choose another --out, or move the file away)"
+        )
+    if not (path / "zarr.json").is_file():
+        raise ConfigError(
+            f"{path}: exists and is not a collection store (no zarr.json); refusing to write into "
+            "it (choose another --out, or move it away)"
+        )
+
+
 def collect_scene(
     name: str,
     scene: Mapping,
@@ -88,48 +160,98 @@ def collect_scene(
     truth_path: str | Path | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Collect (or resume) a scene into `store_path`; returns the summary."""
-    prepared = prepare(scene, source=f"scenes.{name}")
+    """Collect (or resume, or find already collected) a scene's store at `store_path`; its summary.
+
+    With `staging_path` the store is filled there and moved to `store_path` only when complete. A
+    store at `store_path` is never touched: if its recorded settings are the config's, its summary
+    is returned; if not, a SettingsMismatch names the keys that differ. A partial store is resumed
+    only with the settings it was started with.
+    """
+    source = f"scenes.{name}"
+    prepared = prepare(scene, source=source)
+    settings = frame_settings(scene, prepared)
+    digest = settings_digest(settings)
     store_path = Path(store_path)
     staging = Path(staging_path) if staging_path else store_path
-    if store_path.exists() and staging != store_path:
-        raise ConfigError(f"{store_path}: already exists; refusing to overwrite collected data")
-    shape, layout = _sample_layout(prepared)
-    if staging.exists():
-        store = RawStore.open_for_resume(staging, prepared.plan)
+    simulated = scene["port"] == "sim"
+    if staging != store_path and store_path.exists():
+        summary = finished_store_summary(store_path, prepared.plan, settings)
+        if staging.exists():
+            logging.getLogger("threedcal").warning(
+                "%s is finished; the partial store %s beside it is ignored (move it away)",
+                store_path,
+                staging,
+            )
     else:
-        staging.parent.mkdir(parents=True, exist_ok=True)
-        store = RawStore.create(
-            staging,
-            prepared.plan,
-            shape,
-            prepared.settings.n_blank,
-            _store_attrs(name, scene, prepared),
-            layout,
+        _refuse_foreign(staging)
+        if staging.exists():
+            store = RawStore.open_for_resume(staging, prepared.plan, settings)
+        else:
+            staging.parent.mkdir(parents=True, exist_ok=True)
+            shape, layout = _sample_layout(prepared)
+            store = RawStore.create(
+                staging,
+                prepared.plan,
+                shape,
+                prepared.settings.n_blank,
+                _store_attrs(name, scene, prepared),
+                layout,
+                settings=settings,
+            )
+        if not store.complete:
+            if simulated:
+                _collect_simulated(scene, prepared, store, progress)
+            else:
+                _collect_hardware(scene, prepared, store, progress)
+            store.finalize({"summary": store_summary(store)})
+        if staging != store_path:
+            os.replace(staging, store_path)  # one rename: the store is whole or not there at all
+        summary = store_summary(
+            RawStore(store_path, zarr.open_group(str(store_path), mode="r"), prepared.plan)
         )
-    runs = list(store.group.attrs.get("runs", []))
-    if scene["port"] == "sim":
-        result, truth = _collect_simulated(scene, prepared, store, progress)
-        if truth_path is not None:
-            truth.write(truth_path)
-    else:
-        result = _collect_hardware(scene, prepared, store, progress)
-    runs.append(
-        {
-            "points": result.points,
-            "frames": result.frames,
-            "duration_s": result.duration_s,
-            "hardware_s": result.hardware_s,
-            "resumed_at": result.resumed_at,
-        }
-    )
-    store.group.attrs["runs"] = runs
-    summary = _summary(store, runs)
-    store.finalize({"summary": summary})
-    if staging != store_path:
-        shutil.move(str(staging), str(store_path))
-    summary["store"] = str(store_path)
-    return summary
+    if simulated and truth_path is not None:
+        simulated_truth(scene, prepared).write(truth_path)
+    return {**summary, "store": str(store_path), "frame_digest": digest}
+
+
+def finished_store_summary(
+    path: Path, plan: pd.DataFrame, settings: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The summary of a finished store, after checking it holds what the config asks for."""
+    try:
+        group = zarr.open_group(str(path), mode="r")
+        attrs = dict(group.attrs)
+    except Exception as exc:  # noqa: BLE001 - any failure to open is one message naming the store
+        raise StoreError(
+            f"{path}: exists but is not a readable collection store ({exc}); it is never "
+            "overwritten: move it away to collect anew"
+        ) from None
+    store = RawStore(path, group, plan)
+    if not attrs.get("complete", False):
+        raise StoreError(
+            f"{path}: exists but is not complete ({store.progress()}); move it to the staging "
+            "path to resume it, or away to collect anew (it is never overwritten)"
+        )
+    check_settings(path, attrs, settings, store.progress(), finished=True)
+    if attrs.get("plan_digest") != plan_digest(plan):
+        raise SettingsMismatch(
+            f"{path}: was collected with another plan (digest {attrs.get('plan_digest')}, the "
+            f"config's {plan_digest(plan)}); restore the plan to use it, or move it away to "
+            "collect anew (it is never overwritten)"
+        )
+    return store_summary(store)
+
+
+def simulated_truth(scene: Mapping, prepared: ScenePlan):
+    """The simulated bench's hidden truth (seating, touch height): drawn from the seed alone, so
+    it is the same whether or not this run collected the frames."""
+    if is_magnetic(prepared.sensor):
+        from threedcal.sim.reskin import draw_reskin_truth
+
+        return draw_reskin_truth(scene["bench"], scene["seed"])
+    from threedcal.sim.bench import draw_truth
+
+    return draw_truth(prepared.sensor, scene["bench"], scene["seed"])
 
 
 def is_magnetic(sensor: Mapping) -> bool:
@@ -148,7 +270,7 @@ def _sample_layout(prepared: ScenePlan):
     return (image["height_px"], image["width_px"], 3), IMAGE_LAYOUT
 
 
-def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bool):
+def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bool) -> RunResult:
     """The simulated bench: fake printer and simulated sensor — the gel camera, or the ReSkin board
     behind its own serial URL — coupled through the head pose."""
     from threedcal.hardware.printer import MarlinHost
@@ -177,7 +299,9 @@ def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bo
             source = stack.enter_context(ReSkinReader(prepared.sensor, bench.sensor_url))
         else:
             source = bench.camera
-        result = collect(
+        # Replay: a resumed run goes through the plan from the start, so the simulated sensor
+        # sees an uninterrupted run's timeline and the store comes out byte-identical.
+        return collect(
             store,
             prepared.sensor,
             host,
@@ -186,8 +310,8 @@ def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bo
             hardware_clock=bench.firmware.clock.now,
             clock=_BenchClock(bench.firmware),
             progress=progress,
+            replay=True,
         )
-        return result, bench.truth
 
 
 def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: bool) -> RunResult:
@@ -219,19 +343,6 @@ def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: boo
         )
 
 
-def _summary(store: RawStore, runs: list[dict]) -> dict[str, Any]:
-    duration = sum(r["duration_s"] for r in runs)
-    frames = sum(r["frames"] for r in runs)
-    return {
-        "points": len(store.plan),
-        "frames": int(store.offsets[-1]),
-        "duration_s": round(duration, 3),
-        "frames_per_s": round(frames / duration, 2) if duration > 0 else None,
-        "estimated_hardware_s": round(sum(r["hardware_s"] for r in runs), 1),
-        "runs": len(runs),
-    }
-
-
 class _EstimateSink:
     """Stands in for the store when only the printer's time is wanted: nothing is kept."""
 
@@ -251,6 +362,13 @@ class _EstimateSink:
 
     def write_point(self, point, record) -> None:
         pass
+
+    def record_run(self, record, new: bool = False) -> None:
+        pass
+
+    @property
+    def captured(self) -> np.ndarray:
+        return np.zeros(len(self.plan), dtype=bool)
 
 
 class _ClockOnlyCamera:

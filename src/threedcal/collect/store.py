@@ -6,8 +6,13 @@ Layout::
              point, rep, x_mm, y_mm, depth_mm (plan-relative, commanded),
              cmd_{x,y,z}_mm (printer frame), reported_{x,y,z}_mm (M114), t_s, hardware_s
     blank_frames (blank, y, x, channel) uint8   no-contact frames
-    captured (plan_point,) bool             set only after a point's frames and labels are written
-    attrs                                   profiles, plan, seeds, versions, run metadata
+    captured (plan_point,) bool             set only after a point's frames and labels are written;
+                                            its attrs["runs"]: one record per collection run, kept
+                                            up to date after every point (so a killed run counts)
+    attrs                                   profiles, plan, seeds, versions, run metadata;
+                                            frame_settings (what the frames depend on, canonical)
+                                            and frame_digest (its sha256): a resume with other
+                                            settings is refused, naming the keys that differ
 
 A sensor that is not a camera stores its samples under another `SampleLayout`: a ReSkin store holds
 ``readings (frame, value) float32`` and ``blank_readings (blank, value)`` with the same per-frame
@@ -16,6 +21,9 @@ coordinates, plus a ``value`` coordinate naming each value (``bx0``, ``by0``, ..
 
 The store is preallocated from the plan (chunks are written only when filled), so a crash or kill
 loses at most the point being captured: a resumed run starts at the first point not `captured`.
+Every chunk is written, even one that equals the fill value (``write_empty_chunks``), so a chunk
+missing from a finished store is data lost, never a black frame: :func:`open_checked` reads a
+store back whole (every record and every chunk) or raises an error naming the store and the point.
 """
 
 from __future__ import annotations
@@ -34,7 +42,12 @@ import numpy as np
 import pandas as pd
 import zarr
 
-from threedcal.errors import ConfigError
+from threedcal.config import canonical_json, plain
+from threedcal.errors import ConfigError, ThreedcalError
+
+# 2: every chunk written (write_empty_chunks), frame settings recorded. 1 (no attribute): older stores.
+STORE_FORMAT = 2
+WRITE_EVERY_CHUNK = {"array.write_empty_chunks": True}
 
 PLAN_COORDS = {
     "point": "int32",
@@ -109,6 +122,49 @@ class PointRecord:
     )  # (K,) printer clock at capture (the motion model's, on the simulated bench)
 
 
+class StoreError(ThreedcalError):
+    """A collection store is missing, incomplete, damaged or holds other settings than expected."""
+
+
+class SettingsMismatch(ConfigError):
+    """A store was collected with other settings than the config asks for now."""
+
+
+def settings_digest(settings: Mapping[str, Any]) -> str:
+    return hashlib.sha256(canonical_json(settings).encode()).hexdigest()[:16]
+
+
+def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    """{"a": {"b": 1}} → {"a.b": 1}: the keys a message can name."""
+    if isinstance(value, Mapping) and value:
+        out: dict[str, Any] = {}
+        for key in sorted(value):
+            out.update(flatten(value[key], f"{prefix}.{key}" if prefix else str(key)))
+        return out
+    return {prefix: value}
+
+
+def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], limit: int = 12) -> list[str]:
+    """`key: old → new` for every setting that differs (at most `limit`, then a count)."""
+    before, after = (
+        flatten(json.loads(canonical_json(old))),
+        flatten(json.loads(canonical_json(new))),
+    )
+    lines = []
+    for key in sorted(set(before) | set(after)):
+        a, b = before.get(key, "(absent)"), after.get(key, "(absent)")
+        if a != b:
+            lines.append(f"{key}: {_short(a)} → {_short(b)}")
+    if len(lines) > limit:
+        lines = lines[:limit] + [f"... and {len(lines) - limit} more"]
+    return lines
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value) if not isinstance(value, str) else value
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 class RawStore:
     """Create, resume and fill a collection store."""
 
@@ -122,9 +178,11 @@ class RawStore:
         self._arrays: dict[str, zarr.Array] = {}
 
     def _array(self, name: str) -> zarr.Array:
-        """An array of the group, opened once (opening reads its metadata: ms per call)."""
+        """An array of the group, opened once (opening reads its metadata: ms per call), set to
+        write every chunk (a frame equal to the fill value must still be on disk)."""
         if name not in self._arrays:
-            self._arrays[name] = self.group[name]
+            with zarr.config.set(WRITE_EVERY_CHUNK):
+                self._arrays[name] = self.group[name]
         return self._arrays[name]
 
     @classmethod
@@ -136,7 +194,9 @@ class RawStore:
         n_blank: int,
         attrs: Mapping[str, Any],
         layout: SampleLayout = IMAGE_LAYOUT,
+        settings: Mapping[str, Any] | None = None,
     ) -> RawStore:
+        """A new, empty store. `settings`: what the frames depend on (recorded with its digest)."""
         path = Path(path)
         if path.exists():
             raise ConfigError(f"{path}: already exists; refusing to overwrite collected data")
@@ -145,7 +205,12 @@ class RawStore:
         building = path.with_name(path.name + ".creating")
         if building.exists():
             shutil.rmtree(building)
-        cls._build(building, plan, tuple(sample_shape), n_blank, attrs, layout)
+        record = dict(attrs)
+        if settings is not None:
+            record["frame_settings"] = json.loads(canonical_json(settings))
+            record["frame_digest"] = settings_digest(settings)
+        with zarr.config.set(WRITE_EVERY_CHUNK):
+            cls._build(building, plan, tuple(sample_shape), n_blank, record, layout)
         os.replace(building, path)
         return cls(path, zarr.open_group(str(path), mode="r+"), plan)
 
@@ -160,7 +225,11 @@ class RawStore:
                 f"{len(layout.value_names)} value names for {sample_shape[-1]} values per sample"
             )
         group = zarr.open_group(str(path), mode="w-", zarr_format=3)
-        layout_attrs = {"sample_variable": layout.variable, "blank_variable": layout.blank_variable}
+        layout_attrs = {
+            "sample_variable": layout.variable,
+            "blank_variable": layout.blank_variable,
+            "store_format": STORE_FORMAT,
+        }
         group.attrs.update(
             json.loads(
                 json.dumps(
@@ -207,28 +276,46 @@ class RawStore:
         for name, dtype in FRAME_COORDS.items():
             data = plan_values.get(name, np.full(n_frames, np.nan))
             group.create_array(name, data=np.asarray(data, dtype=dtype), dimension_names=["frame"])
-        group.create_array(
+        captured = group.create_array(
             "captured", data=np.zeros(len(plan), dtype=bool), dimension_names=["plan_point"]
         )
+        captured.attrs["runs"] = []
 
     @classmethod
-    def open_for_resume(cls, path: str | Path, plan: pd.DataFrame) -> RawStore:
+    def open_for_resume(
+        cls, path: str | Path, plan: pd.DataFrame, settings: Mapping[str, Any] | None = None
+    ) -> RawStore:
+        """An existing store, to be completed. With `settings` (what the frames depend on now),
+        a store recorded with other settings is refused, naming every key that differs."""
         path = Path(path)
         try:
             group = zarr.open_group(str(path), mode="r+")
-        except (FileNotFoundError, zarr.errors.GroupNotFoundError) as exc:
+        except (FileNotFoundError, NotADirectoryError, zarr.errors.GroupNotFoundError) as exc:
             raise ConfigError(f"{path}: not a threedcal collection store") from exc
+        except (OSError, ValueError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"{path}: not a readable collection store ({exc})") from exc
+        store = cls(path, group, plan)
+        if settings is not None:
+            check_settings(path, group.attrs, settings, store.progress())
         stored = group.attrs.get("plan_digest")
         if stored != plan_digest(plan):
-            raise ConfigError(
+            raise SettingsMismatch(
                 f"{path}: this store was collected with a different plan (digest {stored}, now "
                 f"{plan_digest(plan)}); move it away or choose another output — it is never overwritten"
             )
-        return cls(path, group, plan)
+        return store
 
     @property
     def captured(self) -> np.ndarray:
         return self._array("captured")[:]
+
+    def progress(self) -> str:
+        """`21 of 90 points captured` (for messages)."""
+        try:
+            done = int(self.captured.sum())
+        except Exception:  # noqa: BLE001 - a message must not fail on a damaged store
+            return "its progress unreadable"
+        return f"{done} of {len(self.plan)} points captured"
 
     def first_uncaptured(self) -> int | None:
         missing = np.flatnonzero(~self.captured)
@@ -244,6 +331,24 @@ class RawStore:
     @property
     def complete(self) -> bool:
         return bool(self.group.attrs.get("complete", False))
+
+    # ---- run records: kept on the small `captured` array, rewritten after every point -------
+    @property
+    def runs(self) -> list[dict[str, Any]]:
+        captured = self._array("captured")
+        if "runs" in captured.attrs:
+            return list(captured.attrs["runs"])
+        return list(self.group.attrs.get("runs", []))  # stores written before run records moved
+
+    def record_run(self, record: Mapping[str, Any], new: bool = False) -> None:
+        """Start (`new`) or update the record of the current run."""
+        runs = self.runs
+        entry = json.loads(json.dumps(dict(record), default=plain))
+        if new or not runs:
+            runs.append(entry)
+        else:
+            runs[-1] = entry
+        self._array("captured").attrs["runs"] = runs
 
     def write_point(self, point: int, record: PointRecord) -> None:
         """Frames, then labels, then the `captured` flag: a crash in between redoes this point."""
@@ -269,12 +374,23 @@ class RawStore:
             self._array(name)[start:stop] = values
         self._array("captured")[point] = True
 
+    def read_point(self, point: int) -> np.ndarray:
+        """The samples stored for one point (a replayed run compares against them)."""
+        start, stop = int(self.offsets[point]), int(self.offsets[point + 1])
+        return self._array(self.variable)[start:stop]
+
     def finalize(self, extra_attrs: Mapping[str, Any] | None = None) -> None:
         if self.first_uncaptured() is not None:
             raise RuntimeError(
                 f"{self.path}: cannot finalize, point {self.first_uncaptured()} is not captured"
             )
-        self.group.attrs.update(json.loads(json.dumps({**(extra_attrs or {}), "complete": True})))
+        self.group.attrs.update(
+            json.loads(
+                json.dumps(
+                    {**(extra_attrs or {}), "runs": self.runs, "complete": True}, default=plain
+                )
+            )
+        )
         with (
             warnings.catch_warnings()
         ):  # "consolidated metadata is not in the v3 spec" — xarray reads it
@@ -282,8 +398,80 @@ class RawStore:
             zarr.consolidate_metadata(str(self.path))
 
 
+def check_settings(
+    path: Path,
+    attrs: Mapping[str, Any],
+    settings: Mapping[str, Any],
+    progress: str = "",
+    *,
+    finished: bool = False,
+) -> None:
+    """Refuse a store whose recorded frame settings differ from `settings`, naming each key
+    (old → new) and saying how to go on. A store never records them if an older threedcal made
+    it: a partial one is then refused, a finished one accepted on its plan (checked by the caller)."""
+    recorded = attrs.get("frame_settings")
+    if recorded is None:
+        if finished:
+            return
+        raise SettingsMismatch(
+            f"{path}: made by an older threedcal that did not record what its frames depend on "
+            f"({progress or 'progress unknown'}), so it cannot be resumed safely; move it away to "
+            "start over (it is never deleted)"
+        )
+    if attrs.get("frame_digest") == settings_digest(settings):
+        return
+    changes = describe_changes(recorded, settings)
+    keep = (
+        "To use it, restore those settings. To collect anew, move it away first"
+        if finished
+        else "Restore those settings to resume it, or move it away to start over"
+    )
+    raise SettingsMismatch(
+        f"{path} ({progress}) was collected with other settings than the config has now "
+        "(recorded → config):\n  "
+        + "\n  ".join(changes)
+        + f"\n{keep} (e.g. `mv {path} {path}.old`); it is never deleted or overwritten"
+    )
+
+
+def store_summary(store: RawStore) -> dict[str, Any]:
+    """summary.json's counts for the whole store, every run included (interrupted ones too):
+    points and frames captured, wall time spent, frames written per second, and the printer time
+    of the plan — the last run's own for a replayed simulated run (it went through all of it), the
+    sum of runs since the last start from scratch otherwise."""
+    runs = store.runs
+    captured = np.asarray(store.captured, dtype=bool)
+    per_point = np.diff(store.offsets)
+    duration = float(sum(r.get("duration_s", 0.0) for r in runs))
+    written = int(sum(r.get("frames", 0) for r in runs))
+    starts = [i for i, r in enumerate(runs) if r.get("replayed", i == 0)]
+    hardware = float(sum(r.get("hardware_s", 0.0) for r in runs[max(starts or [0]) :]))
+    return {
+        "points": int(captured.sum()),
+        "frames": int(per_point[captured].sum()),
+        "duration_s": round(duration, 3),
+        "frames_per_s": round(written / duration, 2) if duration > 0 else None,
+        "estimated_hardware_s": round(hardware, 1),
+        "runs": len(runs),
+    }
+
+
+def collected_store(summary_path: str | Path) -> tuple[Path, str | None]:
+    """The store a `collect` summary.json names, and the frame-settings digest it records."""
+    summary_path = Path(summary_path)
+    try:
+        summary = json.loads(summary_path.read_text())
+        return Path(summary["store"]), summary.get("frame_digest")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise StoreError(
+            f"{summary_path}: not a collection summary naming its store ({_first_line(exc)}); "
+            "rerun the `collect` stage"
+        ) from None
+
+
 def open_raw(path: str | Path):
-    """The store as an xarray Dataset (frames or readings with their per-frame label coordinates)."""
+    """The store as a lazy xarray Dataset (frames or readings with their per-frame label
+    coordinates), for a look; the stages that use its data read it with `open_checked`."""
     import xarray as xr
 
     path = Path(path)
@@ -292,3 +480,149 @@ def open_raw(path: str | Path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", category=UserWarning)
         return xr.open_zarr(path, consolidated=None)
+
+
+def open_checked(path: str | Path, expect_digest: str | None = None):
+    """The whole store read into memory, or a StoreError naming the store and the point.
+
+    Checks, in order: a Zarr store, marked complete, holding the frame settings `expect_digest`
+    (the digest summary.json recorded, when the store records one), every point captured, and every
+    chunk of every array present and decodable. A store from an older threedcal (before every
+    chunk was written) is checked the same way except that a missing chunk of a label array
+    (which may just have equalled the fill value) is not an error.
+    """
+    import xarray as xr
+
+    path = Path(path)
+    if not (path / "zarr.json").is_file():
+        raise StoreError(
+            f"{path}: no collection store there (no zarr.json); run the `collect` stage, or put "
+            "the store back if it was moved"
+        )
+    try:
+        group = zarr.open_group(str(path), mode="r")
+        attrs = dict(group.attrs)
+        names = sorted(group.array_keys())
+    except Exception as exc:  # noqa: BLE001 - any failure to open is one message naming the store
+        raise StoreError(f"{path}: not a readable collection store ({_first_line(exc)})") from None
+    if not attrs.get("complete", False):
+        raise StoreError(
+            f"{path}: the collection is not complete (complete=false); run `collect` again to finish it"
+        )
+    recorded = attrs.get("frame_digest")
+    if expect_digest is not None and recorded is not None and recorded != expect_digest:
+        raise StoreError(
+            f"{path}: holds frames collected with settings digest {recorded}, but "
+            f"collect/summary.json records {expect_digest}: the store was replaced after the summary "
+            "was written; rerun the `collect` stage (it checks the store against the config)"
+        )
+    offsets = _stored_offsets(attrs)
+    strict = int(attrs.get("store_format", 1)) >= STORE_FORMAT
+    samples = {attrs.get("sample_variable", "frames"), attrs.get("blank_variable", "blank_frames")}
+    if "captured" not in names:
+        raise StoreError(
+            f"{path}: has no `captured` record; it is not a threedcal collection store"
+        )
+    arrays = {
+        name: _read_array(path, name, group[name], offsets, strict or name in samples)
+        for name in names
+    }
+    missing = np.flatnonzero(~np.asarray(arrays["captured"], dtype=bool))
+    if missing.size:
+        raise StoreError(
+            f"{path}: marked complete, but point(s) {_ranges(missing)} are not captured "
+            f"({missing.size} of {arrays['captured'].size}); the store is damaged: recollect"
+        )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", category=UserWarning)
+        lazy = xr.open_zarr(path, consolidated=None)
+    variables = {
+        name: variable.copy(deep=False, data=arrays[name])
+        for name, variable in lazy.variables.items()
+    }
+    return xr.Dataset(
+        {name: variables[name] for name in lazy.data_vars},
+        coords={name: variables[name] for name in lazy.coords},
+        attrs=lazy.attrs,
+    )
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+def _stored_offsets(attrs: Mapping[str, Any]) -> np.ndarray | None:
+    frames = attrs.get("plan", {}).get("frames") if isinstance(attrs.get("plan"), Mapping) else None
+    if not frames:
+        return None
+    return np.concatenate([[0], np.cumsum(np.asarray(frames, dtype=np.int64))])
+
+
+def _ranges(values) -> str:
+    """[1, 2, 3, 7] → '1–3, 7' (at most five runs, then a count)."""
+    values = sorted(int(v) for v in values)
+    runs: list[list[int]] = []
+    for v in values:
+        if runs and v == runs[-1][1] + 1:
+            runs[-1][1] = v
+        else:
+            runs.append([v, v])
+    text = [f"{a}" if a == b else f"{a}–{b}" for a, b in runs[:5]]
+    if len(runs) > 5:
+        text.append(f"... ({len(values)} in all)")
+    return ", ".join(text)
+
+
+def _chunk_place(name: str, array: zarr.Array, coords: tuple[int, ...], offsets) -> str:
+    """Which frames and probe points a chunk holds, in words."""
+    dims = array.metadata.dimension_names or ()
+    if not dims or not array.shape:
+        return f"array {name}"
+    size = array.chunks[0]
+    first = coords[0] * size
+    last = min(first + size, array.shape[0]) - 1
+    span = f"{first}" if first == last else f"{first}–{last}"
+    if dims[0] == "frame":
+        if offsets is not None:
+            points = np.searchsorted(offsets, [first, last], side="right") - 1
+            point = (
+                f"point {points[0]}"
+                if points[0] == points[1]
+                else f"points {points[0]}–{points[1]}"
+            )
+            return f"{point} ({name}, frame {span})"
+        return f"{name}, frame {span}"
+    if dims[0] == "blank":
+        return f"the blank (no-contact) frames ({name} {span})"
+    if dims[0] == "plan_point":
+        return f"points {span} ({name})"
+    return f"{name} {span}"
+
+
+def _read_array(path: Path, name: str, array: zarr.Array, offsets, check_missing: bool):
+    """Every chunk of `array`: present (when `check_missing`) and decodable, or a StoreError."""
+    grid = array.cdata_shape if array.size else ()
+    if check_missing:
+        for coords in np.ndindex(*grid):
+            key = array.metadata.encode_chunk_key(coords)
+            if not (path / array.path / key).is_file():
+                raise StoreError(
+                    f"{path}: {_chunk_place(name, array, coords, offsets)}: chunk "
+                    f"{array.path}/{key} is missing — the data was lost after it was written "
+                    "(never read as black); restore the store from a backup or recollect"
+                )
+    try:
+        return array[...]
+    except Exception as whole:  # noqa: BLE001 - find the chunk that fails, to name it
+        for coords in np.ndindex(*grid):
+            try:
+                array.get_block_selection(coords)
+            except Exception as exc:  # noqa: BLE001 - a codec error of any kind
+                key = array.metadata.encode_chunk_key(coords)
+                raise StoreError(
+                    f"{path}: {_chunk_place(name, array, coords, offsets)}: chunk "
+                    f"{array.path}/{key} is corrupt or truncated ({_first_line(exc)}); restore "
+                    "the store from a backup or recollect"
+                ) from None
+        raise StoreError(f"{path}: array {name} cannot be read ({_first_line(whole)})") from None

@@ -71,16 +71,19 @@ def build_collected(
     figure_path: str | Path,
     truth_path: str | Path | None = None,
     progress: bool = True,
+    expect_digest: str | None = None,
 ) -> dict:
     """Raw store → registration (affine + touch height) → exact labels → splits → model-ready set.
 
     Labels use only what a real user knows: the sphere, the plan and the registration fitted here.
     The bench's hidden truth (simulated scenes) is read only to report the registration's error.
+    The store is read back whole and checked first (complete, every point captured, every chunk
+    present and readable; `expect_digest`: the frame settings collect/summary.json recorded).
     """
     import json
 
     from threedcal.collect.plan import dome_sag_mm
-    from threedcal.collect.store import open_raw
+    from threedcal.collect.store import open_checked
     from threedcal.config import training_fractions
     from threedcal.dataset.labels import contact_radius_mm
     from threedcal.dataset.registration import estimate_touch, register
@@ -89,7 +92,7 @@ def build_collected(
 
     sensor = load_profile("sensor", scene["sensor"])
     radius_mm = float(scene["probe"]["radius_mm"])
-    raw = open_raw(store_path)
+    raw = open_checked(store_path, expect_digest)
     frames = raw["frames"]
     height, width = frames.shape[1:3]
     blank = raw["blank_frames"].values.astype(np.float32).mean(axis=0)

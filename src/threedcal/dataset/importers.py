@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.config import load_yaml
+from threedcal.config import load_yaml, plain
 from threedcal.errors import ConfigError
 
 BALL_LABEL_COLUMNS = ("image", "center_x_px", "center_y_px", "radius_px")
@@ -45,12 +45,72 @@ class ImportedDataset:
 
 
 def read_rgb(path: Path) -> np.ndarray:
+    """An 8-bit colour image as (H, W, 3) uint8 RGB. Grey, 16-bit or transparent images are refused
+    (naming the file) rather than converted: a silently rescaled or replicated channel would train
+    a model on something no sensor gives it."""
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    path = Path(path)
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
     if image is None:
         raise ConfigError(f"{path}: missing or not a readable image")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if image.dtype != np.uint8:
+        raise ConfigError(
+            f"{path}: a {8 * image.dtype.itemsize}-bit image ({image.dtype}); threedcal reads 8-bit "
+            "RGB images (save it with 8 bits per channel)"
+        )
+    if channels == 4:
+        if not np.all(image[..., 3] == 255):
+            raise ConfigError(
+                f"{path}: has transparent pixels (an alpha channel); threedcal reads opaque RGB images"
+            )
+        image = image[..., :3]
+    elif channels != 3:
+        raise ConfigError(
+            f"{path}: a {'grey' if channels == 1 else f'{channels}-channel'} image; threedcal reads "
+            "8-bit RGB images (a sensor frame has three colour channels)"
+        )
+    return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2RGB)
+
+
+def _member(folder: Path, name: object, where: str) -> Path:
+    """A file named in a table, which must lie inside `folder` (no absolute paths, no `..`)."""
+    text = str(name).strip()
+    parts = Path(text).parts
+    if not text or Path(text).is_absolute() or ".." in parts or "\x00" in text:
+        raise ConfigError(
+            f"{where}: image name {text!r} must be a relative file name inside {folder} "
+            "(no absolute path, no '..')"
+        )
+    return folder / text
+
+
+def _unique_names(names: list[str], where: str, first_row: int = 2) -> None:
+    seen: dict[str, int] = {}
+    for row, name in enumerate(names, start=first_row):
+        if name in seen:
+            raise ConfigError(
+                f"{where}, row {row}: image {name!r} is listed again (first on row {seen[name]}); "
+                "each image may be labelled once"
+            )
+        seen[name] = row
+
+
+def _centres_inside(table: pd.DataFrame, columns, shape, where: str) -> None:
+    """A labelled contact's centre (column, row) lies on its image: 0 ≤ x ≤ W − 1, 0 ≤ y ≤ H − 1.
+    (py3DCal tables are not held to it: a probe grid may reach past the camera's view.)"""
+    height, width = shape[:2]
+    xs, ys = (table[c].to_numpy(float) for c in columns)
+    bad = np.flatnonzero((xs < 0) | (xs > width - 1) | (ys < 0) | (ys > height - 1))
+    if bad.size:
+        i = int(bad[0])
+        row = i + 2
+        raise ConfigError(
+            f"{where}, row {row}: contact centre ({columns[0]}={plain(xs[i]):g}, "
+            f"{columns[1]}={plain(ys[i]):g}) px lies outside the {width} x {height} px image "
+            f"(allowed: 0..{width - 1}, 0..{height - 1})"
+        )
 
 
 def _require(path: Path, what: str) -> Path:
@@ -80,7 +140,7 @@ def _numeric(table: pd.DataFrame, path: Path, columns, positive=()) -> None:
         for row, value in zip(table.index, values, strict=True):
             if not np.isfinite(value) or (column in positive and value <= 0):
                 rule = "a positive number" if column in positive else "a finite number"
-                raw = table.at[row, column]
+                raw = plain(table.at[row, column])
                 # +2: one for the header line, one because people count rows from 1.
                 raise ConfigError(f"{path}, row {row + 2}: {column}={raw!r} must be {rule}")
         table[column] = values
@@ -110,11 +170,14 @@ def load_ball_folder(folder: str | Path) -> ImportedDataset:
             raise ConfigError(f"{meta_path}: {key} must be a positive number, got {value!r}")
     px_per_mm = float(meta["px_per_mm"])
     radius_mm = float(meta["ball_radius_mm"])
-    labels_path = folder / str(meta.get("labels", "labels.csv"))
+    labels_path = _member(folder, meta.get("labels", "labels.csv"), f"{meta_path}: labels")
     labels = _read_csv(labels_path, BALL_LABEL_COLUMNS)
     if labels.empty:
         raise ConfigError(f"{labels_path}: no labelled image")
     _numeric(labels, labels_path, BALL_LABEL_COLUMNS[1:], positive=("radius_px",))
+    names = [str(n).strip() for n in labels["image"]]
+    paths = [_member(folder, n, f"{labels_path}, row {i + 2}") for i, n in enumerate(names)]
+    _unique_names(names, str(labels_path))
     radius_px = radius_mm * px_per_mm
     too_big = labels["radius_px"] >= radius_px
     if too_big.any():
@@ -123,11 +186,12 @@ def load_ball_folder(folder: str | Path) -> ImportedDataset:
             f"{labels_path}, row {row + 2}: radius_px={labels['radius_px'].iloc[row]} is not smaller "
             f"than the ball's radius ({radius_px:.1f} px)"
         )
-    blank = read_rgb(
-        _require(folder / str(meta.get("background", "background.png")), "blank frame")
+    background = _member(
+        folder, meta.get("background", "background.png"), f"{meta_path}: background"
     )
-    names = [str(n) for n in labels["image"]]
-    frames = [read_rgb(folder / name) for name in names]
+    blank = read_rgb(_require(background, "blank frame"))
+    _centres_inside(labels, ("center_x_px", "center_y_px"), blank.shape, str(labels_path))
+    frames = [read_rgb(path) for path in paths]
     _check_shapes(frames, names, blank, folder)
     drawn = labels["radius_px"].to_numpy(float)
     contact_mm = np.minimum(drawn, BALL_EVAL_RADIUS_CAP * radius_px) / px_per_mm
@@ -154,8 +218,15 @@ def load_py3dcal_folder(folder: str | Path) -> ImportedDataset:
     meta_path = _require(annotations / "metadata.json", "written by py3DCal's annotate()")
     try:
         meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{meta_path}: not valid JSON ({exc})") from exc
+    except OSError as exc:
+        raise ConfigError(f"{meta_path}: cannot read ({exc.strerror})") from exc
+    if not isinstance(meta, dict):
+        raise ConfigError(
+            f"{meta_path}: must be a JSON object (px_per_mm, probe_radius_mm, ...), "
+            f"got a {type(meta).__name__}"
+        )
     for key in ("px_per_mm", "probe_radius_mm"):
         value = meta.get(key)
         if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
@@ -164,14 +235,32 @@ def load_py3dcal_folder(folder: str | Path) -> ImportedDataset:
     columns = ("img_name", "x_mm", "y_mm", "penetration_depth_mm", "x_px", "y_px")
     table = _read_csv(table_path, columns)
     # py3DCal writes a "---" row for a point whose capture failed: no image, skip it.
-    table = table[table["img_name"].astype(str) != "---"].reset_index(drop=True)
+    # py3DCal writes a "---" row for a point whose capture failed: no image, skip it. Rows keep
+    # their number in the file (+2: the header, and counting from 1) for messages.
+    kept = table["img_name"].astype(str).str.strip() != "---"
+    rows = (np.flatnonzero(kept) + 2).tolist()
+    table = table[kept].reset_index(drop=True)
     if table.empty:
         raise ConfigError(f"{table_path}: no annotated probe image")
+    table.index = pd.Index(np.asarray(rows) - 2)
     _numeric(table, table_path, columns[1:], positive=("penetration_depth_mm",))
+    table = table.reset_index(drop=True)
+    names = [str(n).strip() for n in table["img_name"]]
+    images_dir = folder / "probe_images"
+    paths = [
+        _member(images_dir, n, f"{table_path}, row {r}") for n, r in zip(names, rows, strict=True)
+    ]
+    seen: dict[str, int] = {}
+    for name, row in zip(names, rows, strict=True):
+        if name in seen:
+            raise ConfigError(
+                f"{table_path}, row {row}: image {name!r} is listed again (first on row "
+                f"{seen[name]}); each image may be annotated once"
+            )
+        seen[name] = row
     blank = read_rgb(_require(folder / "blank_images" / "blank.png", "blank frame"))
-    names = [str(n) for n in table["img_name"]]
-    frames = [read_rgb(_require(folder / "probe_images" / n, "probe image")) for n in names]
-    _check_shapes(frames, names, blank, folder / "probe_images")
+    frames = [read_rgb(_require(path, "probe image")) for path in paths]
+    _check_shapes(frames, names, blank, images_dir)
     px_per_mm = float(meta["px_per_mm"])
     radius_mm = float(meta["probe_radius_mm"])
     depth = np.minimum(table["penetration_depth_mm"].to_numpy(float), radius_mm)
@@ -197,6 +286,14 @@ def load_py3dcal_folder(folder: str | Path) -> ImportedDataset:
 
 
 IMPORTERS = {"ball_folder": load_ball_folder, "py3dcal": load_py3dcal_folder}
+
+
+def check_import(format_name: str, path: str | Path) -> None:
+    """Everything the import stage would refuse, found now (`threedcal config check`): the folder,
+    its description and tables row by row, and every image it names. Nothing is written."""
+    if not Path(path).exists():
+        raise ConfigError(f"{path}: does not exist (the folder of the dataset to import)")
+    load_imported(format_name, path)
 
 
 def load_imported(format_name: str, path: str | Path) -> ImportedDataset:

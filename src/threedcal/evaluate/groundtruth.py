@@ -9,6 +9,7 @@ depth at any d a clip, which the indentation fit exploits.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -60,18 +61,38 @@ def check_indentation(indentation_mm: float, max_penetration_mm: float | None) -
 
 
 def pose_vertices(
-    mesh: Mesh, px_per_mm: float, center_px: Sequence[float], rotation_deg: float
+    mesh: Mesh,
+    px_per_mm: float,
+    center_px: Sequence[float],
+    rotation_deg: float,
+    linear_px_per_mm: np.ndarray | None = None,
 ) -> np.ndarray:
     """(V, 3): column, row (pixels) and height above the mesh's lowest point (mm).
 
     The object's origin goes to `center_px` (x = column, y = row); it turns by `rotation_deg`
-    about its origin, clockwise as displayed (image y points down).
+    about its origin, clockwise as displayed (image y points down). `linear_px_per_mm` (2 x 2,
+    object mm → pixels) replaces scale and rotation with any linear map, e.g. a registration's.
     """
-    c, s = np.cos(np.radians(rotation_deg)), np.sin(np.radians(rotation_deg))
+    linear = pose_linear(px_per_mm, rotation_deg, linear_px_per_mm)
     x, y, z = mesh.vertices.T
-    col = center_px[0] + px_per_mm * (c * x - s * y)
-    row = center_px[1] + px_per_mm * (s * x + c * y)
+    col = center_px[0] + linear[0, 0] * x + linear[0, 1] * y
+    row = center_px[1] + linear[1, 0] * x + linear[1, 1] * y
     return np.column_stack([col, row, z - z.min()])
+
+
+def pose_linear(
+    px_per_mm: float, rotation_deg: float, linear_px_per_mm: np.ndarray | None = None
+) -> np.ndarray:
+    """The 2 x 2 map object mm → image pixels of a pose."""
+    if linear_px_per_mm is not None:
+        linear = np.asarray(linear_px_per_mm, dtype=np.float64)
+        if linear.shape != (2, 2) or not np.all(np.isfinite(linear)):
+            raise ConfigError(f"linear_px_per_mm must be a finite 2 x 2 matrix, got {linear}")
+        if abs(np.linalg.det(linear)) < 1e-12:
+            raise ConfigError(f"linear_px_per_mm is singular: {linear.tolist()}")
+        return linear
+    c, s = np.cos(np.radians(rotation_deg)), np.sin(np.radians(rotation_deg))
+    return px_per_mm * np.array([[c, -s], [s, c]])
 
 
 def surface_height(
@@ -80,11 +101,14 @@ def surface_height(
     px_per_mm: float,
     center_px: Sequence[float] | None = None,
     rotation_deg: float = 0.0,
+    linear_px_per_mm: np.ndarray | None = None,
 ) -> HeightMap:
     """Rasterise the gel-facing surface of `mesh` posed on an image of `shape` (H, W).
 
     `center_px` defaults to the image centre. Parts outside the image are clipped; the lowest point
-    counts even when it lies outside the image (the object still rests on it).
+    counts even when it lies outside the image (the object still rests on it). With
+    `linear_px_per_mm` the pose is that linear map (see `pose_vertices`); the HeightMap then
+    records its mean scale and the turn of the object's x axis.
     """
     height, width = (int(v) for v in shape[:2])
     if height < 1 or width < 1:
@@ -94,8 +118,15 @@ def surface_height(
     if center_px is None:
         center_px = ((width - 1) / 2, (height - 1) / 2)
     center = (float(center_px[0]), float(center_px[1]))
-    verts = pose_vertices(mesh, px_per_mm, center, float(rotation_deg))
-    zbuf = _rasterise_min(verts[mesh.faces], height, width)
+    linear = pose_linear(px_per_mm, float(rotation_deg), linear_px_per_mm)
+    verts = pose_vertices(mesh, px_per_mm, center, 0.0, linear)
+    faces = mesh.faces
+    if np.linalg.det(linear) < 0:  # a mirroring map (flipped camera) turns every face's winding
+        faces = faces[:, ::-1]
+    zbuf = _rasterise_min(verts[faces], height, width)
+    if linear_px_per_mm is not None:
+        px_per_mm = math.sqrt(abs(np.linalg.det(linear)))
+        rotation_deg = math.degrees(math.atan2(linear[1, 0], linear[0, 0]))
     return HeightMap(zbuf, float(px_per_mm), center, float(rotation_deg))
 
 

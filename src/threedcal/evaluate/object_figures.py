@@ -138,10 +138,12 @@ def table_ii_markdown(
     p: int = 80,
     by: str = "scene",
     metrics: Sequence[str] = ("overall_um", "type1_um", "type2_um"),
+    protocol: str = "printer",
 ) -> str:
     """Table II: one row per object, one column group per `by` value (sensor or scene), MAE in µm.
 
-    `errors` holds rows of `objects/errors.csv` with a `by` column added; only fraction `p` is used.
+    `errors` holds rows of `objects/errors.csv` with a `by` column added; only fraction `p` and,
+    where the table has a `protocol` column, that protocol (`printer` or `paper`) are used.
     """
     needed = {"object", "P", by, *metrics}
     if needed - set(errors.columns):
@@ -149,13 +151,20 @@ def table_ii_markdown(
             f"Table II: error table lacks columns {sorted(needed - set(errors.columns))}"
         )
     chosen = errors[errors["P"] == p]
+    heading = f"MAE in µm at P = {p} %."
+    if "protocol" in errors.columns:
+        chosen = chosen[chosen["protocol"] == protocol]
+        heading = f"MAE in µm at P = {p} %, {protocol} protocol."
     if chosen.empty:
-        raise ConfigError(f"Table II: no rows with P = {p} (have {sorted(set(errors['P']))})")
+        raise ConfigError(
+            f"Table II: no rows with P = {p} and protocol {protocol!r} "
+            f"(have P {sorted(set(errors['P']))})"
+        )
     groups = list(dict.fromkeys(chosen[by]))
     names = {"overall_um": "overall", "type1_um": "Type 1", "type2_um": "Type 2"}
     header = ["object"] + [f"{g} {names.get(m, m)}" for g in groups for m in metrics]
     lines = [
-        f"MAE in µm at P = {p} %.",
+        heading,
         "",
         "| " + " | ".join(header) + " |",
         "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|",

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 import time
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,6 +128,34 @@ class HostStats:
     ignored: int = 0  # unparseable lines (noise)
 
 
+_ADVANCED_OK = re.compile(r"(?:N\d+\s*)?(?:P\d+\s*)?(?:B\d+\s*)?")
+_LAST_LINE = re.compile(r"Last Line:\s*(\d+)", re.IGNORECASE)
+
+
+@dataclass
+class _Answer:
+    """What arrived since the last `ok`: the parts of the firmware's answer to one line."""
+
+    resend: int | None = None  # Resend: k
+    error: str | None = None  # a line error (checksum, line number)
+    refusal: str | None = None  # Unknown command / other Error: the line ran but was refused
+
+    def __bool__(self) -> bool:
+        """True when the answer is a refusal of the line (it did not run)."""
+        return self.resend is not None or self.error is not None
+
+    def wanted(self) -> int | None:
+        """The line the firmware wants next: Resend's number, else the error's Last Line + 1."""
+        if self.resend is not None:
+            return self.resend
+        match = _LAST_LINE.search(self.error or "")
+        return int(match.group(1)) + 1 if match else None
+
+    def is_checksum_error(self) -> bool:
+        text = (self.error or "").lower()
+        return "checksum" in text and "line number" not in text
+
+
 class MarlinHost:
     """Talk to one Marlin printer. Use as a context manager; all coordinates in mm, feeds in mm/s."""
 
@@ -148,6 +178,8 @@ class MarlinHost:
         self.port_name = port
         self.stats = HostStats()
         self.acked: list[tuple[int, str]] = []  # (line number, command) in acknowledgement order
+        self.ack_times: dict[int, float] = {}  # port-clock time each line was known to have run
+        self.transmissions: Counter[int] = Counter()  # how often each line number was sent
         self.firmware_info: dict[str, str] = {}
         self.homed = False
         self.commanded: tuple[float, float, float] | None = None
@@ -157,6 +189,11 @@ class MarlinHost:
         self._buf = b""
         self._motion_done_at = 0.0
         self._closed = False
+        self._unanswered: deque[int] = deque()  # line of each transmission whose answer is owed
+        self._unsettled: int | None = None  # a line whose exchange an interrupt cut off
+        self._sync_lines: set[int] = set()  # lines that were M110 (a repeat of one runs again)
+        self._in_exchange = False
+        self._interrupt: BaseException | None = None
         self._port = open_port(port, int(self.profile["baudrate"]))
         self._now: Callable[[], float] = getattr(self._port, "threedcal_clock", time.monotonic)
         # Real ports: wake up twice a second to re-check the deadline. A simulated port's clock only
@@ -233,116 +270,209 @@ class MarlinHost:
     def _remaining_motion(self) -> float:
         return max(0.0, self._motion_done_at - self._now())
 
+    @property
+    def in_exchange(self) -> bool:
+        """True while a line is on its way (sent, its fate not yet known)."""
+        return self._in_exchange
+
+    def interrupt_after_exchange(self, error: BaseException) -> bool:
+        """Raise `error` once the line now in flight is settled (True), or refuse (False: no line
+        in flight, or one interrupt is already waiting) so the caller raises it at once."""
+        if not self._in_exchange or self._interrupt is not None:
+            return False
+        self._interrupt = error
+        return True
+
     def send(self, command: str, motion_s: float = 0.0) -> list[str]:
-        """Send one command as the next numbered line; return its output lines once it is acknowledged.
+        """Send one command as the next numbered line; return its output lines once it has run.
 
         `motion_s`: modelled seconds of motion the command may wait for (stretches the timeout).
         """
         if self._closed:
             raise PrinterError(f"{self.port_name}: the connection is closed")
+        if self._unsettled is not None:
+            # An earlier exchange was cut off (an interrupt): settle that line first. Safe: the
+            # firmware runs it at most once, and only lines in order.
+            n, self._unsettled = self._unsettled, None
+            self._finish(n, self._deliver(n, 0.0))
         n = self._next
         self._history[n] = command.strip()
         self._next = n + 1
-        line = n
-        while True:
-            status, value = self._exchange(line, motion_s if line == n else 0.0)
-            if status == "ack":
-                self.acked.append((line, self._history[line]))
-                self.stats.lines += 1
-                if line == n:
-                    return value
-                line += 1
-            else:  # the firmware lost lines we thought delivered: go back to the one it asks for
-                line = value
+        if self._history[n].upper().startswith("M110"):
+            self._sync_lines.add(n)
+        return self._finish(n, self._deliver(n, motion_s))
 
-    def _exchange(self, n: int, motion_s: float) -> tuple[str, Any]:
+    def _finish(self, n: int, output: list[str]) -> list[str]:
+        self.acked.append((n, self._history[n]))
+        self.ack_times[n] = self._now()
+        self.stats.lines += 1
+        if self._interrupt is not None:
+            error, self._interrupt = self._interrupt, None
+            raise error
+        return output
+
+    def _transmit(self, n: int, data: bytes) -> None:
+        self._log(f">> {data.decode().strip()}")
+        self._write(data)
+        self._unanswered.append(n)
+        self.transmissions[n] += 1
+
+    def _deliver(self, n: int, motion_s: float) -> list[str]:
+        """Transmit line `n` until the firmware has run it; its output lines.
+
+        Marlin answers every line it receives with one `ok`, preceded by an error and `Resend: k`
+        when it refused the line (k = its last line + 1). It runs only line last + 1, so sending
+        a line again is always safe. What is known for certain, and used: an `ok` with no error
+        before it means the line now in flight ran (every earlier one had); `Resend: k` (or an
+        error's `Last Line: k-1`) with k > n means it ran. `Resend: n` means it had not run when
+        that answer was written: a refusal of this line, or a stale answer to an extra copy of
+        the previous line (sent after a timeout), told apart by the error (a checksum error can
+        only be about the line in flight) and by the count of answers still owed.
+        """
+        self._in_exchange = True
+        try:
+            return self._deliver_line(n, motion_s)
+        except CommandRejected:
+            raise  # the line was read and answered: settled
+        except BaseException:
+            if not self._closed:
+                self._unsettled = n  # settled first by the next send()
+            self._interrupt = None  # the exception that ended the exchange is what propagates
+            raise
+        finally:
+            self._in_exchange = False
+
+    def _deliver_line(self, n: int, motion_s: float) -> list[str]:
         command = self._history[n]
         data = format_line(n, command)
         allowance = self.reply_timeout_s + MOTION_MARGIN * (self._remaining_motion() + motion_s)
-        self._log(f">> {data.decode().strip()}")
-        self._write(data)
+        self._transmit(n, data)
         deadline = self._now() + allowance
         output: list[str] = []
-        rejected: str | None = None
-        resend: int | None = None
-        retries = resends = 0
+        answer = _Answer()
+        retries = refusals = 0
+        printed = False  # output lines since the last `ok`
         while True:
             text = self._readline(deadline)
             if text is None:
-                if retries >= self.retries:
+                if answer:  # an error (and maybe Resend) whose `ok` was lost: it is the answer
+                    outcome, answer = self._settle(n, answer), _Answer()
+                elif retries >= self.retries:
                     raise PrinterTimeout(
                         f"{self.port_name}: no reply to line N{n} {command!r} after "
                         f"{retries} retransmission(s) and {allowance:.1f} s each; is the printer "
                         "on, at the profile's baud rate, and running Marlin?"
                     )
-                retries += 1
-                self.stats.timeouts += 1
-                self._write(data)  # safe: Marlin refuses a line number it has already run
-                deadline = self._now() + allowance
-                continue
-            if "\ufffd" in text or not text.isprintable():
+                else:
+                    retries += 1
+                    self.stats.timeouts += 1
+                    self._transmit(n, data)  # safe: Marlin refuses a line number it has run
+                    deadline = self._now() + allowance
+                    continue
+            elif "\ufffd" in text or not text.isprintable():
                 self.stats.ignored += 1  # line noise: a garbled line is no message at all
                 continue
-            reply = classify(text)
-            kind = reply.kind
-            if kind is Reply.OK:
-                if resend is None:
-                    if rejected:
-                        raise CommandRejected(f"printer refused {command!r}: {rejected}")
-                    return "ack", output
-                target, resend = resend, None
-                sync = command.upper().startswith("M110")
-                if target == n + 1 and not sync:
-                    return "ack", output  # we had sent a line it had already run: all is well
+            else:
+                reply = classify(text)
+                kind = reply.kind
+                if kind is Reply.OK:
+                    extra = text[2:].strip(" :")
+                    if extra and not _ADVANCED_OK.fullmatch(extra):
+                        output.append(extra)  # a report on the ok line (`ok X:1 Y:2 Z:3`)
+                    outcome, answer = self._settle(n, answer, printed), _Answer()
+                    printed = False
+                elif kind is Reply.RESEND:
+                    answer.resend = reply.number
+                    continue
+                elif kind is Reply.LINE_ERROR:
+                    answer.error = text
+                    continue
+                elif kind is Reply.BUSY:
+                    self.stats.busy += 1
+                    deadline = max(deadline, self._now() + self.reply_timeout_s)
+                    continue
+                elif kind is Reply.FATAL:
+                    self.homed = False
+                    raise PrinterHalted(
+                        f"{self.port_name}: the printer halted during {command!r}: {text} "
+                        "(needs a reset: power-cycle or reconnect, then home again)"
+                    )
+                elif kind is Reply.START:
+                    self.homed = False
+                    raise PrinterReset(
+                        f"{self.port_name}: the printer reset itself during line N{n} {command!r} "
+                        "(it printed 'start'); its position is lost: stop, reconnect and home again"
+                    )
+                elif kind in (Reply.UNKNOWN_COMMAND, Reply.ERROR):
+                    answer.refusal = text
+                    continue
+                elif kind is Reply.TEMPERATURE:
+                    self.stats.temperature_reports += 1
+                    continue
+                else:
+                    if answer:
+                        # Output after a refusal: the refusal's `ok` was lost and a copy of line n
+                        # is running now (a refused line prints nothing). Settle the refusal for
+                        # the count of owed answers; the running copy's `ok` answers for line n.
+                        outcome, answer = self._settle(n, answer), _Answer()
+                        if outcome == "ran":
+                            return output
+                    output.append(text)
+                    printed = True
+                    continue
+            # one whole answer has arrived: act on what it says about line n
+            if outcome == "ran":
+                return output
+            if outcome == "refused":
                 self.stats.resends += 1
-                resends += 1
-                if resends > max(10, 4 * self.retries):
+                refusals += 1
+                if refusals > max(10, 4 * self.retries):
                     raise PrinterError(
-                        f"{self.port_name}: line N{n} {command!r} was refused {resends} times in a "
+                        f"{self.port_name}: line N{n} {command!r} was refused {refusals} times in a "
                         "row; the serial link is too noisy (cable, USB hub, baud rate?)"
                     )
-                if target < n:
-                    return "rewind", target
-                if target > n + 1 and not sync:
-                    raise PrinterError(
-                        f"{self.port_name}: the printer expects line {target} but the host has sent "
-                        f"only up to {n}; is another program talking to the printer?"
-                    )
-                self._write(data)  # line n itself (or the M110 handshake) again
+                self._transmit(n, data)
                 deadline = self._now() + allowance
-                output, rejected = [], None
-            elif kind is Reply.RESEND:
-                resend = reply.number
-            elif kind is Reply.BUSY:
-                self.stats.busy += 1
-                deadline = max(deadline, self._now() + self.reply_timeout_s)
-            elif kind is Reply.LINE_ERROR:
-                pass  # its Resend follows
-            elif kind is Reply.FATAL:
-                self._closed_after(
-                    PrinterHalted,
-                    f"the printer halted during {command!r}: {text} "
-                    "(needs a reset: power-cycle or reconnect, then home again)",
-                )
-            elif kind is Reply.START:
-                self.homed = False
-                self._closed_after(
-                    PrinterReset,
-                    f"the printer reset itself during line N{n} {command!r} "
-                    "(it printed 'start'); its position is lost: stop, reconnect and home again",
-                )
-            elif kind is Reply.UNKNOWN_COMMAND:
-                rejected = text
-            elif kind is Reply.ERROR:
-                rejected = text
-            elif kind is Reply.TEMPERATURE:
-                self.stats.temperature_reports += 1
-            else:
-                output.append(text)
+            # "stale": an answer owed to an earlier copy; keep waiting for this line's own
 
-    def _closed_after(self, error: type[PrinterError], message: str) -> None:
-        self.close()
-        raise error(f"{self.port_name}: {message}")
+    def _settle(self, n: int, answer: _Answer, printed: bool = False) -> str:
+        """What one complete answer says about line n: "ran", "refused" or "stale".
+
+        `printed`: output lines came with it (only a line that runs prints anything)."""
+        oldest = self._unanswered.popleft() if self._unanswered else n
+        command = self._history[n]
+        if not answer:
+            if oldest in self._sync_lines and oldest != n and not printed:
+                return "stale"  # a repeated M110 runs again (it is exempt from the line check)
+            # accepted and run; only line n can have been (every earlier line had run already)
+            while self._unanswered and self._unanswered[0] < n:
+                self._unanswered.popleft()  # answers that were lost on the way
+            if answer.refusal:
+                raise CommandRejected(f"printer refused {command!r}: {answer.refusal}")
+            return "ran"
+        if command.upper().startswith("M110"):
+            return "refused"  # M110 is exempt from the line check: any error means it did not run
+        wanted = answer.wanted()
+        if wanted is None:
+            # an error with neither Resend nor Last Line: a refusal, of this copy or an earlier one
+            return "stale" if oldest < n and not answer.is_checksum_error() else "refused"
+        if wanted > n + 1:
+            raise PrinterError(
+                f"{self.port_name}: the printer expects line {wanted} but the host has sent only "
+                f"up to {n}; is another program talking to the printer?"
+            )
+        if wanted == n + 1:
+            return "ran"  # it had run line n; this copy was refused as a repeat
+        if wanted < n:
+            raise PrinterError(
+                f"{self.port_name}: the printer asks for line {wanted} again after confirming it "
+                f"(host at line {n}); it lost lines it had acknowledged: stop, reconnect and home"
+            )
+        if answer.is_checksum_error() or oldest >= n:
+            while self._unanswered and self._unanswered[0] < n:
+                self._unanswered.popleft()  # owed answers that will never come
+            return "refused"
+        return "stale"  # "Resend: n" owed to a repeat of line n - 1, sent before line n
 
     # ---- motion --------------------------------------------------------------------------
     def home(self) -> None:
@@ -420,6 +550,18 @@ class MarlinHost:
         """Enable the steppers and switch off their idle timeout for the rest of the run."""
         self.send("M17")
         self.send("M84 S0")
+
+    def release_motors(self) -> None:
+        """After a run or a safe stop, what the profile's `safe_stop.release` says: `steppers_off`
+        (M84: the head can be moved by hand; the position is lost), `idle_timeout` (M84 S<s>:
+        Marlin releases them after that long idle) or `hold` (keep them energised)."""
+        settings = self.profile["safe_stop"]
+        mode = settings["release"]
+        if mode == "steppers_off":
+            self.send("M84")
+            self.homed = False
+        elif mode == "idle_timeout":
+            self.send(f"M84 S{int(round(float(settings['idle_timeout_s'])))}")
 
     def emergency_stop(self) -> None:
         """M112, unnumbered so Marlin's emergency parser acts at once; then close. Needs a reset."""

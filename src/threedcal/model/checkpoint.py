@@ -9,6 +9,8 @@ authors' normalisation (coordinate channels 1…W and 1…H; gradients of the op
 
 from __future__ import annotations
 
+import pickle
+import re
 from pathlib import Path
 from typing import Any
 
@@ -41,20 +43,44 @@ def save_checkpoint(path: str | Path, checkpoint: dict[str, Any]) -> None:
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Load with weights_only=True; wrap an authors' bare TouchNet state_dict as a touchnet checkpoint."""
+    """Load with weights_only=True; wrap an authors' bare TouchNet state_dict as a touchnet checkpoint.
+
+    Every way a file can be unusable is a CheckpointError naming the file: missing, empty,
+    truncated or not a torch file, holding pickled Python objects (refused, never run), or a
+    threedcal checkpoint without the keys inference needs."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: checkpoint missing")
+    if path.stat().st_size == 0:
+        raise CheckpointError(
+            f"{path}: is empty (0 bytes), not a checkpoint; an interrupted copy? copy it again or retrain"
+        )
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # an unsafe pickle raises UnpicklingError; a corrupt file others
+    except pickle.UnpicklingError as exc:
+        # PyTorch's own text advises loading unsafely; it is never quoted. What it found is.
+        found = _UNSAFE_GLOBAL.search(str(exc))
+        if found is None:
+            raise CheckpointError(
+                f"{path}: refused to load: not a readable checkpoint (a damaged or foreign file: "
+                f"{_unpickler_reason(exc)})"
+            ) from None
         raise CheckpointError(
-            f"{path}: refused to load (only tensors, numbers and strings are allowed): "
-            f"{str(exc).splitlines()[0]}"
-        ) from exc
+            f"{path}: refused to load: it holds a pickled Python object ({found.group(1)}) "
+            "besides tensors, numbers and strings, and loading it could run code; threedcal loads "
+            "only plain checkpoints (as its training writes them)"
+        ) from None
+    except Exception as exc:  # truncated, corrupt, or not a torch.save file at all
+        raise CheckpointError(
+            f"{path}: refused to load: not a readable checkpoint ({_first_line(exc)})"
+        ) from None
     if isinstance(data, dict) and data.get("format") == FORMAT:
         if data.get("format_version") != FORMAT_VERSION:
-            raise CheckpointError(f"{path}: checkpoint format version {data.get('format_version')}")
+            raise CheckpointError(
+                f"{path}: checkpoint format version {data.get('format_version')!r}; this "
+                f"threedcal reads version {FORMAT_VERSION}"
+            )
+        _check_keys(path, data)
         return data
     if isinstance(data, dict) and "conv1.weight" in data and "conv9.weight" in data:
         return {
@@ -72,14 +98,86 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     )
 
 
+# What a threedcal checkpoint must hold, and of which type (training writes all of them).
+REQUIRED_KEYS = {"preset": str, "state_dict": dict, "normalisation": dict}
+_UNSAFE_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
+_UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(.+)")
+
+
+def _unpickler_reason(exc: BaseException) -> str:
+    """The unpickler's own reason from PyTorch's message (not its advice), e.g. `Unsupported operand 0`."""
+    found = _UNPICKLER_ERROR.search(str(exc))
+    return found.group(1).strip() if found else "not a pickle"
+
+
+def _check_keys(path: Path, data: dict) -> None:
+    missing = [key for key in REQUIRED_KEYS if key not in data]
+    if missing:
+        raise CheckpointError(
+            f"{path}: threedcal checkpoint without {', '.join(map(repr, missing))} "
+            "(written by another version, or damaged); retrain it"
+        )
+    for key, kind in REQUIRED_KEYS.items():
+        if not isinstance(data[key], kind):
+            raise CheckpointError(
+                f"{path}: {key!r} must be a {kind.__name__}, got {type(data[key]).__name__}"
+            )
+    if "resume_key" in data:
+        return  # a training state (checkpoint.pt): what inference needs is not required
+    sign = data["normalisation"].get("gradient_sign")
+    if not isinstance(sign, int | float) or sign not in (1, -1):
+        raise CheckpointError(f"{path}: normalisation.gradient_sign must be 1 or -1, got {sign!r}")
+    problem = _inference_problem(data)
+    if problem:
+        raise CheckpointError(f"{path}: {problem}")
+
+
+def _inference_problem(data: dict) -> str | None:
+    """What inference would trip over in the optional keys (None: nothing)."""
+    if not isinstance(data.get("preset_args", {}), dict):
+        return f"'preset_args' must be a dict, got {type(data['preset_args']).__name__}"
+    blank = data.get("blank")
+    if blank is not None and not (
+        isinstance(blank, torch.Tensor) and blank.ndim == 3 and blank.shape[2] == 3
+    ):
+        shape = tuple(blank.shape) if isinstance(blank, torch.Tensor) else type(blank).__name__
+        return f"'blank' must be an (H, W, 3) tensor, got {shape}"
+    scale = data.get("px_per_mm")
+    if scale is not None and not (
+        isinstance(scale, int | float) and not isinstance(scale, bool) and 0 < scale < float("inf")
+    ):
+        return f"'px_per_mm' must be a positive number, got {scale!r}"
+    shape = data.get("image_shape")
+    if shape is not None and not (
+        isinstance(shape, list | tuple)
+        and len(shape) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape)
+    ):
+        return f"'image_shape' must be [height, width] in pixels, got {shape!r}"
+    return None
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
 def model_from_checkpoint(checkpoint: dict[str, Any]) -> torch.nn.Module:
-    model = build_model(checkpoint["preset"], **checkpoint.get("preset_args", {}))
+    args = checkpoint.get("preset_args", {})
+    if not isinstance(args, dict):
+        raise CheckpointError(f"preset_args must be a dict, got {type(args).__name__}")
+    try:
+        model = build_model(checkpoint["preset"], **args)
+    except TypeError as exc:
+        raise CheckpointError(
+            f"preset_args do not fit preset {checkpoint['preset']!r}: {_first_line(exc)}"
+        ) from None
     try:
         model.load_state_dict(checkpoint["state_dict"])
-    except RuntimeError as exc:
+    except (RuntimeError, TypeError, AttributeError, ValueError) as exc:
         raise CheckpointError(
-            f"weights do not fit preset {checkpoint['preset']!r}: {str(exc).splitlines()[0]}"
-        ) from exc
+            f"weights do not fit preset {checkpoint['preset']!r}: {_first_line(exc)}"
+        ) from None
     return model
 
 

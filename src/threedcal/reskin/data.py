@@ -34,9 +34,9 @@ class ReSkinSet:
 
 def load_readings(store_path: str | Path) -> ReSkinSet:
     """The ReSkin readings of a complete collection store, baseline subtracted."""
-    from threedcal.collect.store import open_raw
+    from threedcal.collect.store import open_checked
 
-    raw = open_raw(store_path)
+    raw = open_checked(store_path)  # whole and checked: every record, every chunk
     if "readings" not in raw:
         raise ConfigError(
             f"{store_path}: holds no ReSkin readings (variables: {', '.join(map(str, raw.data_vars))})"

@@ -9,6 +9,12 @@ seed and written to a truth file that only the *evaluation* of registration read
 Printer → image, nominally: the centre of the sensor's plan area lies at the image centre, printer +X
 runs along image columns and printer +Y (toward the back) up the image, at the profile's px/mm.
 The hidden seating rotates and shifts the sensor about the plan centre.
+
+A test object can take the ball's place on the head (`mount`): the bench then renders the object
+where the head physically is, turned as mounted. A later session on the same, still seated sensor
+(`start_session`) keeps the gel, its paint and the seating but draws fresh camera noise and a
+lighting drift. Every rendered frame leaves its true pose in `last_render` (hidden truth, like
+`truth`: for reporting only).
 """
 
 from __future__ import annotations
@@ -87,6 +93,20 @@ def draw_truth(sensor: Mapping, settings: Mapping, seed: int) -> BenchTruth:
     )
 
 
+@dataclass(frozen=True)
+class MountedObject:
+    """A test object on the print head instead of the ball, as it truly sits there.
+
+    `offset_mm`: its press-frame origin (x-y centre, lowest point) relative to the probe tip,
+    printer X, Y, Z. `rotation_deg`: how it is turned, in the press frame's convention (clockwise as
+    the image shows it under the nominal seating). The indenter is the object unturned.
+    """
+
+    indenter: object  # threedcal.sim.indenters.Indenter
+    offset_mm: tuple[float, float, float]
+    rotation_deg: float
+
+
 class SimCamera:
     """The bench's camera: renders the gel under the ball wherever the firmware's head is."""
 
@@ -97,6 +117,13 @@ class SimCamera:
 
     def flush(self) -> None:
         self._rep = 0  # a fresh hold: creep and noise restart for the frames that follow
+
+    def skip(self, count: int) -> None:
+        """Spend the time of `count` frames without rendering them (a replayed resume: those
+        frames are stored already, and a render depends only on the pose and the repetition)."""
+        for _ in range(count):
+            self.bench.firmware.clock.advance(1.0 / self.fps)
+            self._rep += 1
 
     def capture(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         frames, stamps = [], []
@@ -134,6 +161,8 @@ class SimBench(FirmwareBench):
         self._z_touch = float(sensor["mount"]["z_touch_mm"]) + self.truth.touch_offset_mm
         self.gel = GelSimulator(sensor, seed=seed)
         self.ball = Sphere(probe_radius_mm)
+        self.tool: MountedObject | None = None
+        self.last_render: dict | None = None
         super().__init__(
             "bench", printer, seed=seed, faults=faults, fault_rate=fault_rate, speedup=speedup
         )
@@ -149,15 +178,44 @@ class SimBench(FirmwareBench):
         v = (center_px[1] - self.gel._cy) / self.gel.px_per_mm
         return self._z_touch - float(self.gel.sag_mm(u, v)) - z_mm
 
+    def mount(self, tool: MountedObject | None) -> None:
+        """Put a test object on the head in place of the ball (None: the ball again)."""
+        self.tool = tool
+
+    def start_session(self, noise_seed: int, gain_rgb) -> None:
+        """A later session on the same sensor, not reseated: same gel, paint and seating; fresh
+        camera noise (`noise_seed`) and the LEDs' brightness scaled by `gain_rgb` per channel."""
+        from threedcal.sim.optics import GelSimulator
+
+        self.gel = GelSimulator(
+            self.sensor, seed=self.seed, noise_seed=noise_seed, gain_rgb=gain_rgb
+        )
+
+    @property
+    def image_rotation_deg(self) -> float:
+        """How the true seating turns printer-frame shapes in the image (press-frame convention)."""
+        linear = self._affine[:, :2] @ np.diag([1.0, -1.0])
+        return math.degrees(math.atan2(linear[1, 0], linear[0, 0]))
+
     def render_now(self, rep: int) -> np.ndarray:
         x, y, z = self.firmware.position()
+        indenter, rotation = self.ball, 0.0
+        if self.tool is not None:
+            indenter = self.tool.indenter
+            rotation = self.image_rotation_deg + self.tool.rotation_deg
+            x, y, z = (a + b for a, b in zip((x, y, z), self.tool.offset_mm, strict=True))
         center = self.pose_px(x, y)
         depth = self.penetration_mm(center, z)
         steps = np.round(np.array([x, y, z]) * 1000).astype(np.int64)
         index = zlib.crc32(np.append(steps, rep).tobytes())  # same pose and rep → same noise
+        self.last_render = {
+            "center_px": center,
+            "rotation_deg": rotation,
+            "depth_mm": self.gel.effective_depth_mm(max(depth, 0.0), rep),  # with creep
+        }
         if depth <= 0:
             return self.gel.blank(frame_index=index)
-        return self.gel.render(self.ball, center, 0.0, depth, frame_index=index, hold_frame=rep)
+        return self.gel.render(indenter, center, rotation, depth, frame_index=index, hold_frame=rep)
 
     @property
     def hardware_s(self) -> float:

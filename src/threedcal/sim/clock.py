@@ -36,3 +36,7 @@ class VirtualClock:
 
     def advance(self, dt: float) -> None:
         self.advance_to(self._now + dt)
+
+    def sleep(self, seconds: float) -> None:
+        """Wait on the clock (the collection loops' Clock protocol: now() and sleep())."""
+        self.advance(seconds)

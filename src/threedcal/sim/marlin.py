@@ -16,9 +16,18 @@ Faults are decided per received numbered line, from a seeded generator (same see
 traffic → same faults). Recoverable kinds: ``checksum`` (line corrupted on the way in → Error +
 Resend), ``drop_line`` (line lost on the way in), ``drop_ok`` (executed, ``ok`` lost on the way
 out), ``busy`` (extra ``echo:busy: processing`` keepalives), ``slow`` (reply delayed 0.5–2.5 s),
-``noise`` (a garbage line), ``temp`` (an interleaved temperature report). Fatal kinds, only when
-named explicitly or scheduled with ``schedule_fault``: ``reset`` (the board reboots: ``start``),
-``disconnect`` (the port vanishes), ``halt`` (``Error:Printer halted. kill() called!``).
+``noise`` (a garbage line), ``temp`` (an interleaved temperature report), ``drop_resend_ok``
+(line corrupted; its ``Resend:`` arrives but the ``ok`` after it is lost), ``drop_resend`` (line
+corrupted; only ``Error:...`` and ``ok`` arrive, the ``Resend:`` is lost), ``late`` (the board
+stalls: the reply comes 1.2–2× the profile's reply timeout after it was due, with no ``busy:``
+keepalive) and ``ok_report`` (an M114 answered on the ok line, ``ok X:.. Y:.. Z:..``, as some
+firmwares do; counted only on M114 lines). Fatal kinds, only when named explicitly or scheduled
+with ``schedule_fault``: ``reset`` (the board reboots: ``start``), ``disconnect`` (the port
+vanishes), ``halt`` (``Error:Printer halted. kill() called!``).
+
+For the soak test the board keeps the ground truth: ``executed`` (number, command) with
+``done_at`` (when each finished: queued for a move, at rest for M400), ``received`` (how often
+each line number arrived) and ``fault_log`` (line number and kind of every injected fault).
 """
 
 from __future__ import annotations
@@ -38,7 +47,20 @@ from threedcal.hardware.gcode import parse_host_line
 from threedcal.hardware.motion import MotionModel, Trapezoid
 from threedcal.sim.clock import VirtualClock
 
-RECOVERABLE_FAULTS = ("checksum", "drop_line", "drop_ok", "busy", "slow", "noise", "temp")
+RECOVERABLE_FAULTS = (
+    "checksum",
+    "drop_line",
+    "drop_ok",
+    "busy",
+    "slow",
+    "noise",
+    "temp",
+    "drop_resend_ok",
+    "drop_resend",
+    "late",
+    "ok_report",
+)
+CORRUPTING_FAULTS = ("checksum", "drop_resend_ok", "drop_resend")
 FATAL_FAULTS = ("reset", "disconnect", "halt")
 FAULT_KINDS = RECOVERABLE_FAULTS + FATAL_FAULTS
 BOOT_S = 1.5  # simulated seconds from reset to `start` (bootloader + init)
@@ -77,11 +99,14 @@ def parse_faults(text: str | None) -> tuple[str, ...]:
         return ()
     if text == "all":
         return RECOVERABLE_FAULTS
+    if not isinstance(text, str):
+        raise ConfigError(f"faults must be a comma-separated text, got {text!r}")
     kinds = tuple(k.strip() for k in text.split(",") if k.strip())
     bad = [k for k in kinds if k not in FAULT_KINDS]
     if bad:
         raise ConfigError(
-            f"unknown fault kind(s) {', '.join(bad)} (allowed: all, {', '.join(FAULT_KINDS)})"
+            f"unknown fault kind(s) {', '.join(map(repr, bad))} "
+            f"(allowed: all, {', '.join(FAULT_KINDS)})"
         )
     return kinds
 
@@ -106,8 +131,8 @@ class SimMarlin:
         self.clock = VirtualClock(speedup)
         self.kinds = parse_faults(faults) if isinstance(faults, str) else tuple(faults)
         parse_faults(",".join(self.kinds))
-        if not 0.0 <= rate <= 1.0:
-            raise ConfigError(f"fault rate must be in [0, 1], got {rate}")
+        if not 0.0 <= rate <= 1.0:  # False for nan too
+            raise ConfigError(f"fault rate must be in [0, 1], got {float(rate)}")
         self.rate = float(rate) if self.kinds else 0.0
         self.seed = int(seed)
         self._rng = random.Random(self.seed)
@@ -116,7 +141,11 @@ class SimMarlin:
         )
         self.keepalive_s = float(self.profile["keepalive_s"])
         self.baud = int(self.profile["baudrate"])
+        self.reply_timeout_s = float(self.profile["timeouts_s"]["reply"])
         self.executed: list[tuple[int | None, str]] = []
+        self.done_at: list[float] = []  # when each executed command finished (parallel list)
+        self.received: Counter[int] = Counter()  # numbered lines, by how often each arrived
+        self.fault_log: list[tuple[int | None, str]] = []
         self.faults_injected: Counter[str] = Counter()
         self.clamped = 0  # moves clipped by the soft endstops
         self.motion_time_s = 0.0
@@ -244,13 +273,19 @@ class SimMarlin:
         if line.command.upper().startswith("M112"):  # the emergency parser acts on arrival
             self._halt(arrival, "Error:Printer halted. kill() called!")
             self.executed.append((line.number, "M112"))
+            self.done_at.append(arrival)
             return
         fault = self._pick_fault(self.kinds) if line.number is not None else None
+        if fault == "ok_report" and not line.command.upper().startswith("M114"):
+            fault = None  # only an M114 has a report to put on its ok line
         if fault:
             self.faults_injected[fault] += 1
+            self.fault_log.append((line.number, fault))
         t = max(arrival, self._ready)
         if fault == "drop_line":
             return
+        if line.number is not None:
+            self.received[line.number] += 1
         if fault == "reset":
             self._reboot(arrival)
             return
@@ -261,18 +296,24 @@ class SimMarlin:
             self._halt(t, "Error:Printer halted. kill() called!")
             return
         if line.number is not None:
-            error = self._line_error(line, fault == "checksum")
+            error = self._line_error(line, fault in CORRUPTING_FAULTS)
             if error:
                 self._emit(t, f"Error:{error}, Last Line: {self.last_line}")
-                self._emit(t, f"Resend: {self.last_line + 1}")
-                self._emit(t, "ok")
+                if fault != "drop_resend":
+                    self._emit(t, f"Resend: {self.last_line + 1}")
+                if fault != "drop_resend_ok":
+                    self._emit(t, "ok")
                 return
             self.last_line = line.number
         replies, done = self._execute(line.command, t)
         self.executed.append((line.number, line.command))
+        self.done_at.append(done)
         self._ready = done
         if fault == "slow":
             done += self._rng.uniform(0.5, 2.5)
+        if fault == "late":  # the board stalls past the host's timeout, with no keepalive
+            done += self.reply_timeout_s * self._rng.uniform(1.2, 2.0) + (done - arrival)
+            self._ready = done
         if fault == "busy":
             for _ in range(self._rng.randint(1, 3)):
                 done += self.keepalive_s
@@ -285,9 +326,13 @@ class SimMarlin:
             self._emit(t, junk)
         if fault == "temp":
             self._emit(t, "T:24.87 /0.00 B:24.12 /0.00 @:0 B@:0")
+        if fault == "ok_report":
+            report = " ".join(text for _, text in replies)
+            replies = []
+            self._emit(done, f"ok {report}")
         for when, reply in replies:
             self._emit(when, reply)
-        if fault != "drop_ok":
+        if fault not in ("drop_ok", "ok_report"):
             self._emit(done, "ok")
 
     def _line_error(self, line, corrupted: bool) -> str | None:

@@ -2,13 +2,14 @@
 
 What it models, and why (every constant comes from the sensor profile):
 
-- Gel shape. Inside the contact the gel surface *is* the indenter's surface (so a sphere of radius R
-  pressed d deep leaves a spherical cap of radius a = sqrt(2Rd - d^2), which the dataset stage turns
-  into exact labels). The gel is nearly incompressible and bonded to rigid acrylic, so the displaced
-  volume reappears as a low raised rim around the contact whose width scales with the gel thickness.
-  Domed gels (DIGIT) sag away from the apex; depth is measured from the undeformed surface under the
-  indenter axis, and the gel blends from the contact back to the dome over the same skirt width.
-  Repeated frames of one hold creep a little deeper (viscoelastic relaxation).
+- Gel shape (`gel.mechanics`). `geometric`: inside the contact the gel surface *is* the indenter's
+  surface (a sphere of radius R pressed d deep leaves a cap of radius a = sqrt(2Rd - d^2)), outside a
+  low raised rim (the displaced volume of a nearly incompressible gel) whose width scales with the gel
+  thickness, blended back to the dome over the same skirt width. `elastic`: the surface of a
+  linear-elastic layer bonded to the acrylic, pressed by the rigid indenter (threedcal.sim.elastic):
+  in contact it follows the indenter, outside it is the elastic solution — smooth over vertical walls,
+  with the layer's own bulge. Either way depth is measured from the undeformed (domed) surface under
+  the indenter axis, and repeated frames of one hold creep a little deeper (viscoelastic relaxation).
 - Shading. Each LED sits at a finite distance at low elevation, so both its direction and its
   irradiance (1/r^2) depend on the pixel and on the local surface height: the position-dependent
   illumination the paper's xy inputs exist for. A diffuse (scattered) part lights the background
@@ -19,8 +20,11 @@ What it models, and why (every constant comes from the sensor profile):
   Gaussian camera blur, per-frame gain flicker, per-pixel noise, and 8-bit rounding with clipping.
 
 Speed: the background is rendered once; a frame re-shades only a window around the contact and adds
-the change (blur is linear, so blurring the change alone is exact). Noise comes from a bank of
-pre-drawn fields picked and shifted per frame from (seed, frame_index).
+the change (blur is linear, so blurring the change alone is exact). An elastic gel's far field can
+reach the whole frame: where it is gentle it is shaded to first order (the shading's Jacobian, taken
+once at the undeformed gel), and cast shadows are traced only near steep slopes (a shadow needs a
+slope steeper than the light's elevation within its reach). Noise comes from a bank of pre-drawn
+fields picked and shifted per frame from (seed, frame_index).
 """
 
 from __future__ import annotations
@@ -33,6 +37,13 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.sim.indenters import Indenter
+
+MECHANICS = ("geometric", "elastic")
+LINEAR_SLOPE = 0.05  # elastic far field: shaded to first order where the deformation is this gentle
+# ... and left out where its slope and height stay below these (the shading changes by < 0.5 DN:
+# |dI/dslope| <= ~330 DN at the frame's brightest light, |dI/dz| <= ~12 DN/mm)
+FAR_SLOPE = 1e-3
+FAR_HEIGHT_MM = 0.03
 
 _NOISE_BANK = 6  # pre-drawn noise fields
 _NOISE_PAD = 32  # random shift range of a noise field, px
@@ -48,6 +59,11 @@ class GelSimulator:
 
     `image_size=(width, height)` and `px_per_mm` override the profile's frame (used to render at a
     real dataset's scale). Poses are in image pixels (x = column, y = row, sub-pixel), depths in mm.
+
+    `seed` is the sensor's own draw: its paint texture, and by default the camera noise. A later
+    session on the same sensor keeps the gel and paint but not the noise or the lighting:
+    `noise_seed` draws the noise fields and per-frame picks apart from `seed`, and `gain_rgb`
+    scales every frame per colour channel (the LEDs' brightness drifted since calibration).
     """
 
     def __init__(
@@ -57,11 +73,20 @@ class GelSimulator:
         *,
         image_size: tuple[int, int] | None = None,
         px_per_mm: float | None = None,
+        noise_seed: int | None = None,
+        gain_rgb=None,
     ):
         if profile.get("type") != "vision":
             raise ConfigError(f"sensor profile {profile.get('name')!r} is not a vision sensor")
         self.profile = profile
         self.seed = int(seed)
+        self.noise_seed = self.seed if noise_seed is None else int(noise_seed)
+        self.gain_rgb = None if gain_rgb is None else np.asarray(gain_rgb, dtype=np.float32)
+        if self.gain_rgb is not None and (
+            self.gain_rgb.shape != (3,)
+            or not np.all(np.isfinite(self.gain_rgb) & (self.gain_rgb > 0))
+        ):
+            raise ConfigError(f"gain_rgb must be three positive numbers, got {gain_rgb!r}")
         w, h = image_size or (profile["image"]["width_px"], profile["image"]["height_px"])
         self.width, self.height = int(w), int(h)
         self.px_per_mm = float(px_per_mm or profile["px_per_mm"])
@@ -81,10 +106,37 @@ class GelSimulator:
         self.noise_dn = np.asarray(optics.get("noise_dn", [0, 0, 0]), dtype=np.float32)
         dome = gel.get("dome")
         self._dome = None if dome is None else dict(dome)
+        self.mechanics = str(gel.get("mechanics", "geometric"))
+        if self.mechanics not in MECHANICS:
+            raise ConfigError(
+                f"sensor profile {profile.get('name')!r}: gel.mechanics {self.mechanics!r} is not "
+                f"one of {', '.join(MECHANICS)}"
+            )
+        if self.mechanics == "elastic":
+            from threedcal.sim.elastic import GelMaterial
+
+            material = GelMaterial.from_profile(gel)  # a missing constant fails before any set-up
         self._setup_geometry()
         self._setup_lights(profile["lights"])
         self._setup_background(optics)
         self._setup_noise()
+        self._elastic = None
+        if self.mechanics == "elastic":
+            from threedcal.sim.elastic import ElasticGel
+
+            grid_px = int(gel.get("elastic_grid_px", 2))
+            # a node every grid_px pixels, on a lattice through each press's axis (in mm: a lens
+            # would only change where the pixels sample it)
+            self._elastic = ElasticGel(
+                material,
+                grid_px / self.px_per_mm,
+                tol=float(gel.get("elastic_tolerance", 1e-4)),
+            )
+            self._press_memo: tuple | None = None
+            # pixels a uniform grid, grid_px of them per lattice step (as everything here assumes);
+            # a lens would set None and sample each pixel's gel point instead
+            self._pixel_lattice: int | None = grid_px
+            self._setup_linear_shading()
 
     # ----------------------------------------------------------------- set-up (once per simulator)
     def _setup_geometry(self) -> None:
@@ -98,6 +150,11 @@ class GelSimulator:
         self._n0 = _normals(gx0, gy0)
         half_diag = math.hypot(self._cx, self._cy) / s
         self._rho2 = (self.X**2 + self.Y**2) / half_diag**2  # 1 at the corners
+
+    @property
+    def domed(self) -> bool:
+        """True when the undeformed gel is a dome (profile gel.dome), False when flat."""
+        return self._dome is not None
 
     def sag_mm(self, x_mm, y_mm):
         """Depth of the undeformed gel surface below its apex (0 for a flat gel), x/y from the centre."""
@@ -164,7 +221,7 @@ class GelSimulator:
         self._vig = vig
         amb = np.asarray(optics.get("ambient_dn", [0, 0, 0]), dtype=np.float32)
         bg = np.broadcast_to(amb * vig[..., None], (self.height, self.width, 3)).copy()
-        self._resp0 = []
+        self._resp0, self._irr0_full = [], []
         for li, col, (resp, irr) in zip(
             self._lights,
             self._col,
@@ -172,6 +229,7 @@ class GelSimulator:
             strict=True,
         ):
             self._resp0.append(resp.astype(np.float32))
+            self._irr0_full.append(irr.astype(np.float32))
             bg += irr[..., None] * li["scatter"] + (irr * li["gain"] * resp)[..., None] * col
         xx, yy = np.meshgrid(np.arange(self.width), np.arange(self.height))
         diag = math.hypot(self.width, self.height)
@@ -203,7 +261,7 @@ class GelSimulator:
         self._bg = self._blur(bg.astype(np.float32))
 
     def _setup_noise(self) -> None:
-        rng = _stream(self.seed, 2)
+        rng = _stream(self.noise_seed, 2)
         shape = (_NOISE_BANK, self.height + _NOISE_PAD, self.width + _NOISE_PAD, 3)
         self._noise = (rng.standard_normal(shape, dtype=np.float32) * self.noise_dn).astype(
             np.float32
@@ -272,6 +330,15 @@ class GelSimulator:
         self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float, window
     ) -> tuple[np.ndarray, np.ndarray]:
         """Gel surface depth (mm, toward the camera) in `window` (y0, y1, x0, x1) and the contact mask."""
+        if self._elastic is not None:
+            press = self.press(indenter, center_px, rotation_deg, depth_mm)
+            if press is None:
+                y0, y1, x0, x1 = window
+                return self.Z0[y0:y1, x0:x1], np.zeros((y1 - y0, x1 - x0), bool)
+            return self._elastic_surface(press, window)
+        return self._geometric_surface(indenter, center_px, rotation_deg, depth_mm, window)
+
+    def _geometric_surface(self, indenter, center_px, rotation_deg, depth_mm, window):
         y0, y1, x0, x1 = window
         X, Y = self.X[y0:y1, x0:x1], self.Y[y0:y1, x0:x1]
         s = self.px_per_mm
@@ -310,31 +377,175 @@ class GelSimulator:
             z = np.maximum(sag_c + pen, z_out)  # never through the indenter; equal to it in contact
         return z.astype(np.float32), contact
 
-    def window(self, indenter: Indenter, center_px, depth_mm: float):
+    def window(self, indenter: Indenter, center_px, depth_mm: float, rotation_deg: float = 0.0):
         """Pixel bounds (y0, y1, x0, x1) of the region a contact can change, or None off the frame."""
+        if self._elastic is not None:
+            press = self.press(indenter, center_px, rotation_deg, depth_mm)
+            return None if press is None else self._elastic_window(press)
         s = self.px_per_mm
         a = indenter.contact_radius_mm(depth_mm)
         reach = (indenter.reach_mm if a is None else a) + SKIRT_EXTENT * self.skirt_mm
         margin = reach * s + 3 * self.blur_sigma + 2
-        x0 = max(int(math.floor(center_px[0] - margin)), 0)
-        x1 = min(int(math.ceil(center_px[0] + margin)) + 1, self.width)
-        y0 = max(int(math.floor(center_px[1] - margin)), 0)
-        y1 = min(int(math.ceil(center_px[1] + margin)) + 1, self.height)
+        return self._clip_window(
+            center_px[0] - margin,
+            center_px[0] + margin,
+            center_px[1] - margin,
+            center_px[1] + margin,
+        )
+
+    def _clip_window(self, x0: float, x1: float, y0: float, y1: float):
+        """Integer pixel bounds (y0, y1, x0, x1) covering [x0, x1] x [y0, y1] px, clipped to the frame."""
+        x0 = max(int(math.floor(x0)), 0)
+        x1 = min(int(math.ceil(x1)) + 1, self.width)
+        y0 = max(int(math.floor(y0)), 0)
+        y1 = min(int(math.ceil(y1)) + 1, self.height)
         if x1 - x0 < 3 or y1 - y0 < 3:
             return None
         return y0, y1, x0, x1
 
+    # ----------------------------------------------------------------- elastic gel
+    def press(self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float):
+        """The elastic contact solution (threedcal.sim.elastic.Press) of this pose, or None if the
+        indenter does not touch the gel. Node coordinates are mm from the image centre."""
+        if self._elastic is None:
+            raise ConfigError(
+                f"sensor profile {self.profile.get('name')!r} has gel.mechanics {self.mechanics!r}; "
+                "an elastic press needs gel.mechanics: elastic"
+            )
+        pose = (indenter, float(center_px[0]), float(center_px[1]), float(rotation_deg))
+        if self._press_memo is not None and self._press_memo[0] == (pose, float(depth_mm)):
+            return self._press_memo[1]
+        interference = self.interference(indenter, center_px, rotation_deg, depth_mm)
+        ax, ay = self._axis_mm(center_px)
+        reach = indenter.reach_mm
+        press = self._elastic.press(
+            interference, (ax - reach, ax + reach, ay - reach, ay + reach), (ax, ay)
+        )
+        self._press_memo = ((pose, float(depth_mm)), press)
+        return press
+
+    def _axis_mm(self, center_px) -> tuple[float, float]:
+        s = self.px_per_mm
+        return (center_px[0] - self._cx) / s, (center_px[1] - self._cy) / s
+
+    def interference(self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float):
+        """w(X, Y): how far the indenter's surface lies below the undeformed (domed) gel surface (mm;
+        -inf where it has no surface), at points (X, Y) mm from the image centre. Its lowest point
+        sits `depth_mm` below the undeformed surface under its axis."""
+        ax, ay = self._axis_mm(center_px)
+        sag_c = float(self.sag_mm(ax, ay))
+        c, sn = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
+
+        def w(X, Y):
+            dx, dy = X - ax, Y - ay
+            if rotation_deg:
+                dx, dy = c * dx + sn * dy, -sn * dx + c * dy
+            gap = np.asarray(indenter.gap(dx, dy), dtype=np.float64)
+            return depth_mm - gap - (np.asarray(self.sag_mm(X, Y), dtype=np.float64) - sag_c)
+
+        return w
+
+    def _elastic_window(self, press):
+        """The pixels the press changes: its pressure grid plus the far field's visible reach."""
+        X, Y = press.node_coords(press.node_box())
+        s = self.px_per_mm
+        reach = (
+            press.reach_mm(slope=FAR_SLOPE, height_mm=FAR_HEIGHT_MM) * s + 3 * self.blur_sigma + 2
+        )
+        return self._clip_window(
+            float(X.min()) * s + self._cx - reach,
+            float(X.max()) * s + self._cx + reach,
+            float(Y.min()) * s + self._cy - reach,
+            float(Y.max()) * s + self._cy + reach,
+        )
+
+    def _elastic_surface(self, press, window) -> tuple[np.ndarray, np.ndarray]:
+        """Gel surface (mm) and contact mask in `window`: the elastic displacement, sampled at each
+        pixel's gel point by cubic interpolation between lattice nodes, never through the indenter;
+        in contact (gel and indenter within the solver's and the interpolation's tolerance) the
+        indenter itself."""
+        y0, y1, x0, x1 = window
+        X, Y = self.X[y0:y1, x0:x1], self.Y[y0:y1, x0:x1]
+        box = press.nodes_covering(float(X.min()), float(X.max()), float(Y.min()), float(Y.max()))
+        box = (box[0] - 2, box[1] + 2, box[2] - 2, box[3] + 2)  # the cubic's support
+        u = self._sample_nodes(press.displacement_on(box), box, window, press)
+        z = self.Z0[y0:y1, x0:x1] + u
+        contact = np.zeros(u.shape, bool)
+        # the indenter matters only where it was solved for (elsewhere it is above the gel)
+        dom = press.node_box()
+        step = press.spacing_mm
+        nx, ny = press.node_coords(dom)
+        inside = (
+            (X >= float(nx.min()) - step)
+            & (X <= float(nx.max()) + step)
+            & (Y >= float(ny.min()) - step)
+            & (Y <= float(ny.max()) + step)
+        )
+        rows, cols = np.nonzero(inside.any(axis=1))[0], np.nonzero(inside.any(axis=0))[0]
+        if rows.size:
+            r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+            w = press.interference_at(X[r0:r1, c0:c1], Y[r0:r1, c0:c1])
+            ui = u[r0:r1, c0:c1]
+            # never through the indenter: where the interpolated gel would pass through it, the gel
+            # is the indenter. In contact the two agree to the solver's tolerance, so the gel leaves
+            # the indenter where the interpolated elastic surface does, not at a lattice node
+            with np.errstate(invalid="ignore"):
+                gel_depth = np.maximum(ui, w)
+                # touching: within the solver's tolerance and the interpolation's (~0.5 um)
+                contact[r0:r1, c0:c1] = ui - w <= 2 * press.result.gap_tolerance_mm + 5e-4
+            z[r0:r1, c0:c1] = self.Z0[y0:y1, x0:x1][r0:r1, c0:c1] + gel_depth
+        return z.astype(np.float32), contact
+
+    def _sample_nodes(self, values, box, window, press) -> np.ndarray:
+        """`values` on the nodes of `press`'s lattice in `box` (row0, row1, col0, col1) at the pixels
+        of `window`, by Catmull-Rom cubic interpolation (exact for quadratics).
+
+        Today's pixels are a uniform grid along the lattice's axes, so the interpolation is separable
+        with fixed weights. Pixels that are not (a lens) take a cubic spline at each pixel's gel point
+        (X, Y) instead."""
+        y0, y1, x0, x1 = window
+        f = self._pixel_lattice
+        if f is not None:
+            # the pixel (fractional) where lattice node 0 sits, along x and along y
+            ox, oy = (
+                press.origin_mm[0] * self.px_per_mm + self._cx,
+                press.origin_mm[1] * self.px_per_mm + self._cy,
+            )
+            cols = _upsample_axis(np.asarray(values, np.float32), box[2], ox, x0, x1, f, 1)
+            return _upsample_axis(cols, box[0], oy, y0, y1, f, 0)
+        from scipy.ndimage import map_coordinates
+
+        bx, by = press.node_coords((box[0], box[0] + 1, box[2], box[2] + 1))
+        rows = (self.Y[y0:y1, x0:x1] - float(by[0, 0])) / press.spacing_mm
+        cols = (self.X[y0:y1, x0:x1] - float(bx[0, 0])) / press.spacing_mm
+        return map_coordinates(
+            np.asarray(values, np.float64), [rows, cols], order=3, mode="nearest"
+        ).astype(np.float32)
+
+    # ----------------------------------------------------------------- shading
     def contact_change(self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float):
         """((y0, y1, x0, x1), ΔI float32) the contact adds to the background, or None if no contact."""
-        win = self.window(indenter, center_px, depth_mm)
+        win = self.window(indenter, center_px, depth_mm, rotation_deg)
         if win is None:
             return None
         z, contact = self.surface(indenter, center_px, rotation_deg, depth_mm, win)
-        if not contact.any():
+        # an elastic gel deforms around a contact just off the frame too
+        if not contact.any() and self._elastic is None:
             return None
+        return win, self._shade_change(z, win, center_px)
+
+    def _shade_change(self, z: np.ndarray, win, center_px) -> np.ndarray:
+        """ΔI (float32, blurred) of the gel surface `z` in `win` against the background."""
+        if self._elastic is None:
+            return self._blur(self._exact_change(z, win, center_px))
+        return self._blur(self._elastic_change(z, win, center_px))
+
+    def _exact_change(self, z, win, center_px, gradient=None, shadow_box=None) -> np.ndarray:
+        """ΔI (float32, unblurred) in `win`, every pixel shaded in full. `gradient` (gx, gy) if known;
+        `shadow_box` (rows, cols of `win`) limits the shadow trace (None: the whole window)."""
         y0, y1, x0, x1 = win
         s = self.px_per_mm
-        gy, gx = np.gradient(z, 1.0 / s)
+        gx, gy = gradient if gradient is not None else np.gradient(z, 1.0 / s)[::-1]
         n = _normals(gx, gy)
         X, Y = self.X[y0:y1, x0:x1], self.Y[y0:y1, x0:x1]
         vig = self._vig[y0:y1, x0:x1]
@@ -344,22 +555,93 @@ class GelSimulator:
         for i, (li, (resp, irr)) in enumerate(
             zip(self._lights, self._shading(X, Y, z, n, vig), strict=True)
         ):
-            resp = resp * self._lit(z, li, contact_mm)
+            if shadow_box is None:
+                resp = resp * self._lit(z, li, contact_mm)
+            elif shadow_box:
+                r0, r1, c0, c1 = shadow_box
+                resp[r0:r1, c0:c1] *= self._lit(z[r0:r1, c0:c1], li, contact_mm)
             resp0 = self._resp0[i][y0:y1, x0:x1]
-            irr0 = self._irr0(i, win)
+            irr0 = self._irr0_full[i][y0:y1, x0:x1]
             change[..., i] = li["gain"] * (irr * resp - irr0 * resp0)
             scatter_change[..., i] = irr - irr0
         delta = change @ self._col + scatter_change @ self._scatter  # (h, w, 3)
-        delta = np.nan_to_num(delta, nan=0.0, posinf=0.0, neginf=0.0)
-        return win, self._blur(np.ascontiguousarray(delta, dtype=np.float32))
+        return np.nan_to_num(delta, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 
-    def _irr0(self, i: int, win) -> np.ndarray:
+    def _elastic_change(self, z, win, center_px) -> np.ndarray:
+        """ΔI (unblurred) of an elastic gel: shaded in full where the deformation's slope exceeds
+        LINEAR_SLOPE (the contact and its surroundings, where shadows fall too), to first order in
+        the deformation (slope and height) elsewhere, with the Jacobian of the shading taken at the
+        undeformed gel. The first-order error is ~ gain x slope^2 / 2: below 0.05 DN (tests/test_sim_elastic.py)."""
         y0, y1, x0, x1 = win
-        li = self._lights[i]
-        P = li["P"]
-        X, Y, Z = self.X[y0:y1, x0:x1], self.Y[y0:y1, x0:x1], self.Z0[y0:y1, x0:x1]
-        r2 = (P[0] - X) ** 2 + (P[1] - Y) ** 2 + (P[2] - Z) ** 2
-        return (li["ref2"] / r2) * self._vig[y0:y1, x0:x1]
+        s = self.px_per_mm
+        dz = z - self.Z0[y0:y1, x0:x1]
+        dgy, dgx = np.gradient(dz, 1.0 / s)
+        jx, jy, jz = (j[y0:y1, x0:x1] for j in self._jacobian)
+        delta = np.multiply(jx, dgx[..., None])
+        term = np.multiply(jy, dgy[..., None])
+        delta += term
+        delta += np.multiply(jz, dz[..., None], out=term)
+        # in full where the deformation is not gentle, and wherever a shadow could start
+        gx0, gy0 = (g[y0:y1, x0:x1] for g in self._g0)
+        tan_min = min(li["tan_el"] for li in self._lights)
+        steep = (dgx * dgx + dgy * dgy > LINEAR_SLOPE**2) | (
+            np.square(dgx + gx0) + np.square(dgy + gy0) > (0.8 * tan_min) ** 2
+        )
+        rows, cols = np.nonzero(steep.any(axis=1))[0], np.nonzero(steep.any(axis=0))[0]
+        if rows.size:
+            pad = int(math.ceil(self.shadow_reach_mm * s)) + 2 if self.shadow_strength > 0 else 2
+            h, w = z.shape
+            r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + 1 + pad, h)
+            c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + 1 + pad, w)
+            sub = (y0 + r0, y0 + r1, x0 + c0, x0 + c1)
+            gx = dgx[r0:r1, c0:c1] + gx0[r0:r1, c0:c1]
+            gy = dgy[r0:r1, c0:c1] + gy0[r0:r1, c0:c1]
+            zs = z[r0:r1, c0:c1]
+            delta[r0:r1, c0:c1] = self._exact_change(
+                zs, sub, center_px, (gx, gy), self._shadow_box(gx, gy)
+            )
+        return delta
+
+    def _setup_linear_shading(self) -> None:
+        """The Jacobian of the shaded intensity (DN) with respect to the surface slope (gx, gy) and
+        height z at the undeformed gel, by central differences (elastic far field)."""
+        gx0, gy0 = (g.astype(np.float32) for g in self._sag_gradient(self.X, self.Y))
+        self._g0 = (gx0, gy0)
+
+        def intensity(gx, gy, z):
+            n = _normals(gx, gy)
+            total = np.zeros(gx.shape + (3,), np.float32)
+            for li, col, (resp, irr) in zip(
+                self._lights, self._col, self._shading(self.X, self.Y, z, n, self._vig), strict=True
+            ):
+                total += irr[..., None] * li["scatter"] + (irr * li["gain"] * resp)[..., None] * col
+            return total
+
+        e = 1e-3
+        self._jacobian = (
+            (intensity(gx0 + e, gy0, self.Z0) - intensity(gx0 - e, gy0, self.Z0)) / (2 * e),
+            (intensity(gx0, gy0 + e, self.Z0) - intensity(gx0, gy0 - e, self.Z0)) / (2 * e),
+            (intensity(gx0, gy0, self.Z0 + e) - intensity(gx0, gy0, self.Z0 - e)) / (2 * e),
+        )
+
+    def _shadow_box(self, gx: np.ndarray, gy: np.ndarray):
+        """Where cast shadows can fall: around slopes steeper than 0.8 x the lowest light elevation
+        (the margin covers finite differences), out to the shadows' reach. A shadow needs an occluder
+        rising faster than tan(elevation) toward the light within its reach, so nothing outside this
+        box is shadowed. () when no slope is that steep (a gentle dome is not)."""
+        tan_min = min(li["tan_el"] for li in self._lights)
+        steep = gx * gx + gy * gy > (0.8 * tan_min) ** 2
+        rows, cols = np.nonzero(steep.any(axis=1))[0], np.nonzero(steep.any(axis=0))[0]
+        if not rows.size or self.shadow_strength <= 0:
+            return ()
+        h, w = gx.shape
+        pad = int(math.ceil(min(self.shadow_reach_mm * self.px_per_mm, max(h, w)))) + 2
+        return (
+            max(rows[0] - pad, 0),
+            min(rows[-1] + 1 + pad, h),
+            max(cols[0] - pad, 0),
+            min(cols[-1] + 1 + pad, w),
+        )
 
     def _lit(self, z: np.ndarray, li, contact_mm: tuple[float, float]) -> np.ndarray:
         """1 where the light reaches the surface, less in the cast shadow of a wall toward the light.
@@ -393,18 +675,47 @@ class GelSimulator:
         return (1.0 - self.shadow_strength * (occl > 0)).astype(np.float32)
 
     def _finish(self, frame: np.ndarray, frame_index: int) -> np.ndarray:
-        rng = _stream(self.seed, 3, int(frame_index))
+        rng = _stream(self.noise_seed, 3, int(frame_index))
         k = int(rng.integers(_NOISE_BANK))
         oy, ox = (int(v) for v in rng.integers(_NOISE_PAD, size=2))
         gain = 1.0 + self.gain_jitter * float(rng.standard_normal())
         if gain != 1.0:
             frame *= np.float32(gain)
+        if self.gain_rgb is not None:
+            frame *= self.gain_rgb
         if self._marker_mask is not None:
             frame *= self._marker_mask
         frame += self._noise[k, oy : oy + self.height, ox : ox + self.width]
         frame += 0.5  # round half up on the cast below
         np.clip(frame, 0.0, 255.0, out=frame)
         return frame.astype(np.uint8)
+
+
+def _upsample_axis(v, first: int, origin_px: float, p0: int, p1: int, f: int, axis: int):
+    """Catmull-Rom values at pixels p0..p1-1 along `axis` from lattice nodes first, first + 1, ...
+    (node k at pixel origin_px + k f), limited to the range of the two nodes around each pixel."""
+    q = (np.arange(p0, p1) - origin_px) / f
+    node = np.floor(q).astype(np.int64)
+    t = (q - node).astype(np.float32)
+    node -= first
+    t2, t3 = t * t, t * t * t
+    taps = (
+        (-1, (-t3 + 2 * t2 - t) / 2),
+        (0, (3 * t3 - 5 * t2 + 2) / 2),
+        (1, (-3 * t3 + 4 * t2 + t) / 2),
+        (2, (t3 - t2) / 2),
+    )
+    shape = [1, 1]
+    shape[axis] = q.size
+    out = None
+    for offset, weight in taps:
+        term = np.take(v, node + offset, axis=axis) * weight.reshape(shape)
+        out = term if out is None else out + term
+    # never beyond the two nodes around a pixel: no overshoot where the gel bends sharply (the foot
+    # of a wall). Where it is smooth the cubic stays between them anyway, except at a crest between
+    # two nodes, flattened by < s^2 u'' / 8 (in contact the indenter itself restores it)
+    left, right = np.take(v, node, axis=axis), np.take(v, node + 1, axis=axis)
+    return np.clip(out, np.minimum(left, right), np.maximum(left, right))
 
 
 def _normals(gx: np.ndarray, gy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -181,11 +181,33 @@ def _patch_mean(lum: np.ndarray, keep: np.ndarray, y: int, x: int) -> float:
     return float(lum[y : y + PATCH, x : x + PATCH][sel].mean())
 
 
-def simulated_depth_mm(label: BallLabel, data: BallDataset) -> float:
-    """The depth whose contact radius equals the label's (capped at 0.98 R): a = sqrt(2Rd - d^2)."""
+def simulated_depth_mm(label: BallLabel, data: BallDataset, radii=None) -> float:
+    """The depth whose contact radius equals the label's (capped at 0.98 R): a = sqrt(2Rd - d^2) for
+    the geometric gel; for an elastic gel `radii` = (depths, contact radii) of its own, smaller
+    contacts (elastic_contact_radii)."""
     R = data.ball_radius_mm
     a = min(label.radius_px / data.px_per_mm, 0.98 * R)
-    return R - math.sqrt(R * R - a * a)
+    if radii is None:
+        return R - math.sqrt(R * R - a * a)
+    return float(np.interp(a, radii[1], radii[0]))
+
+
+def elastic_contact_radii(sim, radius_mm: float, center_px, depths=None):
+    """(depths, contact radii) mm of a ball of `radius_mm` pressed at `center_px` into an elastic gel:
+    the radius of the disc with the contact's area, on the simulator's own lattice."""
+    from threedcal.sim.indenters import Sphere
+
+    ball = Sphere(radius_mm)
+    if depths is None:
+        depths = np.linspace(0.05, min(0.9 * radius_mm, sim.max_penetration_mm), 24)
+    radii = []
+    for d in depths:
+        press = sim.press(ball, center_px, 0.0, float(d))
+        area = (
+            0.0 if press is None else float(press.result.contact.sum()) * sim._elastic.spacing_mm**2
+        )
+        radii.append(math.sqrt(area / math.pi))
+    return np.asarray(depths, dtype=float), np.maximum.accumulate(np.asarray(radii))
 
 
 def compare(data: BallDataset, profile: Mapping[str, Any], seed: int = 0) -> list[dict[str, Any]]:
@@ -201,6 +223,7 @@ def compare(data: BallDataset, profile: Mapping[str, Any], seed: int = 0) -> lis
     real_bg = data.read("background.png")
     sim_bg = sim.blank(frame_index=0)
     real, simulated = [], []
+    table = None
     for i, label in enumerate(data.labels):
         real.append(image_figures(data.read(label.image), real_bg, label, ball_px))
         # the real background frame is a real frame too: its figures (same mask) join the range
@@ -211,8 +234,13 @@ def compare(data: BallDataset, profile: Mapping[str, Any], seed: int = 0) -> lis
                 if k in BACKGROUND
             }
         )
+        radii = None
+        if sim.mechanics == "elastic":  # a flat gel contacts alike everywhere: one table
+            if table is None or sim.domed:
+                table = elastic_contact_radii(sim, data.ball_radius_mm, label.center_px)
+            radii = table
         frame = sim.render(
-            ball, label.center_px, 0.0, simulated_depth_mm(label, data), frame_index=i + 1
+            ball, label.center_px, 0.0, simulated_depth_mm(label, data, radii), frame_index=i + 1
         )
         simulated.append(image_figures(frame, sim_bg, label, ball_px))
     rows = []

@@ -1,0 +1,574 @@
+"""Elastic contact of a rigid indenter with a soft gel layer bonded to a rigid backing (the acrylic).
+
+The gel is a linear-elastic layer of thickness h, Young's modulus E and Poisson ratio nu, bonded to a
+rigid base, its free surface pressed by a rigid, frictionless indenter; the half-space is the limit
+h -> inf. Only normal pressure acts on the surface (frictionless contact), so the surface's normal
+displacement is the pressure convolved with the layer's surface Green's function.
+
+Surface compliance (Fourier space). A normal pressure p cos(kx) on the surface of a layer bonded to a
+rigid base displaces the surface by u = C(k) p cos(kx) with
+
+    C(k) = 2 / (E* k) * S(kh),        E* = E / (1 - nu^2),
+
+    S(t) = [(3 - 4nu) sinh 2t - 2t] / [(3 - 4nu) cosh 2t + 2t^2 + (1 + (3 - 4nu)^2) / 2].
+
+S is derived from the Navier equations of a plane-strain Fourier mode (the rigid-base case of
+Burmister's layered-system solution, J. Appl. Phys. 16, 89 and 126, 1945); the derivation, by sympy,
+is `docs/diagnostics/elastic_gel.py derive`. Limits, each checked in tests/test_sim_elastic.py:
+S -> 1 for kh -> inf (Boussinesq half-space: C = 2/(E* k)); for kh -> 0 a compressible layer acts as
+a Winkler foundation of constrained modulus M = E (1 - nu) / ((1 + nu)(1 - 2nu)), u = p h / M
+(Johnson, Contact Mechanics, 1985, thin bonded layer); an incompressible one follows the lubrication
+limit u = h^3 k^2 p / (3 mu) (pressure-driven flow in the layer, shear-free surface; the theory of
+Chadwick, SIAM J. Appl. Math. 62, 1520, 2002).
+
+Real-space kernel. Radially, the displacement per unit point force is
+
+    G(r) = 1 / (pi E*) * [1 / r + g(r / h) / h],     g(rho) = int_0^inf (S(t) - 1) J0(rho t) dt,
+
+the Boussinesq term plus a smooth, exponentially decaying correction (tabulated once per nu by
+quadrature). On a square grid of spacing s the pressure is constant per element: the 1/r part is
+integrated over the element in closed form (Love 1929; Johnson eq. 3.25), the smooth part by 3 x 3
+Gauss points. A near-incompressible bonded layer answers a push with a raised ring around it (G < 0
+beyond r ~ 0.9 h): the volume pushed down reappears nearby, the "pile-up" of a real gel.
+
+Contact (Polonsky & Keer, Wear 231, 206, 1999). With the indenter's interference w (how far its surface
+lies below the undeformed gel surface, mm; -inf where it has no surface) the pressure p >= 0 and the
+gap g = u - w satisfy g >= 0, p g = 0. Conjugate gradients on the pressure over the active set,
+projected onto p >= 0, with points that penetrate added back into the active set; the rigid approach
+is prescribed (displacement control), so the load-balance step of the original algorithm is not used.
+The convolution is linear (not periodic): the pressure is zero-padded to twice the domain before the
+FFT, so no image contacts leak in.
+
+Units: mm, MPa (N/mm^2), N.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
+
+import numpy as np
+import scipy.fft as sfft
+
+from threedcal.errors import ConfigError
+
+_GAUSS3 = (np.array([-math.sqrt(0.6), 0.0, math.sqrt(0.6)]) / 2, np.array([5.0, 8.0, 5.0]) / 18)
+_RHO_STEP = 0.01  # table spacing of g(rho), in layer thicknesses
+# beyond this many thicknesses the layer's own response is below 1e-10 of its near field
+_RHO_MAX = 30.0
+_SPECTRA = 24  # cached kernel spectra per kernel (one per FFT shape)
+_SPARSE_UPDATES = 24  # up to this many nodes set apart from a CG step: direct sums, not an FFT
+
+
+@dataclass(frozen=True)
+class GelMaterial:
+    """The gel's elastic constants: E (MPa), nu, thickness (mm; math.inf for a half-space)."""
+
+    youngs_modulus_mpa: float
+    poisson_ratio: float
+    thickness_mm: float = math.inf
+
+    def __post_init__(self):
+        if not (math.isfinite(self.youngs_modulus_mpa) and self.youngs_modulus_mpa > 0):
+            raise ConfigError(
+                f"gel youngs_modulus_mpa must be > 0, got {self.youngs_modulus_mpa!r}"
+            )
+        if not (0.0 <= self.poisson_ratio <= 0.5):
+            raise ConfigError(f"gel poisson_ratio must be in [0, 0.5], got {self.poisson_ratio!r}")
+        if not (self.thickness_mm > 0):  # inf allowed
+            raise ConfigError(f"gel thickness_mm must be > 0, got {self.thickness_mm!r}")
+
+    @classmethod
+    def from_profile(cls, gel: Mapping) -> GelMaterial:
+        """From a sensor profile's `gel` section (youngs_modulus_mpa, poisson_ratio, thickness_mm)."""
+        missing = [k for k in ("youngs_modulus_mpa", "poisson_ratio") if k not in gel]
+        if missing:
+            raise ConfigError(
+                f"gel.mechanics 'elastic' needs gel.{' and gel.'.join(missing)} in the sensor profile"
+            )
+        return cls(
+            float(gel["youngs_modulus_mpa"]),
+            float(gel["poisson_ratio"]),
+            float(gel["thickness_mm"]),
+        )
+
+    @property
+    def plane_strain_modulus(self) -> float:
+        """E* = E / (1 - nu^2), MPa."""
+        return self.youngs_modulus_mpa / (1.0 - self.poisson_ratio**2)
+
+    @property
+    def shear_modulus(self) -> float:
+        return self.youngs_modulus_mpa / (2.0 * (1.0 + self.poisson_ratio))
+
+
+def layer_factor(kh, poisson_ratio: float) -> np.ndarray:
+    """S(kh): the bonded layer's surface compliance over the half-space's (0 at kh = 0, 1 at inf)."""
+    t = np.asarray(kh, dtype=np.float64)
+    k3 = 3.0 - 4.0 * poisson_ratio
+    out = np.ones_like(t)
+    finite = t < 30.0  # beyond, S = 1 to double precision
+    ts = t[finite]
+    sech = 1.0 / np.cosh(2.0 * ts)
+    num = k3 * np.tanh(2.0 * ts) - 2.0 * ts * sech
+    den = k3 + (2.0 * ts * ts + 0.5 * (1.0 + k3 * k3)) * sech
+    out[finite] = num / den
+    return out
+
+
+def surface_compliance(k, material: GelMaterial) -> np.ndarray:
+    """C(k), mm per MPa: surface displacement of a unit pressure wave of wavenumber k (rad/mm)."""
+    k = np.asarray(k, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        half_space = 2.0 / (material.plane_strain_modulus * k)
+    if math.isinf(material.thickness_mm):
+        return half_space
+    s = layer_factor(k * material.thickness_mm, material.poisson_ratio)
+    k0 = k == 0
+    if k0.any():  # the limit k -> 0: the Winkler foundation (0 for an incompressible layer)
+        nu = material.poisson_ratio
+        winkler = (
+            material.thickness_mm * (1 - 2 * nu) / (2 * material.shear_modulus * (1 - nu))
+            if nu < 0.5
+            else 0.0
+        )
+        half_space = np.where(k0, 0.0, half_space)
+        return np.where(k0, winkler, half_space * s)
+    return half_space * s
+
+
+@lru_cache(maxsize=8)
+def _layer_correction_table(poisson_ratio: float) -> np.ndarray:
+    """g(rho) on rho = 0, _RHO_STEP, ..., _RHO_MAX.
+
+    Gauss-Legendre panels (8 nodes per 0.25 of t) over t < 24, where |S - 1| < 1e-18: the integrand is
+    smooth, so the rule is exact to ~1e-12 (halving the panels changes no value by more)."""
+    from scipy.special import j0
+
+    rho = np.arange(0.0, _RHO_MAX + _RHO_STEP / 2, _RHO_STEP)
+    x, wts = np.polynomial.legendre.leggauss(8)
+    width = 0.25
+    left = np.arange(0.0, 24.0, width)
+    t = (left[:, None] + (x[None, :] + 1.0) * (width / 2)).ravel()
+    f = (layer_factor(t, poisson_ratio) - 1.0) * np.tile(wts * (width / 2), left.size)
+    out = np.empty_like(rho)
+    for i in range(0, rho.size, 512):
+        out[i : i + 512] = j0(np.outer(rho[i : i + 512], t)) @ f
+    return out
+
+
+def _love(x, y, c: float) -> np.ndarray:
+    """Integral of 1/|r - r'| over the square |x'|, |y'| <= c, at (x, y) (Love 1929)."""
+
+    def f(a, b):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = a * np.arcsinh(b / np.abs(a))
+        return np.where(a == 0, 0.0, v)
+
+    def F(a, b):
+        return f(a, b) + f(b, a)
+
+    return F(x + c, y + c) - F(x + c, y - c) - F(x - c, y + c) + F(x - c, y - c)
+
+
+class LayerKernel:
+    """Surface displacement (mm) per unit pressure (MPa) on square elements of side `spacing_mm`.
+
+    `influence(ny, nx)` holds every lag between two elements of an (ny, nx) grid; `spectrum(shape)`
+    the FFT of that table laid out for a linear convolution on a zero-padded grid of `shape`.
+    """
+
+    def __init__(self, material: GelMaterial, spacing_mm: float):
+        if not (math.isfinite(spacing_mm) and spacing_mm > 0):
+            raise ConfigError(f"elastic grid spacing must be > 0 mm, got {spacing_mm!r}")
+        self.material = material
+        self.spacing_mm = float(spacing_mm)
+        self._influence = np.zeros((0, 0))
+        self._spectra: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+
+    def point(self, r_mm) -> np.ndarray:
+        """G(r): displacement (mm) at distance r from a unit point force (N)."""
+        r = np.asarray(r_mm, dtype=np.float64)
+        m = self.material
+        with np.errstate(divide="ignore"):
+            out = 1.0 / r
+        if not math.isinf(m.thickness_mm):
+            out = out + self._g(r / m.thickness_mm) / m.thickness_mm
+        return out / (math.pi * m.plane_strain_modulus)
+
+    def _g(self, rho: np.ndarray) -> np.ndarray:
+        table = _layer_correction_table(self.material.poisson_ratio)
+        inside = rho <= _RHO_MAX
+        with np.errstate(divide="ignore"):
+            far = -1.0 / rho  # the layer's own response has died out: G = 0
+        near = np.interp(rho, np.arange(table.size) * _RHO_STEP, table)
+        return np.where(inside, near, far)
+
+    def _element(self, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+        """Displacement at element centre offsets (ix, iy) (in elements) under unit pressure on one."""
+        s, m = self.spacing_mm, self.material
+        x, y = ix * s, iy * s
+        out = _love(x, y, s / 2)
+        if not math.isinf(m.thickness_mm):
+            h = m.thickness_mm
+            (q, wq) = _GAUSS3
+            smooth = np.zeros_like(out)
+            for qx, wx in zip(q, wq, strict=True):
+                for qy, wy in zip(q, wq, strict=True):
+                    rho = np.hypot(x - qx * s, y - qy * s) / h
+                    smooth += wx * wy * self._g(rho)
+            out = out + smooth * s * s / h
+        return out / (math.pi * m.plane_strain_modulus)
+
+    def influence(self, ny: int, nx: int) -> np.ndarray:
+        """Table K[dy, dx] for lags 0..ny-1, 0..nx-1 (symmetric in the sign of each lag)."""
+        have = self._influence.shape
+        if have[0] < ny or have[1] < nx:
+            my, mx = max(ny, have[0]), max(nx, have[1])
+            iy, ix = np.mgrid[0:my, 0:mx].astype(np.float64)
+            self._influence = self._element(ix, iy)
+        return self._influence[:ny, :nx]
+
+    def spectrum(self, shape: tuple[int, int], single: bool = False) -> np.ndarray:
+        """rfft2 of the lag table in wrap-around order for a circular convolution of `shape`.
+
+        Exact as a linear convolution for any source and target inside the same (ny, nx) box as
+        long as shape >= (2 ny - 1, 2 nx - 1)."""
+        key = (int(shape[0]), int(shape[1]), bool(single))
+        hit = self._spectra.get(key)
+        if hit is not None:
+            self._spectra.move_to_end(key)
+            return hit
+        Ny, Nx = key[:2]
+        hy, hx = (Ny + 1) // 2, (Nx + 1) // 2
+        table = self.influence(hy, hx)
+        wrap = np.zeros((Ny, Nx), np.float32 if single else np.float64)
+        wrap[:hy, :hx] = table
+        wrap[Ny - hy + 1 :, :hx] = table[1:][::-1]
+        wrap[:hy, Nx - hx + 1 :] = table[:, 1:][:, ::-1]
+        wrap[Ny - hy + 1 :, Nx - hx + 1 :] = table[1:, 1:][::-1, ::-1]
+        spec = sfft.rfft2(wrap)
+        self._spectra[key] = spec
+        if len(self._spectra) > _SPECTRA:
+            self._spectra.popitem(last=False)
+        return spec
+
+    def convolve(self, pressure: np.ndarray, single: bool = False) -> np.ndarray:
+        """Displacement (mm) on the pressure's own grid (a linear convolution: the pressure is
+        zero-padded to twice its size). `single`: in float32 (~1e-7 of the displacement, faster)."""
+        ny, nx = pressure.shape
+        fft_shape = (
+            sfft.next_fast_len(2 * ny - 1, real=True),
+            sfft.next_fast_len(2 * nx - 1, real=True),
+        )
+        spec = self.spectrum(fft_shape, single)
+        padded = np.zeros(fft_shape, np.float32 if single else np.float64)
+        padded[:ny, :nx] = pressure
+        return sfft.irfft2(sfft.rfft2(padded) * spec, s=fft_shape)[:ny, :nx]
+
+
+def _mirrored(table: np.ndarray) -> np.ndarray:
+    """The lag table K[|dy|, |dx|] as K[dy + ny - 1, dx + nx - 1] for every signed lag."""
+    rows = np.concatenate([table[:0:-1], table], axis=0)
+    return np.concatenate([rows[:, :0:-1], rows], axis=1)
+
+
+@dataclass
+class ContactResult:
+    """The solution on the solver grid: pressure (MPa), surface displacement (mm, into the gel)."""
+
+    pressure: np.ndarray
+    displacement: np.ndarray
+    force_n: float
+    iterations: int
+    converged: bool
+    gap_tolerance_mm: float = 0.0  # the largest gap error left in contact
+
+    @property
+    def contact(self) -> np.ndarray:
+        return self.pressure > 0
+
+
+def solve_contact(
+    kernel: LayerKernel,
+    interference: np.ndarray,
+    *,
+    initial: np.ndarray | None = None,
+    tol: float = 1e-6,
+    max_iter: int = 2000,
+    single: bool | None = None,
+) -> ContactResult:
+    """Pressure and displacement of a rigid indenter pressed into the gel (Polonsky & Keer, CG).
+
+    `interference[i, j]`: how far the indenter's surface lies below the undeformed gel surface (mm)
+    at element (i, j); -inf or NaN where the indenter has no surface there (it never touches).
+    Converged when the largest gap error in contact is below `tol` times the largest interference.
+    `initial` (a previous pressure on the same grid) warm-starts the iteration. `single`: FFTs in
+    float32 (default when tol >= 1e-4, where their ~1e-7 relative error is far below the tolerance).
+    """
+    w = np.asarray(interference, dtype=np.float64)
+    if w.ndim != 2:
+        raise ConfigError(f"interference must be a 2-D grid, got shape {w.shape}")
+    if np.isposinf(w).any():
+        raise ConfigError("interference holds +inf (an indenter infinitely deep into the gel)")
+    admissible = np.isfinite(w)
+    w = np.where(admissible, w, -np.inf)
+    top = float(w.max()) if admissible.any() else -np.inf
+    zero = np.zeros(w.shape)
+    if not top > 0:
+        return ContactResult(zero, zero.copy(), 0.0, 0, True, 0.0)
+    single = tol >= 1e-4 if single is None else single
+
+    def conv(q: np.ndarray) -> np.ndarray:
+        return kernel.convolve(q, single).astype(np.float64)
+
+    if initial is not None and initial.shape == w.shape:
+        p = np.where(admissible, np.maximum(initial, 0.0), 0.0)
+    else:
+        p = zero.copy()
+    if not p.any():
+        # first guess: sqrt(w - top/2), scaled to fit u = w in least squares. For a paraboloid on a
+        # half-space this is Hertz's solution (contact a^2 = R d where w > d/2, p ~ sqrt(a^2 - r^2))
+        q = np.sqrt(np.maximum(w - 0.5 * top, 0.0))
+        kq = conv(q)
+        fit = w > 0
+        p = q * (float(kq[fit] @ w[fit]) / max(float(kq[fit] @ kq[fit]), 1e-300))
+    u = conv(p)
+    scale = tol * top
+    t = zero.copy()
+    g_old, delta, converged, iterations = 1.0, 0.0, False, 0
+    self_influence = float(kernel.influence(1, 1)[0, 0])
+    lags = None
+    while iterations < max_iter:
+        iterations += 1
+        gap = u - w
+        active = p > 0
+        g_act = gap[active]
+        err = float(np.abs(g_act).max()) if g_act.size else 0.0
+        if err <= scale and not np.any(gap[~active & admissible] < -scale):
+            converged = True
+            break
+        g_sum = float(g_act @ g_act)
+        t = np.where(active, gap + (delta * g_sum / g_old) * t, 0.0)
+        g_old = max(g_sum, 1e-300)
+        r = conv(t)
+        denom = float(r[active] @ t[active])
+        tau = float(g_act @ t[active]) / denom if denom > 0 else 0.0
+        step = p - tau * t  # t = 0 off the active set
+        p = np.maximum(step, 0.0)
+        overlap = (p == 0) & (gap < 0) & admissible
+        if overlap.any():
+            # penetrating points join the contact (PK's step; an element's own stiffness if tau <= 0)
+            delta = 0.0
+            p[overlap] = -gap[overlap] * (tau if tau > 0 else 1.0 / self_influence)
+        else:
+            delta = 1.0
+        # u = K p, updated by linearity: the CG step moved it by -tau r; the few nodes the projection
+        # or the new contact points set apart add their own influence (a full convolution if many)
+        changed = np.flatnonzero(p != step)
+        if changed.size > _SPARSE_UPDATES:
+            u = conv(p)
+        else:
+            u = u - tau * r
+            if changed.size:
+                if lags is None:
+                    lags = _mirrored(kernel.influence(*w.shape))
+                ny, nx = w.shape
+                for i, j in zip(*np.unravel_index(changed, w.shape), strict=True):
+                    u += (p[i, j] - step[i, j]) * lags[
+                        ny - 1 - i : 2 * ny - 1 - i, nx - 1 - j : 2 * nx - 1 - j
+                    ]
+    force = float(p.sum()) * kernel.spacing_mm**2
+    return ContactResult(p, u, force, iterations, converged, scale)
+
+
+@dataclass
+class Press:
+    """One solved press. Its node lattice is centred on the indenter: node (i, j) sits at
+    (x0 + j s, y0 + i s) mm with (x0, y0) = `origin_mm`, so the discretisation is symmetric about
+    the axis wherever the press sits. `domain` = (row0, col0) of the pressure grid's first node."""
+
+    gel: ElasticGel
+    origin_mm: tuple[float, float]
+    domain: tuple[int, int]
+    result: ContactResult
+    interference: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+    def interference_at(self, X, Y) -> np.ndarray:
+        """The indenter's interference (mm) at points (X, Y) mm; -inf where it has no surface."""
+        w = np.asarray(self.interference(X, Y), dtype=np.float64)
+        return np.where(np.isnan(w), -np.inf, w)
+
+    @property
+    def force_n(self) -> float:
+        return self.result.force_n
+
+    @property
+    def pressure(self) -> np.ndarray:
+        return self.result.pressure
+
+    @property
+    def spacing_mm(self) -> float:
+        return self.gel.spacing_mm
+
+    def node_coords(self, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """(X, Y) mm of the lattice nodes in `box` (row0, row1, col0, col1)."""
+        return _node_coords(self.origin_mm, self.spacing_mm, box)
+
+    def nodes_covering(self, x0: float, x1: float, y0: float, y1: float):
+        """Smallest lattice box (row0, row1, col0, col1) whose nodes cover [x0, x1] x [y0, y1] mm."""
+        return _nodes_covering(self.origin_mm, self.spacing_mm, x0, x1, y0, y1)
+
+    def node_box(self) -> tuple[int, int, int, int]:
+        """(row0, row1, col0, col1) lattice indices of the pressure grid (end exclusive)."""
+        r0, c0 = self.domain
+        ny, nx = self.result.pressure.shape
+        return r0, r0 + ny, c0, c0 + nx
+
+    def displacement_on(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """Surface displacement (mm, into the gel) on the lattice nodes of `box` (row0, row1, col0, col1)."""
+        r0, r1, c0, c1 = box
+        d0, d1, e0, e1 = self.node_box()
+        if (r0, r1, c0, c1) == (d0, d1, e0, e1):
+            return self.result.displacement
+        u0, u1, v0, v1 = min(r0, d0), max(r1, d1), min(c0, e0), max(c1, e1)
+        # round the union up so that few FFT shapes (and cached spectra) occur
+        ny = -(-(u1 - u0) // 8) * 8
+        nx = -(-(v1 - v0) // 8) * 8
+        p = np.zeros((ny, nx))
+        p[d0 - u0 : d1 - u0, e0 - v0 : e1 - v0] = self.result.pressure
+        u = self.gel.kernel.convolve(p, single=True)
+        return u[r0 - u0 : r1 - u0, c0 - v0 : c1 - v0]
+
+    def reach_mm(self, slope: float, height_mm: float) -> float:
+        """Distance from the pressure grid's edge beyond which the force's far field has a slope below
+        `slope` and a displacement below `height_mm` (the limit of what the optics can see)."""
+        return self.gel.reach_mm(self.force_n, slope, height_mm)
+
+
+def _node_coords(origin, s, box):
+    r0, r1, c0, c1 = box
+    return np.meshgrid(origin[0] + np.arange(c0, c1) * s, origin[1] + np.arange(r0, r1) * s)
+
+
+def _nodes_covering(origin, s, x0, x1, y0, y1):
+    ox, oy = origin
+    return (
+        math.floor((y0 - oy) / s),
+        math.ceil((y1 - oy) / s) + 1,
+        math.floor((x0 - ox) / s),
+        math.ceil((x1 - ox) / s) + 1,
+    )
+
+
+class ElasticGel:
+    """Presses rigid indenters into a gel layer on node lattices of spacing `spacing_mm`.
+
+    The caller supplies the indenter as a function interference(X, Y) -> w (mm below the undeformed
+    surface, -inf where it has no surface), a bounding box it cannot reach beyond, and the lattice
+    origin (its axis: the solution is then the same, relative to the axis, wherever it presses a flat
+    gel, and mirror-symmetric for a symmetric indenter).
+    """
+
+    def __init__(
+        self, material: GelMaterial, spacing_mm: float, *, tol: float = 1e-4, max_iter: int = 2000
+    ):
+        self.material = material
+        self.kernel = LayerKernel(material, spacing_mm)
+        self.spacing_mm = float(spacing_mm)
+        self.tol = float(tol)
+        self.max_iter = int(max_iter)
+        self._tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def press(self, interference, bounds_mm, origin_mm=(0.0, 0.0)) -> Press | None:
+        """Solve the contact of the indenter `interference` confined to `bounds_mm` (x0, x1, y0, y1)
+        on the lattice through `origin_mm`.
+
+        None when it does not touch the gel. The result depends on these arguments alone (no state
+        carried from earlier presses), so a frame renders to the same bytes in any order or after a
+        resumed run.
+        """
+        origin = (float(origin_mm[0]), float(origin_mm[1]))
+        box = _nodes_covering(origin, self.spacing_mm, *bounds_mm)
+        X, Y = _node_coords(origin, self.spacing_mm, box)
+        w_all = np.asarray(interference(X, Y), dtype=np.float64)
+        if np.isposinf(w_all).any():
+            raise ConfigError("indenter interference holds +inf")
+        w_all = np.where(np.isnan(w_all), -np.inf, w_all)
+        top = float(w_all.max()) if w_all.size else -np.inf
+        if not top > 0:
+            return None
+        # A near-incompressible layer bulges up around the contact, so it may touch the indenter where
+        # the indenter stays above the undeformed surface. No point can rise more than F |G_min|
+        # (p >= 0 everywhere, G_min the most negative point response), so solving over every node with
+        # w > -margin, margin > F |G_min|, misses no contact; widen and re-solve until that holds.
+        rise = self.max_rise_per_newton
+        margin = 0.05 * top if rise > 0 else 0.0
+        warm = None
+        while True:
+            rows, cols = np.nonzero(w_all > -margin)
+            sub = (
+                max(rows.min() - 2, 0),
+                min(rows.max() + 3, w_all.shape[0]),
+                max(cols.min() - 2, 0),
+                min(cols.max() + 3, w_all.shape[1]),
+            )
+            w = w_all[sub[0] : sub[1], sub[2] : sub[3]]
+            domain = (box[0] + sub[0], box[2] + sub[2])
+            initial = _placed(warm, domain, w.shape) if warm is not None else None
+            result = solve_contact(
+                self.kernel, w, initial=initial, tol=self.tol, max_iter=self.max_iter
+            )
+            solved = Press(self, origin, domain, result, interference)
+            needed = rise * result.force_n
+            if margin >= needed or sub == (0, w_all.shape[0], 0, w_all.shape[1]):
+                break
+            margin = 1.5 * needed
+            warm = solved  # the narrower solve starts the wider one
+        return solved
+
+    @cached_property
+    def max_rise_per_newton(self) -> float:
+        """-min_r G(r) (mm/N, >= 0): the most a unit force can lift any surface point (0 for a
+        half-space, which only sinks)."""
+        m = self.material
+        if math.isinf(m.thickness_mm):
+            return 0.0
+        r = np.linspace(0.02, _RHO_MAX, 6000) * m.thickness_mm
+        return max(-float(self.kernel.point(r).min()), 0.0)
+
+    def reach_mm(self, force_n: float, slope: float, height_mm: float) -> float:
+        """Radius beyond which a point force `force_n` raises or lowers the surface by less than
+        `height_mm` with a slope below `slope` (finite for a layer; for a half-space the 1/r tail
+        gives force/(pi E* height) and the slope's force/(pi E* r^2))."""
+        if force_n <= 0:
+            return 0.0
+        m = self.material
+        if math.isinf(m.thickness_mm):
+            es = m.plane_strain_modulus
+            return max(
+                force_n / (math.pi * es * height_mm), math.sqrt(force_n / (math.pi * es * slope))
+            )
+        if self._tail is None:
+            r = np.linspace(0.02, _RHO_MAX, 6000) * m.thickness_mm
+            g = self.kernel.point(r)
+            self._tail = (r, np.abs(g), np.abs(np.gradient(g, r)))
+        r, height, tilt = self._tail
+        above = np.nonzero((force_n * height > height_mm) | (force_n * tilt > slope))[0]
+        return float(r[above[-1]]) if above.size else 0.0
+
+
+def _placed(previous: Press, domain: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+    """The previous pressure moved onto a new domain of the same lattice (zero where it had none)."""
+    out = np.zeros(shape)
+    r0, c0 = previous.domain
+    p = previous.result.pressure
+    dr, dc = r0 - domain[0], c0 - domain[1]
+    a0, a1 = max(dr, 0), min(dr + p.shape[0], shape[0])
+    b0, b1 = max(dc, 0), min(dc + p.shape[1], shape[1])
+    if a0 < a1 and b0 < b1:
+        out[a0:a1, b0:b1] = p[a0 - dr : a1 - dr, b0 - dc : b1 - dc]
+    return out

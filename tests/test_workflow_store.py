@@ -1,0 +1,122 @@
+"""Issue 22 with real Snakemake runs: no Snakemake action deletes or overwrites a collection store.
+
+A tiny scene (12 probe points) collected through the workflow, then: reordered config keys, a
+`--forcerun collect`, a changed seed, Ctrl-C while collecting, Ctrl-C while the figures are drawn
+and `--rerun-incomplete` — the store is never touched, and a real change stops naming the key.
+"""
+
+import copy
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import yaml
+import zarr
+from conftest import snakemake, snakemake_command, snapshot
+
+from threedcal.collect.session import collect_scene
+from threedcal.collect.store import open_raw
+from threedcal.config import validate_config
+
+SUMMARY = "results/t/collect/summary.json"
+STORE = "results/t/raw.zarr"
+CONFIG = {
+    "seed": 1,
+    "torch_threads": 1,
+    "scenes": {
+        "t": {
+            "sensor": "gelsight_mini",
+            "printer": "ender3",
+            "plan": {"spacing_mm": 6.0, "depth_mm": 1.0, "frames": 1},
+            "probe": {"radius_mm": 2.0},
+        }
+    },
+}
+
+
+def write(workdir, config):
+    path = workdir / "config.yaml"
+    path.write_text(yaml.safe_dump(config, sort_keys=False))
+    return path
+
+
+def captured(store) -> int:
+    try:
+        return int(zarr.open_group(str(store), mode="r")["captured"][:].sum())
+    except Exception:  # not created yet, or caught mid-write
+        return 0
+
+
+def interrupt(workdir, configfile, ready, *args, timeout=120.0):
+    """Run Snakemake in its own process group and press Ctrl-C (SIGINT to the group, as a
+    terminal does) as soon as `ready()` holds; returns Snakemake's exit code."""
+    cmd = snakemake_command(workdir, configfile, SUMMARY, *args, cores=1)
+    process = subprocess.Popen(
+        cmd,
+        cwd=workdir,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + timeout
+    while process.poll() is None and time.monotonic() < deadline and not ready():
+        time.sleep(0.02)
+    assert process.poll() is None, "the job finished before the interrupt: make the plan longer"
+    os.killpg(process.pid, signal.SIGINT)
+    return process.wait(timeout=120)
+
+
+@pytest.mark.slow
+def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
+    configfile = write(tmp_path, CONFIG)
+    store, summary = tmp_path / STORE, tmp_path / SUMMARY
+
+    # Ctrl-C while collecting, then --rerun-incomplete: the partial store is resumed, and the
+    # result is the store of an uninterrupted collection.
+    partial = tmp_path / "results/t/.partial/raw.zarr"
+    assert interrupt(tmp_path, configfile, lambda: captured(partial) >= 3) != 0
+    assert captured(partial) >= 3 and not store.exists()
+    snakemake(tmp_path, configfile, SUMMARY, "--rerun-incomplete")
+    scene = validate_config(CONFIG)["scenes"]["t"]
+    collect_scene("t", scene, tmp_path / "reference.zarr", progress=False)
+    a, b = open_raw(tmp_path / "reference.zarr"), open_raw(store)
+    np.testing.assert_array_equal(a.frames.values, b.frames.values)
+    np.testing.assert_array_equal(a.cmd_z_mm.values, b.cmd_z_mm.values)
+    kept = snapshot(store)
+
+    # Repro: swapping spacing_mm and depth_mm (same values) made Snakemake delete and recollect.
+    reordered = copy.deepcopy(CONFIG)
+    plan = reordered["scenes"]["t"]["plan"]
+    reordered["scenes"]["t"]["plan"] = {k: plan[k] for k in ("depth_mm", "frames", "spacing_mm")}
+    reordered["scenes"]["t"] = dict(reversed(list(reordered["scenes"]["t"].items())))
+    result = snakemake(tmp_path, write(tmp_path, reordered), SUMMARY)
+    assert "Nothing to be done" in result.stdout + result.stderr
+    assert snapshot(store) == kept
+
+    # --forcerun collect: the job runs and writes its summary again; the store is left alone.
+    before = summary.stat().st_mtime_ns
+    snakemake(tmp_path, configfile, SUMMARY, "--forcerun", "collect")
+    assert summary.stat().st_mtime_ns > before
+    assert snapshot(store) == kept
+
+    # Repro: Ctrl-C just after the store was in place (the figures being drawn), then
+    # --rerun-incomplete, deleted the finished store and recollected from zero. Now it is kept.
+    before = summary.stat().st_mtime_ns
+
+    def drawing_figures() -> bool:
+        return summary.exists() and summary.stat().st_mtime_ns > before
+
+    assert interrupt(tmp_path, configfile, drawing_figures, "--forcerun", "collect") != 0
+    assert snapshot(store) == kept
+    snakemake(tmp_path, configfile, SUMMARY, "--rerun-incomplete")
+    assert snapshot(store) == kept and summary.is_file()
+
+    # Repro: a changed top-level seed deleted the store. Now: stop, name the key, say how.
+    result = snakemake(tmp_path, write(tmp_path, {**CONFIG, "seed": 2}), SUMMARY, check=False)
+    output = result.stdout + result.stderr
+    assert result.returncode != 0
+    assert "seed: 1 → 2" in output and f"mv {STORE} {STORE}.old" in output
+    assert snapshot(store) == kept
