@@ -1,4 +1,4 @@
-# Stage `ball_eval`: the cross-validated real-data evaluation of imported scenes (docs/real-data.md):
+# Stage `ball_eval`: the cross-validated real-data evaluation of imported scenes (docs/real_data.md):
 # grouped folds, one model per (method, fold), then the pooled figures with intervals.
 
 
