@@ -31,29 +31,21 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.presets_study import depth_ms_per_frame
 from threedcal.model.train import TrainSettings, train
 
-# fots_ball's settings before this study (chosen on an inner split; README, Choosing a preset).
-BALL = dict(
-    lr=3e-3,
-    lr_schedule="cosine",
-    epochs_base=20,
-    batch_size=16,
-    patch_px=48,
-    contact_patches=16,
-    background_patches=32,
-    skirt_reach=2.5,
-)
+# fots_ball's settings before this study (chosen on an inner split; docs/models.md, Choosing a preset).
+sys.path.insert(0, str(Path(__file__).parents[2] / "benchmarks"))
+from bench_model import BALL_SETTINGS as BALL  # noqa: E402
+
 # The multiscale budget: two large windows per image and epoch (the context branch needs room), a
 # third of BALL's pixels per epoch, twice the epochs.
-MULTISCALE = dict(
-    lr=3e-3,
-    lr_schedule="cosine",
-    epochs_base=40,
-    batch_size=8,
-    patch_px=128,
-    contact_patches=1,
-    background_patches=1,
-    skirt_reach=0.0,
-)
+MULTISCALE = {
+    **BALL,
+    "epochs_base": 40,
+    "batch_size": 8,
+    "patch_px": 128,
+    "contact_patches": 1,
+    "background_patches": 1,
+    "skirt_reach": 0.0,
+}
 # name -> (labels, model settings); "refined" = dataset.refine_labels (threedcal.dataset.refine).
 METHODS = {
     "lookup": ("drawn", {**BALL, "preset": "lookup"}),
