@@ -10,10 +10,14 @@ CORES  ?= 2
 # The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: all setup test lint bench report clean
+.PHONY: all smoke setup test lint bench report clean
 
 all: $(STAMP)
 	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all
+
+# A fast first run: the README's first scene (config/first_scene.yaml), results in results/my_digit/.
+smoke: $(STAMP)
+	$(BIN)/snakemake all --profile workflow/profiles/default --cores $(CORES) --configfile config/first_scene.yaml
 
 setup: $(STAMP)
 

@@ -4,15 +4,10 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import (
-    canonical_json,
-    is_imported,
-    load_yaml,
-    training_fractions,
-    validate_config,
-)
+from threedcal.config import is_imported, training_fractions, validate_config
+from threedcal.provenance import script_digest
+from threedcal.schema import canonical_json, load_yaml
 from threedcal.model.crossval import CV_METHODS, method_settings
-from threedcal.provenance import source_digest
 from threedcal.scenes import (
     ablation_scenes,
     has_objects,
@@ -60,7 +55,7 @@ include: "rules/common.smk"
 include: "rules/scene.smk"
 include: "rules/collect.smk"
 include: "rules/dataset.smk"
-include: "rules/integrate.smk"
+include: "rules/integration_study.smk"
 include: "rules/train.smk"
 include: "rules/ball.smk"
 include: "rules/stats.smk"

@@ -84,7 +84,7 @@ def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
         ts = build_imported(scene, Path(tmp) / "trainset", Path(tmp) / "splits.csv")
         test = ts.indices("val")
         for preset in presets:
-            settings = TrainSettings(preset=preset, torch_threads=threads, **BALL_SETTINGS)
+            settings = TrainSettings.of(preset=preset, torch_threads=threads, **BALL_SETTINGS)
             began = time.perf_counter()
             checkpoint = train(ts, Path(tmp) / preset, 80, settings, progress=False)
             seconds = time.perf_counter() - began

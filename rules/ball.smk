@@ -29,7 +29,7 @@ rule cv_folds:
         cv=lambda wildcards: config["scenes"][wildcards.scene]["cv"],
         seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
         where=lambda wildcards: config["scenes"][wildcards.scene]["import"]["path"],
-        code=source_digest("model", "dataset"),
+        code=code_digest("cv_folds.py"),
     script:
         "../scripts/cv_folds.py"
 
@@ -56,7 +56,7 @@ rule cv_train:
         ),
         seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
-        code=source_digest("model", "dataset"),
+        code=code_digest("cv_train.py"),
     script:
         "../scripts/cv_train.py"
 
@@ -86,6 +86,6 @@ rule ball_eval:
         seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
         preset=lambda wildcards: config["scenes"][wildcards.scene]["model"]["preset"],
-        code=source_digest("model", "dataset", "depth"),
+        code=code_digest("ball_eval.py"),
     script:
         "../scripts/ball_eval.py"

@@ -5,7 +5,6 @@
 # it into place when complete. A rerun with a finished store writes summary.json again and leaves
 # the store alone, or stops naming the settings that changed (see docs/reliability.md).
 # Downstream rules read summary.json, which names the store and the digest of its frame settings.
-from threedcal.config import canonical_json
 
 
 rule collect:
@@ -39,6 +38,6 @@ rule collect:
         ),
         store=lambda wildcards: f"results/{wildcards.scene}/raw.zarr",
         staging=lambda wildcards: f"results/{wildcards.scene}/.partial/raw.zarr",
-        code=source_digest("collect", "sim", "hardware"),
+        code=code_digest("collect.py"),
     script:
         "../scripts/collect.py"

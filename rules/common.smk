@@ -1,4 +1,11 @@
-# Input functions shared by the rules.
+# Helpers shared by the rules.
+
+
+def code_digest(script):
+    """Digest of a script and every library module it runs: a rerun reason when it changes.
+    Each step passes its own script (tests/test_provenance.py checks that they agree).
+    """
+    return script_digest(Path(workflow.basedir) / "scripts" / script)
 
 
 def scene_models(wildcards):

@@ -15,7 +15,7 @@ rule dataset_import:
         scene=lambda wildcards: stage_config(
             config["scenes"][wildcards.scene], "dataset"
         ),
-        code=source_digest("dataset"),
+        code=code_digest("dataset_import.py"),
     script:
         "../scripts/dataset_import.py"
 
@@ -45,6 +45,6 @@ rule dataset_collected:
         scene=lambda wildcards: stage_config(
             config["scenes"][wildcards.scene], "dataset"
         ),
-        code=source_digest("dataset", "collect"),
+        code=code_digest("dataset_collected.py"),
     script:
         "../scripts/dataset_collected.py"

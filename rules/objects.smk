@@ -26,7 +26,7 @@ rule object_presses:
         scene=lambda wildcards: stage_config(
             config["scenes"][wildcards.scene], "object_presses"
         ),
-        code=source_digest("evaluate", "sim", "hardware", "collect"),
+        code=code_digest("object_presses.py"),
     script:
         "../scripts/object_presses.py"
 
@@ -70,6 +70,6 @@ rule objects:
         fractions=lambda wildcards: training_fractions(
             config["scenes"][wildcards.scene]
         ),
-        code=source_digest("evaluate", "model", "depth"),
+        code=code_digest("objects.py"),
     script:
         "../scripts/objects.py"

@@ -25,6 +25,6 @@ rule presets:
         seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
         presets=["compact", "compact_tiny", "context", "multiscale", "lookup"],
-        code=source_digest("model", "dataset", "depth"),
+        code=code_digest("presets.py"),
     script:
         "../scripts/presets.py"

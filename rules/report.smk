@@ -17,7 +17,7 @@ rule environment:
         config=lambda wildcards: {
             k: config[k] for k in ("seed", "torch_threads", "scenes")
         },
-        code=source_digest("report"),
+        code=code_digest("environment.py"),
     script:
         "../scripts/environment.py"
 
@@ -37,7 +37,7 @@ rule inference_speed:
     threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
     params:
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
-        code=source_digest("model", "depth", "report"),
+        code=code_digest("inference_speed.py"),
     script:
         "../scripts/inference_speed.py"
 
@@ -58,7 +58,7 @@ rule realism:
         real=config.get("realism", {}).get("real"),
         sensor=config.get("realism", {}).get("sensor", "gelsight_mini"),
         seed=config["seed"],
-        code=source_digest("sim"),
+        code=code_digest("realism.py"),
     script:
         "../scripts/realism.py"
 
@@ -79,6 +79,6 @@ rule summary:
         CONDA_ENV
     params:
         config=lambda wildcards: {k: config[k] for k in ("scenes",)},
-        code=source_digest("report"),
+        code=code_digest("summary.py"),
     script:
         "../scripts/summary.py"

@@ -23,7 +23,7 @@ rule reskin_train:
         torch_threads=lambda wildcards: config["scenes"][wildcards.scene][
             "torch_threads"
         ],
-        code=source_digest("reskin", "collect"),
+        code=code_digest("reskin_train.py"),
     script:
         "../scripts/reskin_train.py"
 
@@ -49,6 +49,6 @@ rule reskin_eval:
         CONDA_ENV
     params:
         sensor=lambda wildcards: config["scenes"][wildcards.scene]["sensor"],
-        code=source_digest("reskin", "collect"),
+        code=code_digest("reskin_eval.py"),
     script:
         "../scripts/reskin_eval.py"

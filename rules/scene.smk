@@ -10,6 +10,6 @@ rule scene:
         CONDA_ENV
     params:
         scene=lambda wildcards: config["scenes"][wildcards.scene],
-        code=source_digest("scenes"),
+        code=code_digest("scene.py"),
     script:
         "../scripts/scene.py"

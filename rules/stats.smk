@@ -57,7 +57,7 @@ rule stats:
             if wildcards.scene in COLLECTED_SCENES
             else None
         ),
-        code=source_digest("evaluate", "model", "dataset", "depth"),
+        code=code_digest("stats.py"),
     script:
         "../scripts/stats.py"
 
@@ -78,6 +78,6 @@ rule stats_overview:
         CONDA_ENV
     params:
         scenes=ABLATION_SCENES,
-        code=source_digest("evaluate"),
+        code=code_digest("stats_overview.py"),
     script:
         "../scripts/stats_overview.py"

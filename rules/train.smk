@@ -1,4 +1,4 @@
-# Stage `train`: one model per (scene, P) from the scene's model-ready set; ball_eval for imported balls.
+# Stage `train`: one model per (scene, P) from the scene's model-ready set (imported balls: rules/ball.smk).
 
 
 rule train:
@@ -20,6 +20,6 @@ rule train:
             key: config["scenes"][wildcards.scene][key]
             for key in ("model", "seed", "torch_threads")
         },
-        code=source_digest("model", "dataset"),
+        code=code_digest("train.py"),
     script:
         "../scripts/train.py"

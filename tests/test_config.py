@@ -1,5 +1,6 @@
 import copy
 import re
+from pathlib import Path
 
 import pytest
 import yaml
@@ -191,3 +192,59 @@ def test_the_shipped_configs_pass_config_check(repo, capsys):
 
     for path in (repo / "config.yaml", repo / "config/paper.yaml", repo / "tests/config/test.yaml"):
         assert main(["config", "check", str(path)]) == 0, capsys.readouterr().err
+
+
+def test_train_settings_have_no_defaults_of_their_own_the_schema_fills_them():
+    import dataclasses
+
+    from threedcal.model.train import TrainSettings
+    from threedcal.schema import load_schema
+
+    fields = dataclasses.fields(TrainSettings)
+    assert all(f.default is dataclasses.MISSING for f in fields)
+    schema = load_schema("config")
+    model = schema["$defs"]["model"]["properties"]
+    settings = TrainSettings.of()
+    for f in fields:
+        if f.name in model:
+            assert getattr(settings, f.name) == model[f.name]["default"], f.name
+    assert settings.seed == schema["properties"]["seed"]["default"]
+    validated = load_config(Path(__file__).parent / "config/test.yaml")
+    scene = next(iter(validated["scenes"].values()))
+    from_config = TrainSettings.from_scene(scene)
+    assert from_config == TrainSettings.of(
+        seed=scene["seed"], torch_threads=scene["torch_threads"], **scene["model"]
+    )
+    with pytest.raises(ConfigError, match="no_such_key"):
+        TrainSettings.of(no_such_key=1)
+
+
+def test_configuration_page_is_the_schema_reference_and_every_key_is_described():
+    from threedcal.schema import schema_keys, with_reference
+
+    page = Path(__file__).resolve().parents[1] / "docs/configuration.md"
+    assert page.read_text() == with_reference(page.read_text()), (
+        "docs/configuration.md is out of date with the schema: run "
+        "`.venv/bin/threedcal config reference --write docs/configuration.md`"
+    )
+    keys = schema_keys("config")
+    assert len(keys) > 50
+    assert [path for path, node in keys if not node.get("description")] == []
+    paths = [path for path, _ in keys]
+    assert "scenes.<name>.model.preset" in paths and "scenes.<name>.pressing.mount.x_mm" in paths
+
+
+def test_reference_needs_its_markers():
+    from threedcal.schema import with_reference
+
+    with pytest.raises(ConfigError, match="markers"):
+        with_reference("# a page without them\n")
+
+
+def test_a_magnetic_sensor_names_its_board_as_reader_not_camera():
+    message = error_of(config_with(sensor="reskin", camera="/dev/ttyACM0"))
+    assert "scenes.s.camera" in message and "reader" in message
+    message = error_of(config_with(reader="/dev/ttyACM0"))
+    assert "scenes.s.reader" in message and "camera" in message
+    ok = validate_config(config_with(sensor="reskin", reader="/dev/ttyACM0"))
+    assert ok["scenes"]["s"]["reader"] == "/dev/ttyACM0"

@@ -47,14 +47,18 @@ def test_training_uses_the_full_frame_offset_for_every_window():
 @pytest.mark.parametrize("preset", ["lookup", "compact_tiny"])
 def test_depth_estimator_ignores_a_global_lighting_shift(tmp_path, preset):
     ts = synthetic_set()
-    checkpoint = train(ts, tmp_path, 80, TrainSettings(preset=preset, **TINY), progress=False)
+    checkpoint = train(ts, tmp_path, 80, TrainSettings.of(preset=preset, **TINY), progress=False)
     assert checkpoint["normalisation"]["drift"] == "median"
     est = DepthEstimator(checkpoint, device="cpu")
     frame = np.asarray(ts.frames[4])
     shifted = np.clip(frame.astype(int) + np.array([9, -4, 6]), 0, 255).astype(np.uint8)
     np.testing.assert_allclose(est.gradients(shifted), est.gradients(frame), atol=1e-5)
     off = train(
-        ts, tmp_path / "off", 80, TrainSettings(preset=preset, drift="none", **TINY), progress=False
+        ts,
+        tmp_path / "off",
+        80,
+        TrainSettings.of(preset=preset, drift="none", **TINY),
+        progress=False,
     )
     assert off["normalisation"]["drift"] == "none"
     est_off = DepthEstimator(off, device="cpu")

@@ -151,7 +151,7 @@ def test_not_a_model_is_a_clear_error(tmp_path):
 
 
 def test_epochs_scale_as_base_times_80_over_p():
-    s = TrainSettings(epochs_base=3)
+    s = TrainSettings.of(epochs_base=3)
     assert [s.epochs(p) for p in (80, 40, 20, 1)] == [3, 6, 12, 240]
     with pytest.raises(ConfigError):
         s.epochs(0)
@@ -159,7 +159,7 @@ def test_epochs_scale_as_base_times_80_over_p():
 
 def test_training_is_deterministic_to_the_byte_and_writes_losses(tmp_path):
     ts = synthetic_set()
-    settings = TrainSettings(preset="compact_tiny", seed=3, **TINY)
+    settings = TrainSettings.of(preset="compact_tiny", seed=3, **TINY)
     train(ts, tmp_path / "a", 80, settings, progress=False)
     train(ts, tmp_path / "b", 80, settings, progress=False)
     assert (tmp_path / "a/model.pt").read_bytes() == (tmp_path / "b/model.pt").read_bytes()
@@ -168,7 +168,7 @@ def test_training_is_deterministic_to_the_byte_and_writes_losses(tmp_path):
     assert len(losses) == 1 and np.isfinite(losses[["train_loss", "val_loss"]]).all().all()
     assert (tmp_path / "a/losses.png").stat().st_size > 1000
     assert not (tmp_path / "a/checkpoint.pt").exists()
-    other = TrainSettings(preset="compact_tiny", seed=4, **TINY)
+    other = TrainSettings.of(preset="compact_tiny", seed=4, **TINY)
     train(ts, tmp_path / "c", 80, other, progress=False)
     assert (tmp_path / "c/model.pt").read_bytes() != (tmp_path / "a/model.pt").read_bytes()
 
@@ -177,7 +177,7 @@ def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch
     import threedcal.model.train as module
 
     ts = synthetic_set()
-    settings = TrainSettings(preset="compact_tiny", seed=5, **{**TINY, "epochs_base": 3})
+    settings = TrainSettings.of(preset="compact_tiny", seed=5, **{**TINY, "epochs_base": 3})
     train(ts, tmp_path / "full", 80, settings, progress=False)
     real = module._train_epoch
     calls = []
@@ -202,7 +202,7 @@ def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch
 def test_checkpoint_round_trip_carries_what_inference_needs(tmp_path):
     ts = synthetic_set()
     checkpoint = train(
-        ts, tmp_path, 20, TrainSettings(preset="compact_tiny", **TINY), progress=False
+        ts, tmp_path, 20, TrainSettings.of(preset="compact_tiny", **TINY), progress=False
     )
     assert checkpoint["training"]["percent"] == 20 and checkpoint["training"]["epochs"] == 4
     est = DepthEstimator.from_checkpoint(tmp_path / "model.pt", device="cpu")
@@ -228,9 +228,9 @@ def test_checkpoint_round_trip_carries_what_inference_needs(tmp_path):
 def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):
     ts = synthetic_set()
     base = train(
-        ts, tmp_path / "base", 80, TrainSettings(preset="compact_tiny", **TINY), progress=False
+        ts, tmp_path / "base", 80, TrainSettings.of(preset="compact_tiny", **TINY), progress=False
     )
-    tuned_settings = TrainSettings(
+    tuned_settings = TrainSettings.of(
         preset="compact_tiny", init=str(tmp_path / "base/model.pt"), lr=1e-12, **TINY
     )
     tuned = train(ts, tmp_path / "tuned", 80, tuned_settings, progress=False)
@@ -241,7 +241,7 @@ def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):
             ts,
             tmp_path / "x",
             80,
-            TrainSettings(preset="compact", init=str(tmp_path / "base/model.pt"), **TINY),
+            TrainSettings.of(preset="compact", init=str(tmp_path / "base/model.pt"), **TINY),
         )
 
 
@@ -308,7 +308,7 @@ def test_predict_cli_writes_depth_and_colour_map(tmp_path):
     from threedcal.cli import main
 
     ts = synthetic_set()
-    train(ts, tmp_path, 80, TrainSettings(preset="compact_tiny", **TINY), progress=False)
+    train(ts, tmp_path, 80, TrainSettings.of(preset="compact_tiny", **TINY), progress=False)
     cv2.imwrite(
         str(tmp_path / "img.png"), cv2.cvtColor(np.asarray(ts.frames[0]), cv2.COLOR_RGB2BGR)
     )
@@ -331,15 +331,15 @@ def test_predict_cli_writes_depth_and_colour_map(tmp_path):
 def test_epoch_lr_constant_and_cosine_end_points():
     from threedcal.model.train import epoch_lr
 
-    constant = TrainSettings(lr=0.01)
+    constant = TrainSettings.of(lr=0.01)
     assert [epoch_lr(constant, e, 5) for e in (1, 3, 5)] == [0.01] * 3
-    cosine = TrainSettings(lr=0.01, lr_schedule="cosine")
+    cosine = TrainSettings.of(lr=0.01, lr_schedule="cosine")
     assert epoch_lr(cosine, 1, 5) == pytest.approx(0.01)
     assert epoch_lr(cosine, 3, 5) == pytest.approx(0.01 / 100 + 0.99 * 0.01 / 2)
     assert epoch_lr(cosine, 5, 5) == pytest.approx(0.01 / 100)
     assert epoch_lr(cosine, 1, 1) == 0.01  # a one-epoch run keeps lr
     with pytest.raises(ConfigError, match="allowed: constant, cosine"):
-        epoch_lr(TrainSettings(lr_schedule="step"), 1, 5)
+        epoch_lr(TrainSettings.of(lr_schedule="step"), 1, 5)
 
 
 def test_skirt_reach_moves_contact_patches_off_the_contact():
@@ -349,7 +349,7 @@ def test_skirt_reach_moves_contact_patches_off_the_contact():
     centre = ts.center_px[0]
 
     def offsets(reach):
-        settings = TrainSettings(
+        settings = TrainSettings.of(
             patch_px=12, contact_patches=200, background_patches=0, skirt_reach=reach
         )
         windows = sample_windows(ts, np.array([0]), settings, np.random.default_rng(0))

@@ -1,33 +1,81 @@
 import shutil
+from pathlib import Path
 
-from threedcal.provenance import PACKAGE_ROOT, source_digest
+from threedcal.provenance import PACKAGE_ROOT, module_closure, script_digest
+
+REPO = Path(__file__).resolve().parents[1]
 
 
-def test_digest_changes_only_with_the_code_it_covers(tmp_path):
+def _names(script, root=PACKAGE_ROOT):
+    return {str(p.relative_to(root)) for p in module_closure(script, root)}
+
+
+def _copy_package(tmp_path):
     root = tmp_path / "threedcal"
     shutil.copytree(PACKAGE_ROOT, root, ignore=shutil.ignore_patterns("__pycache__"))
-    before_scenes = source_digest("scenes", root=root)
-    before_cli = source_digest("cli", root=root)
-    with (root / "scenes.py").open("a") as f:
-        f.write("\n# a change\n")
-    assert source_digest("scenes", root=root) != before_scenes
-    assert source_digest("cli", root=root) == before_cli
+    return root
 
 
-def test_core_change_changes_every_digest(tmp_path):
-    root = tmp_path / "threedcal"
-    shutil.copytree(PACKAGE_ROOT, root, ignore=shutil.ignore_patterns("__pycache__"))
-    before = source_digest("cli", root=root)
-    with (root / "config.py").open("a") as f:
-        f.write("\n# a change\n")
-    assert source_digest("cli", root=root) != before
+def test_closure_follows_imports_inside_functions_and_through_packages():
+    collect = _names(REPO / "scripts/collect.py")
+    # imported only inside collect.session's functions: a hand-kept list missed both
+    assert {"reskin/figures.py", "scenes.py", "collect/session.py"} <= collect
+    assert {"__init__.py", "collect/__init__.py"} <= collect  # parents run on import
+    summary = _names(REPO / "scripts/summary.py")
+    assert any(n.startswith("dataset/") for n in summary)
+    assert any(n.startswith("model/") for n in summary)
+    # the collection never runs the model or the depth integrators: a model change keeps it cached
+    assert not any(n.startswith(("model/", "depth/", "evaluate/")) for n in collect)
 
 
-def test_digest_is_stable_and_rejects_unknown_modules():
-    assert source_digest("scenes") == source_digest("scenes")
+def test_lazy_package_attributes_count_only_for_who_names_them(tmp_path):
+    plain = tmp_path / "plain.py"
+    plain.write_text("import threedcal\n")
+    named = tmp_path / "named.py"
+    named.write_text("def f():\n    from threedcal import DepthEstimator\n")
+    assert "model/inference.py" not in _names(plain)
+    assert "model/inference.py" in _names(named)
+
+
+def test_script_digest_changes_with_code_it_runs_only(tmp_path):
+    root = _copy_package(tmp_path)
+    script = tmp_path / "stage.py"
+    script.write_text("from threedcal.depth.spectral import poisson_dst\n")
+    before = script_digest(script, root)
+    (root / "reskin" / "model.py").write_text((root / "reskin/model.py").read_text() + "\n# x\n")
+    assert script_digest(script, root) == before
+    # a module the script reaches only transitively
+    closure = _names(script, root)
+    deeper = next(n for n in sorted(closure) if n != "depth/spectral.py" and n.startswith("depth/"))
+    (root / deeper).write_text((root / deeper).read_text() + "\n# x\n")
+    after = script_digest(script, root)
+    assert after != before
+    (root / "profiles" / "sensors" / "digit.yaml").write_text(
+        (root / "profiles/sensors/digit.yaml").read_text() + "\n# x\n"
+    )
+    assert script_digest(script, root) != after  # every stage reads profiles
+
+
+def test_script_digest_of_a_missing_script_names_it(tmp_path):
     try:
-        source_digest("no_such_module")
+        script_digest(tmp_path / "nope.py")
     except ValueError as exc:
-        assert "no_such_module" in str(exc)
+        assert "nope.py" in str(exc)
     else:
-        raise AssertionError("unknown module accepted")
+        raise AssertionError("missing script accepted")
+
+
+def test_every_rule_digests_the_script_it_runs():
+    import re
+
+    rules = 0
+    for smk in sorted((REPO / "rules").glob("*.smk")):
+        for block in re.split(r"(?m)^(?=rule |checkpoint )", smk.read_text())[1:]:
+            name = block.split()[1].rstrip(":")
+            script = re.search(r'script:\s*"\.\./scripts/([\w.]+)"', block)
+            if script is None:
+                continue  # a rule without a script (e.g. `all`) runs no library code
+            rules += 1
+            digests = re.findall(r'code=code_digest\("([\w.]+)"\)', block)
+            assert digests == [script.group(1)], f"{smk.name}: rule {name}"
+    assert rules >= 15

@@ -382,7 +382,7 @@ def test_real_printer_with_the_simulated_board_is_refused_before_anything_opens(
     config = validate_config(
         {"scenes": {"rs": {"sensor": "reskin", "printer": "ender3", "port": "/dev/ttyUSB9"}}}
     )
-    with pytest.raises(ConfigError, match="set the scene's `camera` to the ReSkin board"):
+    with pytest.raises(ConfigError, match="set the scene's `reader` to the ReSkin board"):
         collect_scene("rs", config["scenes"]["rs"], tmp_path / "raw.zarr", progress=False)
     assert not any(tmp_path.iterdir())
 
@@ -400,7 +400,7 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
             "sensor": "reskin",
             "printer": "ender3",
             "port": bench.url,
-            "camera": bench.sensor_url,
+            "reader": bench.sensor_url,
             "plan": {"pattern": "cross", "spacing_mm": 2.0, "depths_mm": [1.0], "frames": 2},
         }
         scene = validate_config({"scenes": {"rs": scene}})["scenes"]["rs"]

@@ -71,7 +71,7 @@ def held_out(ts, folds, name: str, model: dict, out: Path, only: int | None = No
                 crossval.fold_trainset(ts, folds, fold),
                 cached.parent,
                 80,
-                TrainSettings(**model, torch_threads=1),
+                TrainSettings.of(**model, seed=0, torch_threads=1),
                 progress=False,
             )
             cpu = time.process_time() - began

@@ -2,36 +2,129 @@
 
 Snakemake reruns a job when its params change, so a digest of the code (and profiles) that a stage
 imports makes "the library changed" a rerun reason — and only for the stages that use that code.
+The modules are found from the rule's script itself (its threedcal imports, followed transitively,
+imports inside functions included), so the list cannot drift from the code the way a hand-kept
+one does.
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
+from functools import cache
 from pathlib import Path
 
 PACKAGE_ROOT = Path(__file__).resolve().parent
-# Modules every stage reads (config, profiles, errors); a change to them reruns everything.
-CORE = ("__init__.py", "config.py", "errors.py", "profiles", "schemas")
+PACKAGE = "threedcal"
+# Data every stage reads through the profile loader: a change to a profile or schema reruns everything.
+DATA_DIRS = ("profiles", "schemas")
 
 
-def _files(part: str, root: Path) -> list[Path]:
-    path = root / part
-    if path.is_dir():
-        return sorted(p for p in path.rglob("*") if p.suffix in {".py", ".yaml"} and p.is_file())
-    if path.suffix:
-        return [path] if path.is_file() else []
-    module = path.with_suffix(".py")
-    if module.is_file():
-        return [module]
-    raise ValueError(f"threedcal has no module or package {part!r}")
+def module_file(module: str, root: Path = PACKAGE_ROOT) -> Path | None:
+    """`threedcal.sim.optics` → its file under `root` (a package → its __init__.py); None if absent."""
+    parts = module.split(".")
+    if parts[0] != PACKAGE:
+        return None
+    base = root.joinpath(*parts[1:])
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
 
 
-def source_digest(*parts: str, root: Path = PACKAGE_ROOT) -> str:
-    """sha256 (16 hex) of the listed threedcal modules/packages plus the core, e.g. ("sim", "collect")."""
-    digest = hashlib.sha256()
-    for part in sorted(set(CORE) | set(parts)):
-        for path in _files(part, root):
-            digest.update(str(path.relative_to(root)).encode())
-            digest.update(b"\0")
-            digest.update(path.read_bytes())
+def _lazy_attributes(tree: ast.Module) -> dict[str, set[ast.AST]]:
+    """Imports inside a module-level `__getattr__` (PEP 562), by the attribute that triggers them."""
+    lazy: dict[str, set[ast.AST]] = {}
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef) and node.name == "__getattr__":
+            for sub in ast.walk(node):
+                if isinstance(sub, ast.ImportFrom):
+                    for alias in sub.names:
+                        lazy.setdefault(alias.asname or alias.name, set()).add(sub)
+    return lazy
+
+
+def imported_modules(path: Path, package: str | None) -> set[str]:
+    """Every threedcal module a file imports anywhere in it (top level, functions, branches).
+
+    A package's lazy attributes (imports inside its `__getattr__`) count for the importer that
+    names them (`from threedcal import DepthEstimator`), not for every importer of the package.
+    """
+    tree = ast.parse(path.read_bytes(), filename=str(path))
+    lazy = {node for nodes in _lazy_attributes(tree).values() for node in nodes}
+    found = set()
+    for node in ast.walk(tree):
+        if node in lazy:
+            continue
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: resolved against the importing module's package
+                if package is None:
+                    continue
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            found.add(module)
+            # `from threedcal.sim import optics` imports the submodule too
+            found.update(f"{module}.{alias.name}" for alias in node.names)
+            found.update(_lazy_targets(module, [alias.name for alias in node.names]))
+    return {m for m in found if m == PACKAGE or m.startswith(PACKAGE + ".")}
+
+
+def _lazy_targets(module: str, names: list[str]) -> set[str]:
+    """The modules a package's `__getattr__` imports for the given attribute names."""
+    path = module_file(module)
+    if path is None or path.name != "__init__.py":
+        return set()
+    lazy = _lazy_attributes(ast.parse(path.read_bytes(), filename=str(path)))
+    return {node.module for name in names for node in lazy.get(name, ()) if node.module}
+
+
+def _with_parents(module: str) -> list[str]:
+    """Importing a.b.c runs a/__init__, a/b/__init__ and a/b/c."""
+    parts = module.split(".")
+    return [".".join(parts[: i + 1]) for i in range(len(parts))]
+
+
+def module_closure(script: str | Path, root: Path = PACKAGE_ROOT) -> list[Path]:
+    """The library files a script runs when it executes: its threedcal imports, transitively."""
+    return list(_closure(Path(script).resolve(), root.resolve()))
+
+
+@cache
+def _closure(script: Path, root: Path) -> tuple[Path, ...]:
+    seen: dict[str, Path] = {}
+    todo = sorted(imported_modules(script, None))
+    while todo:
+        module = todo.pop()
+        for name in _with_parents(module):
+            if name in seen:
+                continue
+            path = module_file(name, root)
+            if path is None:
+                continue  # an attribute (`from threedcal.config import load_yaml`), not a module
+            seen[name] = path
+            package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+            todo.extend(imported_modules(path, package) - set(seen))
+    return tuple(sorted(set(seen.values())))
+
+
+def _data_files(root: Path) -> list[Path]:
+    return sorted(
+        p for d in DATA_DIRS for p in (root / d).rglob("*") if p.suffix == ".yaml" and p.is_file()
+    )
+
+
+def script_digest(script: str | Path, root: Path = PACKAGE_ROOT) -> str:
+    """sha256 (16 hex) of the script, every library module it runs, and the profiles and schemas."""
+    script = Path(script)
+    if not script.is_file():
+        raise ValueError(f"no script {script} to digest")
+    digest = hashlib.sha256(script.read_bytes())
+    root = root.resolve()
+    for path in [*module_closure(script, root), *_data_files(root)]:
+        digest.update(b"\0" + str(path.relative_to(root)).encode() + b"\0")
+        digest.update(path.read_bytes())
     return digest.hexdigest()[:16]

@@ -17,7 +17,7 @@ from threedcal.config import FULL_TRAINING_P, is_imported, training_fractions
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
-# The study-wide integrator comparison (rules/integrate.smk), built when the config enables it.
+# The study-wide integrator comparison (rules/integration_study.smk), built when the config enables it.
 INTEGRATION_STUDY_TARGETS = [
     f"{RESULTS}/integration/error_vs_time.csv",
     f"{RESULTS}/integration/error_vs_time.png",
@@ -63,7 +63,7 @@ RECORDED_PACKAGES = (
 # The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
 # stages that read the changed key (a new model preset never recollects).
 STAGE_KEYS = {
-    "collect": ("sensor", "printer", "port", "camera", "probe", "plan", "bench", "seed"),
+    "collect": ("sensor", "printer", "port", "camera", "reader", "probe", "plan", "bench", "seed"),
     "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
     "object_presses": (
         "sensor",

@@ -1,4 +1,4 @@
-"""`threedcal config check` and `threedcal profiles list`."""
+"""`threedcal config check`, `threedcal config reference` and `threedcal profiles list`."""
 
 from __future__ import annotations
 
@@ -33,6 +33,28 @@ def _list_profiles(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reference(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from threedcal.schema import reference_table, with_reference
+
+    if args.write is None:
+        print(reference_table(), end="")
+        return 0
+    page = Path(args.write)
+    page.write_text(with_reference(page.read_text()))
+    print(f"{page}: reference regenerated from the config schema")
+    return 0
+
+
+def _reference_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--write",
+        metavar="PAGE",
+        help="replace the generated table in PAGE (docs/configuration.md)",
+    )
+
+
 COMMANDS = [
     Command(
         ("config", "check"),
@@ -40,6 +62,13 @@ COMMANDS = [
         "imported data) and list each scene's result files",
         _check,
         lambda p: p.add_argument("config", help="config YAML (e.g. config.yaml)"),
+    ),
+    Command(
+        ("config", "reference"),
+        "print every config key (allowed values, default, meaning) from the schema as a Markdown "
+        "table, or regenerate it in a page with --write",
+        _reference,
+        _reference_args,
     ),
     Command(("profiles", "list"), "list the built-in sensor and printer profiles", _list_profiles),
 ]

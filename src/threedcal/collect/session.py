@@ -62,14 +62,15 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
             parse_faults(scene.get("bench", {}).get("faults", ""))
         except ConfigError as exc:
             raise ConfigError(f"{source}.bench.faults: {exc}") from None
-    if scene["port"] != "sim" and str(scene.get("camera", "sim")) == "sim":
+    key = "reader" if is_magnetic(sensor) else "camera"
+    if scene["port"] != "sim" and str(scene.get(key, "sim")) == "sim":
         device = (
-            "set the scene's `camera` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
+            "set the scene's `reader` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
             if is_magnetic(sensor)
             else "give the sensor's video device (index or /dev/v4l/by-id path)"
         )
         raise ConfigError(
-            f"{source}: port {scene['port']!r} is a real printer but camera is 'sim': {device}, "
+            f"{source}: port {scene['port']!r} is a real printer but {key} is 'sim': {device}, "
             "or use port: sim"
         )
     return ScenePlan(sensor, printer, plan, MotionSettings.from_profile(sensor))
@@ -328,7 +329,7 @@ def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: boo
     if is_magnetic(prepared.sensor):
         from threedcal.hardware.reskin import ReSkinReader
 
-        reader = ReSkinReader(prepared.sensor, str(scene["camera"]))
+        reader = ReSkinReader(prepared.sensor, str(scene["reader"]))
     else:
         reader = OpenCVCamera(prepared.sensor, device)
     with reader, MarlinHost(scene["port"], prepared.printer) as host:

@@ -42,8 +42,8 @@ import numpy as np
 import pandas as pd
 import zarr
 
-from threedcal.config import canonical_json, plain
 from threedcal.errors import ConfigError, ThreedcalError
+from threedcal.schema import canonical_json, plain
 
 # 2: every chunk written (write_empty_chunks), frame settings recorded. 1 (no attribute): older stores.
 STORE_FORMAT = 2

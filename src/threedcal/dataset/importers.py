@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.config import load_yaml, plain
 from threedcal.errors import ConfigError
+from threedcal.schema import load_yaml, plain
 
 BALL_LABEL_COLUMNS = ("image", "center_x_px", "center_y_px", "radius_px")
 # Drawn circles include part of the shading halo: evaluate inside 0.9 · min(r_drawn, 0.98 · R_px).

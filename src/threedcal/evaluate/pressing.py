@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from threedcal.config import mount_problem
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import HeightMap, surface_height
 from threedcal.evaluate.objects import load_object as _load_object
@@ -58,17 +59,6 @@ class Mount:
     @property
     def offset_mm(self) -> tuple[float, float, float]:
         return (self.x_mm, self.y_mm, self.z_mm)
-
-
-def mount_problem(scene: Mapping) -> str | None:
-    """What is wrong with a scene's mount (as `pressing.mount: ...`), or None."""
-    if scene.get("pressing", {}).get("mount") is None and scene.get("port", "sim") != "sim":
-        return (
-            "pressing.mount: required when the printer presses the test objects on a real rig "
-            f"(port {scene.get('port')!r}): give x_mm, y_mm, z_mm of the object's press-frame "
-            "origin relative to the probe tip and its rotation_deg as mounted"
-        )
-    return None
 
 
 def scene_mount(scene: Mapping, source: str = "scene") -> Mount:

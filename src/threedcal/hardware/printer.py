@@ -12,7 +12,6 @@ than the reply timeout costs extra retransmissions (never a lost or repeated com
 
 from __future__ import annotations
 
-import copy
 import math
 import re
 import time
@@ -25,6 +24,7 @@ from typing import Any
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.hardware.gcode import Reply, classify, format_line, parse_m114, parse_m115
 from threedcal.hardware.motion import AXES, MotionModel
+from threedcal.profiles import load_profile
 
 # Packages searched for pyserial URL handlers (``simmarlin://`` lives in threedcal.sim). A name,
 # not an import: the hardware layer does not depend on the simulator.
@@ -62,20 +62,7 @@ class OutOfTravel(ConfigError):
 
 def printer_profile(ref: str | Path | Mapping[str, Any]) -> dict[str, Any]:
     """A validated printer profile with the schema's defaults filled in (name, path or dict)."""
-    from threedcal.config import _fill_defaults, load_yaml, schema_errors
-    from threedcal.profiles import _ROOT, load_profile
-
-    schema = load_yaml(_ROOT / "schemas" / "printer.schema.yaml")
-    if isinstance(ref, Mapping):
-        profile = copy.deepcopy(dict(ref))
-        problems = schema_errors(profile, schema)
-        if problems:
-            where = profile.get("source", "printer profile")
-            raise ConfigError(f"{where}: invalid printer profile\n  " + "\n  ".join(problems))
-    else:
-        profile = load_profile("printer", ref)
-    _fill_defaults(profile, schema, schema)
-    return profile
+    return load_profile("printer", ref, defaults=True)
 
 
 def register_url_handlers() -> None:

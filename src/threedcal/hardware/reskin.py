@@ -11,7 +11,6 @@ never a silently wrong reading. `ReSkinReader` is a `FrameSource` for the collec
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from collections.abc import Mapping
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from threedcal.errors import ConfigError, ThreedcalError
+from threedcal.profiles import load_profile
 
 MAX_LINE_BYTES = 4096  # a "line" longer than this is noise on the wire, not a reading
 
@@ -38,18 +38,12 @@ class MalformedReading(ReSkinError):
 
 def reskin_profile(profile: Mapping[str, Any]) -> dict[str, Any]:
     """A copy of a magnetic sensor profile with the schema's defaults filled in."""
-    from threedcal.config import _fill_defaults, load_yaml
-    from threedcal.profiles import _ROOT
-
     if profile.get("type") != "magnetic":
         raise ConfigError(
             f"sensor {profile.get('name')!r} is of type {profile.get('type')!r}; "
             "a serial reader needs a magnetic sensor profile (e.g. reskin)"
         )
-    schema = load_yaml(_ROOT / "schemas" / "sensor.schema.yaml")
-    filled = copy.deepcopy(dict(profile))
-    _fill_defaults(filled, schema, schema)
-    return filled
+    return load_profile("sensor", profile, defaults=True)
 
 
 def value_names(profile: Mapping[str, Any]) -> list[str]:

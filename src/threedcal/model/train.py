@@ -36,43 +36,61 @@ from threedcal.model.checkpoint import (
 )
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.presets import build_model, is_learned, preset_args
+from threedcal.schema import fill_defaults, load_schema, schema_errors
 
 RESUME_NAME = "checkpoint.pt"
 LOSS_COLUMNS = ("epoch", "train_loss", "val_loss", "seconds")
 
 
+def _or(value, default):
+    return default if value is None else value
+
+
 @dataclass(frozen=True)
 class TrainSettings:
-    """Every setting a training reads (the scene's `model:` section plus seed and threads)."""
+    """Every setting a training reads: the scene's `model:` section plus seed and threads.
 
-    preset: str = "compact"
-    epochs_base: int = 4
-    batch_size: int = 64
-    lr: float = 1e-4
-    lr_schedule: str = "constant"  # or cosine (epoch_lr)
-    weight_decay: float = 1e-4
-    init: str | None = None
-    patch_px: int = 96
-    contact_patches: int = 8
-    background_patches: int = 2
-    skirt_reach: float = 0.0  # contact-patch centres up to this many contact radii off the centre
-    drift: str = "median"  # lighting-drift removal of the inputs (threedcal.model.drift)
-    seed: int = 0
-    torch_threads: int = 2
-    device: str = "auto"  # auto = CUDA when present, else CPU
+    No defaults of its own: `from_scene` / `of` fill what a config leaves out from the config
+    schema, so the schema is the one place a default is written.
+    """
+
+    preset: str
+    epochs_base: int
+    batch_size: int
+    lr: float
+    lr_schedule: str  # constant or cosine (epoch_lr)
+    weight_decay: float
+    init: str | None
+    patch_px: int
+    contact_patches: int
+    background_patches: int
+    skirt_reach: float  # contact-patch centres up to this many contact radii off the centre
+    drift: str  # lighting-drift removal of the inputs (threedcal.model.drift)
+    seed: int
+    torch_threads: int
+    device: str  # auto = CUDA when present, else CPU
 
     @classmethod
     def from_scene(cls, scene: Mapping) -> TrainSettings:
-        model = dict(scene.get("model", {}))
-        known = {f for f in cls.__dataclass_fields__ if f not in ("seed", "torch_threads")}
-        unknown = set(model) - known
-        if unknown:
-            raise ConfigError(
-                f"model: unknown setting(s) {sorted(unknown)} (allowed: {sorted(known)})"
-            )
+        return cls.of(
+            seed=scene.get("seed"),
+            torch_threads=scene.get("torch_threads"),
+            **scene.get("model", {}),
+        )
+
+    @classmethod
+    def of(cls, **settings) -> TrainSettings:
+        """Settings from `model:` keys plus seed and torch_threads; the schema fills the rest."""
+        schema = load_schema("config")
+        model = {k: v for k, v in settings.items() if k not in ("seed", "torch_threads")}
+        problems = schema_errors(model, schema["$defs"]["model"])
+        if problems:
+            raise ConfigError("model: " + "; ".join(problems))
+        fill_defaults(model, schema["$defs"]["model"], schema)
+        top = schema["properties"]
         return cls(
-            seed=int(scene.get("seed", 0)),
-            torch_threads=int(scene.get("torch_threads", 2)),
+            seed=int(_or(settings.get("seed"), top["seed"]["default"])),
+            torch_threads=int(_or(settings.get("torch_threads"), top["torch_threads"]["default"])),
             **model,
         )
 

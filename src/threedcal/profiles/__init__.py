@@ -6,15 +6,17 @@ name a YAML file by path. Each kind has a JSON schema in ``threedcal/schemas/<ki
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Mapping
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-from threedcal.config import load_yaml, schema_errors
 from threedcal.errors import ConfigError
+from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 
 KINDS = ("sensor", "printer")
-_ROOT = Path(str(files("threedcal")))
+PROFILE_DIR = Path(str(files("threedcal") / "profiles"))
 
 
 class ProfileNotFound(ConfigError):
@@ -24,7 +26,7 @@ class ProfileNotFound(ConfigError):
 def builtin_dir(kind: str) -> Path:
     if kind not in KINDS:
         raise ValueError(f"unknown profile kind {kind!r} (kinds: {', '.join(KINDS)})")
-    return _ROOT / "profiles" / f"{kind}s"
+    return PROFILE_DIR / f"{kind}s"
 
 
 def builtin_names(kind: str) -> list[str]:
@@ -48,16 +50,29 @@ def resolve_profile(kind: str, ref: str | Path) -> Path:
     return path
 
 
-def load_profile(kind: str, ref: str | Path) -> dict[str, Any]:
-    """Load and validate a profile; the result carries its `name` and the `source` file."""
-    path = resolve_profile(kind, ref)
-    data = load_yaml(path)
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: a {kind} profile must be a mapping of keys to values")
-    schema = load_yaml(_ROOT / "schemas" / f"{kind}.schema.yaml")
+def load_profile(
+    kind: str, ref: str | Path | Mapping[str, Any], *, defaults: bool = False
+) -> dict[str, Any]:
+    """Load and validate a profile (built-in name, path, or an already loaded mapping).
+
+    The result carries its `name` and `source` file; `defaults=True` also fills the schema's
+    defaults (what the hardware drivers read), otherwise only the keys the file gives are present.
+    """
+    schema = load_schema(kind)
+    if isinstance(ref, Mapping):
+        data = copy.deepcopy(dict(ref))
+        path = data.get("source", f"{kind} profile")
+    else:
+        path = resolve_profile(kind, ref)
+        data = load_yaml(path)
+        if not isinstance(data, dict):
+            raise ConfigError(f"{path}: a {kind} profile must be a mapping of keys to values")
     problems = schema_errors(data, schema)
     if problems:
         raise ConfigError(f"{path}: invalid {kind} profile\n  " + "\n  ".join(problems))
-    data.setdefault("name", path.stem)
-    data["source"] = str(path)
+    if not isinstance(ref, Mapping):
+        data.setdefault("name", Path(path).stem)
+        data["source"] = str(path)
+    if defaults:
+        fill_defaults(data, schema)
     return data

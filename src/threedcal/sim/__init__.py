@@ -3,5 +3,24 @@ the gel + optics simulator (optics.py, indenters.py), its realism check (realism
 coupled (bench.py); the simulated ReSkin board behind ``simreskin://`` (reskin.py).
 
 Kept import-light: pyserial imports this package when it looks up the ``simmarlin://`` handler, so
-import the simulator from its module: ``from threedcal.sim.optics import GelSimulator``.
+its public names (``from threedcal.sim import GelSimulator, Sphere``) load on first use.
 """
+
+# The simulator's public names, imported on first use (PEP 562) so the package itself stays light.
+__all__ = ["Flat", "GelSimulator", "HeightMap", "Indenter", "SimBench", "Sphere"]
+
+
+def __getattr__(name: str):
+    if name == "GelSimulator":
+        from threedcal.sim.optics import GelSimulator
+
+        return GelSimulator
+    if name in ("Indenter", "Sphere", "Flat", "HeightMap"):
+        from threedcal.sim.indenters import Flat, HeightMap, Indenter, Sphere
+
+        return {"Indenter": Indenter, "Sphere": Sphere, "Flat": Flat, "HeightMap": HeightMap}[name]
+    if name == "SimBench":
+        from threedcal.sim.bench import SimBench
+
+        return SimBench
+    raise AttributeError(f"module 'threedcal.sim' has no attribute {name!r}")

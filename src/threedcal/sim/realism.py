@@ -91,7 +91,7 @@ def read_rgb(path: Path) -> np.ndarray:
 
 
 def load_ball_dataset(root: str | Path) -> BallDataset:
-    from threedcal.config import load_yaml
+    from threedcal.schema import load_yaml
 
     root = Path(root)
     meta_path = root / "dataset.yaml"

@@ -17,6 +17,6 @@ rule integration_study:
     params:
         study=config["integration_study"],
         seed=config["seed"],
-        code=source_digest("depth"),
+        code=code_digest("integration_study.py"),
     script:
-        "../scripts/integrate_study.py"
+        "../scripts/integration_study.py"

@@ -1,0 +1,228 @@
+"""The bottom of the configuration spine: YAML reading, JSON-schema validation and defaults.
+
+Configs (`threedcal.config`) and profiles (`threedcal.profiles`) are both read through here, so
+neither imports the other for these basics and every module below them can read a validated file.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Iterator, Mapping
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+
+from threedcal.errors import ConfigError
+
+SCHEMA_DIR = Path(str(files("threedcal") / "schemas"))
+SCHEMA_KINDS = ("config", "sensor", "printer")
+
+
+def plain(value: Any) -> Any:
+    """numpy scalars and arrays as plain Python values, so messages read `nan`, not `np.float64(nan)`."""
+    item = getattr(value, "item", None)
+    if item is not None and type(value).__module__ == "numpy":
+        return value.item() if getattr(value, "ndim", 0) == 0 else value.tolist()
+    return value
+
+
+def canonical_json(value: Any) -> str:
+    """One text per value whatever the order of its keys: what digests and Snakemake params compare."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=plain)
+
+
+class DuplicateKeyError(ConfigError):
+    """A YAML mapping names the same key twice: plain YAML keeps the last one silently."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a key given twice in one mapping (e.g. two scenes of one name)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # `<<: *anchor` merges may override on purpose
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    earlier = first.setdefault(key, line)
+                except TypeError:
+                    continue  # an unhashable key: SafeLoader reports it below
+                if earlier != line:
+                    raise DuplicateKeyError(
+                        f"line {line}: duplicate key {key!r} (first on line {earlier}); YAML would "
+                        "keep only the last one: remove or rename one of them"
+                    )
+        return super().construct_mapping(node, deep=deep)
+
+
+def parse_yaml(text: str, source: str = "YAML") -> Any:
+    """Parse YAML text like yaml.safe_load, but refuse duplicate keys; errors name `source`."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise DuplicateKeyError(f"{source}: {exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML: {exc}") from exc
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Read a YAML file (configs, profiles, dataset descriptions): duplicate keys are an error."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (YAML expected)") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
+    return parse_yaml(text, source=str(path))
+
+
+def schema_path(kind: str) -> Path:
+    """The JSON schema (as YAML) of a config (`config`) or a profile kind (`sensor`, `printer`)."""
+    if kind not in SCHEMA_KINDS:
+        raise ValueError(f"unknown schema {kind!r} (schemas: {', '.join(SCHEMA_KINDS)})")
+    return SCHEMA_DIR / f"{kind}.schema.yaml"
+
+
+def load_schema(kind: str = "config") -> dict:
+    return load_yaml(schema_path(kind))
+
+
+def key_path(parts) -> str:
+    """Render a jsonschema error path as `scenes.digit.model.preset` (list items as `[i]`)."""
+    out = ""
+    for part in parts:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _describe(error: jsonschema.ValidationError) -> str:
+    where = key_path(error.absolute_path)
+    if error.validator == "additionalProperties":
+        allowed = sorted(error.schema.get("properties", {}))
+        extra = sorted(set(error.instance) - set(allowed))
+        return f"{where}: unknown key {', '.join(map(repr, extra))} (allowed: {', '.join(allowed)})"
+    if error.validator == "enum":
+        return f"{where}: {error.instance!r} is not allowed (allowed: {', '.join(map(str, error.validator_value))})"
+    if error.validator == "required":
+        return f"{where}: {error.message}"
+    if "propertyNames" in error.schema_path:
+        return f"{where}: name {error.instance!r} must match {error.validator_value}"
+    return f"{where}: {error.message}"
+
+
+def _iter_errors(instance: Any, schema: Mapping) -> Iterator[jsonschema.ValidationError]:
+    validator = jsonschema.Draft202012Validator(schema)
+    # Report the deepest error of each failing branch: it is the one that names the exact key.
+    for error in sorted(validator.iter_errors(instance), key=lambda e: list(e.absolute_path)):
+        leaves = list(error.context) if error.context else []
+        yield min(leaves, key=lambda e: -len(e.absolute_path)) if leaves else error
+
+
+def schema_errors(instance: Any, schema: Mapping) -> list[str]:
+    return [_describe(e) for e in _iter_errors(instance, schema)]
+
+
+def fill_defaults(instance: Any, schema: Mapping, root: Mapping | None = None) -> None:
+    """Fill `default` values of the schema into `instance`, in place (validated input only)."""
+    root = schema if root is None else root
+    if "$ref" in schema:
+        schema = root["$defs"][schema["$ref"].rsplit("/", 1)[-1]]
+    if not isinstance(instance, dict):
+        return
+    for key, sub in schema.get("properties", {}).items():
+        if key not in instance and "default" in sub:
+            instance[key] = copy.deepcopy(sub["default"])
+        if key in instance:
+            fill_defaults(instance[key], sub, root)
+    extra = schema.get("additionalProperties")
+    if isinstance(extra, dict):
+        for key, value in instance.items():
+            if key not in schema.get("properties", {}):
+                fill_defaults(value, extra, root)
+
+
+REFERENCE_BEGIN = (
+    "<!-- generated from the config schema by `threedcal config reference`; do not edit -->"
+)
+REFERENCE_END = "<!-- end of generated reference -->"
+
+
+def _resolved(node: Mapping, root: Mapping) -> dict:
+    node = dict(node)
+    while "$ref" in node:
+        target = root["$defs"][node.pop("$ref").rsplit("/", 1)[-1]]
+        node = {**target, **node}
+    return node
+
+
+def _allowed(node: Mapping) -> str:
+    if "enum" in node:
+        return " \\| ".join(f"`{v}`" for v in node["enum"])
+    kind = node.get("type", "")
+    kinds = kind if isinstance(kind, list) else [kind]
+    text = " or ".join(str(k) for k in kinds if k)
+    if kind == "array" and "enum" in node.get("items", {}):
+        text = "list of " + " \\| ".join(f"`{v}`" for v in node["items"]["enum"])
+    bounds = [
+        f"{sym} {node[key]}"
+        for key, sym in (
+            ("minimum", "≥"),
+            ("exclusiveMinimum", ">"),
+            ("maximum", "≤"),
+            ("exclusiveMaximum", "<"),
+        )
+        if key in node
+    ]
+    return ", ".join([text, *bounds]) if text else ", ".join(bounds)
+
+
+def schema_keys(kind: str = "config") -> list[tuple[str, dict]]:
+    """Every key of a schema as (dotted path, resolved node), depth first; `<name>` for map keys."""
+    root = load_schema(kind)
+    out: list[tuple[str, dict]] = []
+
+    def walk(node: Mapping, path: str) -> None:
+        node = _resolved(node, root)
+        for key, sub in node.get("properties", {}).items():
+            here = f"{path}.{key}" if path else key
+            sub = _resolved(sub, root)
+            if not any(p == here for p, _ in out):
+                out.append((here, sub))
+            walk(sub, here)
+        extra = node.get("additionalProperties")
+        if isinstance(extra, Mapping) and ("$ref" in extra or "properties" in extra):
+            walk(extra, f"{path}.<name>")
+        for alternative in [*node.get("oneOf", []), *node.get("anyOf", [])]:
+            walk(alternative, path)
+
+    walk(root, "")
+    return out
+
+
+def reference_table(kind: str = "config") -> str:
+    """A Markdown table of every key: allowed values, default, description (docs/configuration.md)."""
+    lines = ["| key | allowed | default | meaning |", "|---|---|---|---|"]
+    for path, node in schema_keys(kind):
+        default = f"`{canonical_json(node['default'])}`" if "default" in node else ""
+        meaning = " ".join(str(node.get("description", "")).split()).replace("|", "\\|")
+        lines.append(f"| `{path}` | {_allowed(node)} | {default} | {meaning} |")
+    return "\n".join(lines) + "\n"
+
+
+def with_reference(page: str, kind: str = "config") -> str:
+    """`page` with the text between the reference markers replaced by a fresh reference table."""
+    if REFERENCE_BEGIN not in page or REFERENCE_END not in page:
+        raise ConfigError(
+            f"the page has no reference markers ({REFERENCE_BEGIN} ... {REFERENCE_END})"
+        )
+    head, rest = page.split(REFERENCE_BEGIN, 1)
+    _, tail = rest.split(REFERENCE_END, 1)
+    return f"{head}{REFERENCE_BEGIN}\n{reference_table(kind)}{REFERENCE_END}{tail}"
