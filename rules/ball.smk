@@ -2,18 +2,6 @@
 # grouped folds, one model per (method, fold), then the pooled figures with intervals.
 
 
-def cv_models(wildcards):
-    """{"model": [fold0 ... foldK-1 model.pt], "lookup": [...]}: every fold model ball_eval scores."""
-    folds = config["scenes"][wildcards.scene]["cv"]["folds"]
-    return {
-        method: [
-            f"results/{wildcards.scene}/cv/{method}/fold{fold}/model.pt"
-            for fold in range(folds)
-        ]
-        for method in CV_METHODS
-    }
-
-
 rule cv_folds:
     input:
         trainset="results/{scene}/dataset/trainset",

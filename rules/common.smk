@@ -19,3 +19,15 @@ def scene_models(wildcards):
 def ablation_losses(wildcards):
     fractions = training_fractions(config["scenes"][wildcards.scene])
     return [f"results/{wildcards.scene}/models/P{p}/losses.csv" for p in fractions]
+
+
+def cv_models(wildcards):
+    """{"model": [fold0 ... foldK-1 model.pt], "lookup": [...]}: every fold model ball_eval scores."""
+    folds = config["scenes"][wildcards.scene]["cv"]["folds"]
+    return {
+        method: [
+            f"results/{wildcards.scene}/cv/{method}/fold{fold}/model.pt"
+            for fold in range(folds)
+        ]
+        for method in CV_METHODS
+    }
