@@ -125,24 +125,23 @@ def against_drawn_labels(folder: str, names: list[str], settings) -> list[dict]:
     predictions = {n: held_out(refined, folds, n, METHODS[n][1], out) for n in names}
     tables, draws = crossval.score_methods(drawn, folds, predictions, settings, seed=0)
     summary = crossval.summarise(tables, draws, settings, seed=0)
-    rows = []
-    for name in names:
-        s = summary[name]
-        rows.append(
-            {
-                "method": name,
-                "labels": "scored vs drawn",
-                "gradient_rmse": s["gradient_rmse"],
-                "gradient_lo": s["interval95"]["gradient_rmse"][0],
-                "gradient_hi": s["interval95"]["gradient_rmse"][1],
-                "depth_mae_um": s["cap_depth_mae_um"],
-                "depth_lo": s["interval95"]["cap_depth_mae_um"][0],
-                "depth_hi": s["interval95"]["cap_depth_mae_um"][1],
-                "depth_bias_um": s["cap_depth_bias_um"],
-                "shape_mae_um": s["cap_shape_mae_um"],
-            }
-        )
-    return rows
+    return [figure_row(name, "scored vs drawn", summary[name]) for name in names]
+
+
+def figure_row(name: str, labels: str, s: dict) -> dict:
+    """The pooled figures and intervals of one method (a `summarise` entry) as a table row."""
+    return {
+        "method": name,
+        "labels": labels,
+        "gradient_rmse": s["gradient_rmse"],
+        "gradient_lo": s["interval95"]["gradient_rmse"][0],
+        "gradient_hi": s["interval95"]["gradient_rmse"][1],
+        "depth_mae_um": s["cap_depth_mae_um"],
+        "depth_lo": s["interval95"]["cap_depth_mae_um"][0],
+        "depth_hi": s["interval95"]["cap_depth_mae_um"][1],
+        "depth_bias_um": s["cap_depth_bias_um"],
+        "shape_mae_um": s["cap_shape_mae_um"],
+    }
 
 
 def methods_table(folder: str, labels: str, names: list[str], settings) -> list[dict]:
@@ -179,16 +178,7 @@ def methods_table(folder: str, labels: str, names: list[str], settings) -> list[
             for f in sorted(folds["fold"].unique())
         ]
         row = {
-            "method": name,
-            "labels": labels,
-            "gradient_rmse": s["gradient_rmse"],
-            "gradient_lo": s["interval95"]["gradient_rmse"][0],
-            "gradient_hi": s["interval95"]["gradient_rmse"][1],
-            "depth_mae_um": s["cap_depth_mae_um"],
-            "depth_lo": s["interval95"]["cap_depth_mae_um"][0],
-            "depth_hi": s["interval95"]["cap_depth_mae_um"][1],
-            "depth_bias_um": s["cap_depth_bias_um"],
-            "shape_mae_um": s["cap_shape_mae_um"],
+            **figure_row(name, labels, s),
             "label_mc_depth_um": s["label_uncertainty"]["cap_depth_mae_um"]["mean"],
             "ms_per_frame": depth_ms_per_frame(estimator, np.asarray(ts.frames[:4])),
             "train_cpu_s_per_fold": float(np.mean(cpu)),
