@@ -1,4 +1,4 @@
-# threedcal — `make all` runs the default study, `make test` the test suite.
+# threedcal — `make all` runs the default study, `make test` the test suite, `make cluster-test` the study on Slurm.
 # Both create .venv and install the pinned dependencies first (once; again when pyproject.toml changes).
 
 SHELL  := /bin/bash
@@ -10,7 +10,7 @@ CORES  ?= 2
 # The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: all smoke setup test lint bench report clean
+.PHONY: all smoke setup test lint bench report clean cluster-test cluster-clean
 
 all: $(STAMP)
 	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all
@@ -30,8 +30,8 @@ test: $(STAMP)
 	set -o pipefail; $(BIN)/python -m pytest 2>&1 | tee .pytest-last.log
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests scripts benchmarks
-	$(BIN)/ruff format --check src tests scripts benchmarks
+	$(BIN)/ruff check src tests scripts benchmarks workflow/cluster
+	$(BIN)/ruff format --check src tests scripts benchmarks workflow/cluster
 	$(BIN)/snakefmt --check Snakefile rules
 	$(BIN)/snakemake --lint --cores 1
 
@@ -57,3 +57,19 @@ report: $(STAMP)
 
 clean:
 	rm -rf .snakemake results report.html
+
+# The tiny study on a one-node Slurm started here, against a local run (docs/cluster.md). Needs root
+# and apt-get: installs slurm-wlm, slurmdbd, munge and mariadb-server once (the names it added are
+# kept in .cache/cluster/apt-installed.txt; `make cluster-clean` purges them) and the pip extra
+# [cluster]; starts every daemon under a temporary directory and stops each by PID at the end.
+CLUSTER_STAMP := $(VENV)/.cluster-installed
+
+$(CLUSTER_STAMP): pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e ".[cluster]"
+	touch $(CLUSTER_STAMP)
+
+cluster-test: $(STAMP) $(CLUSTER_STAMP)
+	PYTHON=$(BIN)/python workflow/cluster/test.sh
+
+cluster-clean:
+	workflow/cluster/slurm.sh purge .cache/cluster/apt-installed.txt

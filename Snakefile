@@ -35,6 +35,11 @@ CONFIG_SOURCE = ", ".join(map(str, workflow.overwrite_configfiles)) or "config.y
 config.update(validate_config(config, source=CONFIG_SOURCE))
 validate(config, "workflow/schemas/config.schema.yaml")
 
+# One printer: jobs that drive it hold `resources: printer=1`, so two never run at once, with or without
+# a profile. `--resources printer=N` (command line or profile) still decides where it is given.
+if "printer" not in workflow.global_resources:
+    workflow.global_resources["printer"] = 1
+
 SCENES = list(config["scenes"])
 IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)

@@ -1,6 +1,7 @@
-"""Frames/s of DepthEstimator.depth (network + DST Poisson integration) for every preset at 240×320.
+"""Frames/s of DepthEstimator.depth (network + DST Poisson integration) for every preset at 240×320,
+and training samples/s per preset.
 
-The baseline is the paper's TouchNet on the same frame in the same run; the goal for the default CPU
+The baseline is the paper's TouchNet on the same frame (and the same training batch) in the same run; the goal for the default CPU
 preset is ≥ 30 frames/s and ≥ 100× TouchNet. Weights are freshly initialised (speed does not depend
 on their values). Each figure is the median time of single-frame calls, which a busy shared machine
 disturbs less than a mean.
@@ -68,6 +69,33 @@ def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float) -> floa
     return 1000.0 * float(np.median(times))
 
 
+def training_samples_per_s(preset: str, seconds: float, batch: int = 16, patch: int = 48) -> float:
+    """Training samples/s: Adam steps (forward, MSE loss, backward) on random (batch, 5, patch,
+    patch) inputs, the patch size the scene presets train on; median step time."""
+    torch.manual_seed(0)
+    model = build_model(preset)
+    parameters = [p for p in model.parameters() if p.requires_grad]
+    if not parameters:
+        return float("nan")
+    optimizer = torch.optim.Adam(parameters, lr=1e-3)
+    x = torch.randn(batch, 5, patch, patch)
+    with torch.no_grad():
+        y = torch.randn_like(model(x))
+
+    def step():
+        optimizer.zero_grad(set_to_none=True)
+        torch.nn.functional.mse_loss(model(x), y).backward()
+        optimizer.step()
+
+    step()  # warm-up
+    times, began = [], time.perf_counter()
+    while len(times) < 3 or time.perf_counter() - began < seconds:
+        start = time.perf_counter()
+        step()
+        times.append(time.perf_counter() - start)
+    return batch / float(np.median(times))
+
+
 def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     """Held-out ball_eval figures of each preset trained with BALL_SETTINGS on `folder`."""
     from threedcal.dataset.build import build_imported
@@ -113,6 +141,14 @@ def main() -> None:
     for preset, value in ms.items():
         mark = "  (default)" if preset == DEFAULT_PRESET else ""
         print(f"{preset:14s} {1000 / value:10.2f} {value:10.1f} {base / value:10.0f}x{mark}")
+    rates = {p: training_samples_per_s(p, args.seconds) for p in PRESET_NAMES}
+    base = rates["touchnet"]
+    print(f"\ntraining, batch of 16 patches 48x48: {'samples/s':>10s} {'x touchnet':>11s}")
+    for preset, rate in rates.items():
+        if np.isfinite(rate):
+            print(f"{preset:14s} {'':22s} {rate:10.1f} {rate / base:10.1f}x")
+        else:
+            print(f"{preset:14s} {'':22s} {'(no gradient training)':>22s}")
     if args.accuracy is None:
         return
     cpu = [p for p in PRESET_NAMES if p != "touchnet"]

@@ -9,6 +9,8 @@ rule cv_folds:
         "results/{scene}/cv/folds.csv",
     log:
         "results/{scene}/logs/cv_folds.log",
+    benchmark:
+        "results/{scene}/benchmarks/cv_folds.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
@@ -31,6 +33,8 @@ rule cv_train:
         losses="results/{scene}/cv/{method}/fold{fold}/losses.csv",
     log:
         "results/{scene}/logs/cv_{method}_fold{fold}.log",
+    benchmark:
+        "results/{scene}/benchmarks/cv_{method}_fold{fold}.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",
         method="|".join(CV_METHODS),
@@ -65,6 +69,8 @@ rule ball_eval:
         ),
     log:
         "results/{scene}/logs/ball_eval.log",
+    benchmark:
+        "results/{scene}/benchmarks/ball_eval.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",
     conda:

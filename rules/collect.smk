@@ -7,6 +7,11 @@
 # Downstream rules read summary.json, which names the store and the digest of its frame settings.
 
 
+# The printer is attached to the machine that runs Snakemake: collection is never submitted to a cluster.
+localrules:
+    collect,
+
+
 rule collect:
     output:
         summary="results/{scene}/collect/summary.json",
@@ -25,6 +30,8 @@ rule collect:
         truth="results/{scene}/collect/bench_truth.json",
     log:
         "results/{scene}/logs/collect.log",
+    benchmark:
+        "results/{scene}/benchmarks/collect.tsv"
     wildcard_constraints:
         scene="|".join(COLLECTED_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:

@@ -7,6 +7,8 @@ rule dataset_import:
         splits="results/{scene}/dataset/splits.csv",
     log:
         "results/{scene}/logs/dataset.log",
+    benchmark:
+        "results/{scene}/benchmarks/dataset_import.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
@@ -37,6 +39,8 @@ rule dataset_collected:
         ),
     log:
         "results/{scene}/logs/dataset.log",
+    benchmark:
+        "results/{scene}/benchmarks/dataset_collected.tsv"
     wildcard_constraints:
         scene="|".join(COLLECTED_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:

@@ -12,6 +12,8 @@ rule integration_study:
         reading="results/integration/reading.md",
     log:
         "results/integration/logs/integration_study.log",
+    benchmark:
+        "results/benchmarks/integration_study.tsv"
     conda:
         CONDA_ENV
     params:

@@ -6,6 +6,11 @@
 # Figs. 3C, 5, 6. A new model reruns only the scoring.
 
 
+# The presses drive the printer, attached to the machine that runs Snakemake: never submitted to a cluster.
+localrules:
+    object_presses,
+
+
 rule object_presses:
     input:
         registration="results/{scene}/dataset/registration.json",
@@ -16,6 +21,8 @@ rule object_presses:
         summary="results/{scene}/objects/pressing/summary.json",
     log:
         "results/{scene}/logs/object_presses.log",
+    benchmark:
+        "results/{scene}/benchmarks/object_presses.tsv"
     wildcard_constraints:
         scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
@@ -58,6 +65,8 @@ rule objects:
         ),
     log:
         "results/{scene}/logs/objects.log",
+    benchmark:
+        "results/{scene}/benchmarks/objects.tsv"
     wildcard_constraints:
         scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:

@@ -15,6 +15,8 @@ rule presets:
         ),
     log:
         "results/{scene}/logs/presets.log",
+    benchmark:
+        "results/{scene}/benchmarks/presets.tsv"
     wildcard_constraints:
         scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:

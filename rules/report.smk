@@ -11,6 +11,8 @@ rule environment:
         ),
     log:
         "results/logs/environment.log",
+    benchmark:
+        "results/benchmarks/environment.tsv"
     conda:
         CONDA_ENV
     params:
@@ -32,6 +34,8 @@ rule inference_speed:
         "results/{scene}/models/inference.json",
     log:
         "results/{scene}/logs/inference_speed.log",
+    benchmark:
+        "results/{scene}/benchmarks/inference_speed.tsv"
     conda:
         CONDA_ENV
     threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
@@ -52,6 +56,8 @@ rule realism:
         ),
     log:
         "results/logs/realism.log",
+    benchmark:
+        "results/benchmarks/realism.tsv"
     conda:
         CONDA_ENV
     params:
@@ -75,6 +81,8 @@ rule summary:
         ),
     log:
         "results/logs/summary.log",
+    benchmark:
+        "results/benchmarks/summary.tsv"
     conda:
         CONDA_ENV
     params:

@@ -12,6 +12,8 @@ rule reskin_train:
         splits="results/{scene}/reskin/splits.csv",
     log:
         "results/{scene}/logs/reskin_train.log",
+    benchmark:
+        "results/{scene}/benchmarks/reskin_train.tsv"
     wildcard_constraints:
         scene="|".join(RESKIN_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
@@ -43,6 +45,8 @@ rule reskin_eval:
         ),
     log:
         "results/{scene}/logs/reskin_eval.log",
+    benchmark:
+        "results/{scene}/benchmarks/reskin_eval.tsv"
     wildcard_constraints:
         scene="|".join(RESKIN_SCENES) or "(?!)",
     conda:

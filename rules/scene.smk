@@ -6,6 +6,8 @@ rule scene:
         "results/{scene}/scene.json",
     log:
         "results/{scene}/logs/scene.log",
+    benchmark:
+        "results/{scene}/benchmarks/scene.tsv"
     conda:
         CONDA_ENV
     params:

@@ -44,6 +44,8 @@ rule stats:
         ),
     log:
         "results/{scene}/logs/stats.log",
+    benchmark:
+        "results/{scene}/benchmarks/stats.tsv"
     wildcard_constraints:
         scene="|".join(ABLATION_SCENES) or "(?!)",  # "(?!)" matches nothing
     conda:
@@ -74,6 +76,8 @@ rule stats_overview:
         ),
     log:
         "results/logs/stats_overview.log",
+    benchmark:
+        "results/benchmarks/stats_overview.tsv"
     conda:
         CONDA_ENV
     params:

@@ -10,6 +10,8 @@ rule train:
         figure="results/{scene}/models/P{p}/losses.png",
     log:
         "results/{scene}/logs/train_P{p}.log",
+    benchmark:
+        "results/{scene}/benchmarks/train_P{p}.tsv"
     wildcard_constraints:
         p=r"\d+",
     conda:

@@ -89,10 +89,10 @@ def snapshot(path: Path) -> dict[str, tuple[int, int, str]]:
 
 
 def snakemake(
-    workdir: Path, configfile: Path, *args: str, check: bool = True
+    workdir: Path, configfile: Path, *args: str, check: bool = True, env: dict | None = None
 ) -> subprocess.CompletedProcess:
     cmd = snakemake_command(workdir, configfile, *args)
-    result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir)
+    result = subprocess.run(cmd, capture_output=True, text=True, cwd=workdir, env=env)
     if check and result.returncode != 0:
         raise AssertionError(
             f"snakemake failed ({' '.join(cmd)}):\n{result.stdout}\n{result.stderr}"

@@ -332,17 +332,30 @@ def test_bad_shapes_are_refused():
         integrate(np.zeros((4, 5)), np.zeros((4, 5)), "lstsq_sparse", mask=np.ones((5, 4), bool))
 
 
-@pytest.mark.parametrize("shape", [(238, 318), (12, 10), (40, 1278)])
+@pytest.mark.parametrize("shape", [(238, 318), (12, 10), (1278, 40)])
 def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
     import scipy.fft as sfft
 
-    from threedcal.depth.spectral import _dst1_2d, _dst1_matrix
+    from threedcal.depth.spectral import _dst1_columns, _dst1_matrix
 
     x = np.random.default_rng(3).normal(size=shape)
-    forward = _dst1_2d(x.copy(), workers=None)
-    np.testing.assert_allclose(forward, sfft.dstn(x, type=1), rtol=1e-12, atol=1e-10)
-    # Applied twice it is the identity times 2(h+1) * 2(w+1), the factor the solve folds away.
-    twice = _dst1_2d(forward.copy(), workers=None) / (4.0 * (shape[0] + 1) * (shape[1] + 1))
+    forward = _dst1_columns(x.copy(), workers=None)
+    np.testing.assert_allclose(forward, sfft.dst(x, type=1, axis=0), rtol=1e-12, atol=1e-10)
+    # Applied twice it is the identity times 2(n + 1), the factor the solve folds away.
+    twice = _dst1_columns(forward.copy(), workers=None) / (2.0 * (shape[0] + 1))
     np.testing.assert_allclose(twice, x, atol=1e-12)
-    # 238 + 1 = 239 is prime: that axis goes through the matrix; 11 and 13 stay with the FFT.
+    # 238 + 1 = 239 is prime: that axis goes through the matrix; 11 stays with the FFT.
     assert (_dst1_matrix(238, "float64") is not None) and _dst1_matrix(10, "float64") is None
+
+
+@pytest.mark.parametrize(
+    "shape",  # one unknown; thin; transformed axis 0 or 1 by matrix, smooth FFT or awkward FFT
+    [(3, 3), (3, 9), (9, 3), (240, 320), (320, 240), (12, 514), (30, 12), (602, 602)],
+)
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_dst_solve_is_exact_on_every_path_and_dtype(shape, dtype):
+    z = zero_border(np.random.default_rng(7).normal(size=shape))
+    gx, gy = consistent_gradients(z)
+    depth = poisson_dst(gx.astype(dtype), gy.astype(dtype), max_angle_deg=None, offset="none")
+    assert depth.dtype == dtype
+    assert rel(depth, z) <= (1e-12 if dtype == np.float64 else 1e-4)

@@ -117,6 +117,11 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
         assert (tmp_path / f"results/{leaf}").is_file(), leaf
     assert collected in (tmp_path / "results/summary.md").read_text()
+    # Snakemake limits every job's BLAS/OpenMP pools to the job's threads (1 for this rule)
+    environment = json.loads((tmp_path / "results/environment.json").read_text())
+    assert environment["thread_environment"] == dict.fromkeys(
+        ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"), "1"
+    )
     # Nothing changed: nothing to do.
     assert scheduled_jobs(tmp_path, path) == []
     # A model setting of one scene: its trainings and what reads them rerun, not its collection

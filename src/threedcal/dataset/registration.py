@@ -158,18 +158,62 @@ SATURATED_DN = 250
 
 @dataclass(frozen=True)
 class _Window:
-    """One contact's colour change and its usable-pixel mask, per channel, smoothed once."""
+    """One contact's neighbourhood: colour change per channel (smoothed once) and usability.
 
-    diff: np.ndarray  # (C, H, W) float32: frame − blank
-    valid: np.ndarray  # (H, W) float32: 1 where no channel is saturated in frame or blank
+    Only a box around the contact is kept (everything a fit can sample, plus the filters' reach,
+    so its values equal the whole frame's); points outside the box count as unusable.
+    """
+
+    # (h, w, 4) float64: frame − blank per channel, then 1 where usable. Not float32: its rounding
+    # (1e-6 DN) over a finite-difference step (1e-6 px) makes the Jacobian noise, and the
+    # least-squares fit then takes ~3x the iterations to settle.
+    planes: np.ndarray
+    origin: tuple[int, int]  # (row, column) of planes[0, 0] in the frame
+
+    def __post_init__(self):
+        object.__setattr__(self, "table", _bilinear_table(self.planes))
 
     @classmethod
-    def of(cls, frame: np.ndarray, blank: np.ndarray, smooth_px: float) -> _Window:
-        diff = colour_change(frame, blank)
-        diff = np.stack([ndimage.gaussian_filter(diff[..., c], smooth_px) for c in range(3)])
+    def of(cls, frame: np.ndarray, blank: np.ndarray, smooth_px: float, box=None) -> _Window:
+        if frame.shape != blank.shape:
+            raise RegistrationError(
+                f"frame shape {frame.shape} differs from blank shape {blank.shape}"
+            )
+        if box is None:
+            box = (0, frame.shape[0], 0, frame.shape[1])
+        r0, r1, c0, c1 = box
+        frame, blank = frame[r0:r1, c0:c1], blank[r0:r1, c0:c1]
+        diff = frame.astype(np.float64) - blank.astype(np.float64)
+        planes = np.empty(diff.shape[:2] + (4,))
+        for c in range(3):
+            planes[..., c] = ndimage.gaussian_filter(diff[..., c], smooth_px)
         saturated = ((frame >= SATURATED_DN) | (blank >= SATURATED_DN)).any(axis=-1)
-        valid = ndimage.binary_erosion(~saturated, iterations=2, border_value=1)
-        return cls(diff=diff, valid=valid.astype(np.float32))
+        planes[..., 3] = ndimage.binary_erosion(~saturated, iterations=2, border_value=1)
+        return cls(planes=planes, origin=(r0, c0))
+
+    @classmethod
+    def around(
+        cls, frame: np.ndarray, blank: np.ndarray, smooth_px: float, contact: Contact, reach: float
+    ) -> _Window:
+        """The box a symmetry fit of `contact` can reach: its disk, mirrored about any axis through
+        a centre moved by up to half a radius (the fit's limit), plus the blur's and erosion's
+        reach so that the box's values equal the whole frame's."""
+        half = math.ceil((reach + 0.5) * contact.radius_px) + 2 + math.ceil(4 * smooth_px) + 3
+        height, width = frame.shape[:2]
+        row, col = int(round(contact.y_px)), int(round(contact.x_px))
+        box = (
+            max(row - half, 0),
+            min(row + half + 1, height),
+            max(col - half, 0),
+            min(col + half + 1, width),
+        )
+        return cls.of(frame, blank, smooth_px, box)
+
+    def unmixed(self, unmixing: np.ndarray) -> _Window:
+        """The same window with the colour channels mixed into LED images (rows of `unmixing`)."""
+        planes = self.planes.copy()
+        planes[..., :3] = self.planes[..., :3] @ unmixing.T
+        return _Window(planes=planes, origin=self.origin)
 
 
 @dataclass(frozen=True)
@@ -185,16 +229,55 @@ class _Disk:
         reach_px = reach * contact.radius_px
         g = np.arange(-math.ceil(reach_px), math.ceil(reach_px) + 1, dtype=np.float64)
         qx, qy = np.meshgrid(g, g)
+        # Each row shifted by a golden-ratio fraction of a pixel: on an integer lattice every
+        # sample crosses a pixel boundary at the same centre, and the bilinear residuals kink
+        # there together. Spread out, the objective is smoother (on the 9 contacts of
+        # tests/test_registration.py: 15.3 -> 14.4 iterations, max error 0.181 -> 0.178 px).
+        qx = qx + (np.arange(g.size)[:, None] * 0.6180339887) % 1.0 - 0.5
         inside = qx * qx + qy * qy <= reach_px * reach_px
         return cls(qx=qx[inside], qy=qy[inside], radius_px=contact.radius_px)
 
 
-def _sample(window: _Window, rows: np.ndarray, cols: np.ndarray):
-    """Bilinear colour change (C, Q) and usability (Q,) at points; off-image points are unusable."""
-    _, height, width = window.diff.shape
-    on = (rows >= 0) & (rows <= height - 1) & (cols >= 0) & (cols <= width - 1)
-    values = np.stack([ndimage.map_coordinates(ch, [rows, cols], order=1) for ch in window.diff])
-    return values, ndimage.map_coordinates(window.valid, [rows, cols], order=1) * on
+def _bilinear_table(planes: np.ndarray) -> np.ndarray:
+    """Per pixel and plane, the bilinear coefficients of the cell to its lower right, (h*w, 4P):
+    v00, v01 - v00, v10 - v00 and v11 - v10 - v01 + v00 (the last row and column repeat)."""
+    p = np.pad(planes, ((0, 1), (0, 1), (0, 0)), mode="edge")
+    v00, v01, v10, v11 = p[:-1, :-1], p[:-1, 1:], p[1:, :-1], p[1:, 1:]
+    table = np.concatenate([v00, v01 - v00, v10 - v00, v11 - v10 - v01 + v00], axis=-1)
+    return table.reshape(-1, table.shape[-1])
+
+
+def _sample(window: _Window, rows: np.ndarray, cols: np.ndarray, gradient: bool = False):
+    """Bilinear values (P, Q) of the window's planes (the last: usability) at frame points; points
+    outside the window are 0 and unusable. With `gradient`, also the interpolant's derivatives
+    along rows and columns, (P, Q) each.
+
+    One gather of precomputed cell coefficients serves every plane (map_coordinates per plane
+    costs ~10x).
+    """
+    height, width, n = window.planes.shape
+    r = rows - window.origin[0]
+    c = cols - window.origin[1]
+    on = ((r >= 0) & (r <= height - 1) & (c >= 0) & (c <= width - 1))[:, None]
+    r = np.clip(r, 0, height - 1)
+    c = np.clip(c, 0, width - 1)
+    r0 = r.astype(np.intp)
+    c0 = c.astype(np.intp)
+    fr = (r - r0)[:, None]
+    fc = (c - c0)[:, None]
+    cell = window.table[r0 * width + c0]
+    v00, dc, dr, twist = cell[:, :n], cell[:, n : 2 * n], cell[:, 2 * n : 3 * n], cell[:, 3 * n :]
+    values = (v00 + fc * dc + fr * (dr + fc * twist)) * on
+    if not gradient:
+        return values.T
+    return values.T, ((dr + fc * twist) * on).T, ((dc + fr * twist) * on).T
+
+
+def _mirrored(disk: _Disk, centre, theta: float):
+    """Frame (rows, cols) of the disk's offsets mirrored about the axis at `theta` through `centre`."""
+    ux, uy = math.cos(theta), math.sin(theta)
+    along = disk.qx * ux + disk.qy * uy
+    return centre[1] + 2 * along * uy - disk.qy, centre[0] + 2 * along * ux - disk.qx
 
 
 def _mirror_pairs(window: _Window, disk: _Disk, centre, axes):
@@ -203,22 +286,18 @@ def _mirror_pairs(window: _Window, disk: _Disk, centre, axes):
     Returns (a, b, weight): a (C, Q), b (K, C, Q), weight (K, Q) — 0 where either point of a pair
     is saturated or off the image.
     """
-    qx, qy = disk.qx, disk.qy
-    cx, cy = centre
-    a, usable_a = _sample(window, cy + qy, cx + qx)
+    here = _sample(window, centre[1] + disk.qy, centre[0] + disk.qx)
     out_b, weights = [], []
     for theta in axes:
-        ux, uy = math.cos(theta), math.sin(theta)
-        along = qx * ux + qy * uy
-        b, usable_b = _sample(window, cy + 2 * along * uy - qy, cx + 2 * along * ux - qx)
-        out_b.append(b)
-        weights.append(usable_a * usable_b)
-    return a, np.stack(out_b), np.stack(weights)
+        there = _sample(window, *_mirrored(disk, centre, theta))
+        out_b.append(there[:3])
+        weights.append(here[3] * there[3])
+    return here[:3], np.stack(out_b), np.stack(weights)
 
 
 def _dipole_axes(window: _Window, unmixing: np.ndarray, centre, disk: _Disk) -> np.ndarray:
     """Each unmixed channel's first moment about `centre`: the azimuth of its LED, roughly."""
-    values, _ = _sample(window, centre[1] + disk.qy, centre[0] + disk.qx)
+    values = _sample(window, centre[1] + disk.qy, centre[0] + disk.qx)[:3]
     unmixed = unmixing @ values
     return np.arctan2(unmixed @ disk.qy, unmixed @ disk.qx)
 
@@ -234,13 +313,77 @@ def _without_ramps(
     whose mirror difference is proportional to the distance from the axis. One such term inside
     the contact and one outside it are fitted and removed. On the Mini's flat gel this takes the
     symmetric centres' RMS error from 0.16 to 0.09 px (docs/diagnostics/registration_bias.py).
+    The two terms have disjoint supports, so each is a one-unknown least-squares fit.
     """
-    across = -disk.qx * math.sin(theta) + disk.qy * math.cos(theta)
+    across = (-disk.qx * math.sin(theta) + disk.qy * math.cos(theta)) * weight
     inner = np.hypot(disk.qx, disk.qy) <= disk.radius_px
-    basis = np.stack([across * inner, across * ~inner], axis=-1) * weight[:, None]  # (Q, 2)
     weighted = differences * weight
-    coefficients, *_ = np.linalg.lstsq(basis, np.moveaxis(weighted, -1, 0), rcond=None)
-    return weighted - np.moveaxis(basis @ coefficients, 0, -1)
+    for part in (inner, ~inner):
+        basis = across * part
+        norm = float(basis @ basis)
+        if norm > 0:
+            weighted = weighted - np.multiply.outer(weighted @ basis / norm, basis).reshape(
+                weighted.shape
+            )
+    return weighted
+
+
+class _SymmetryResiduals:
+    """The symmetry fit's residuals and their Jacobian, for one contact and unmixing.
+
+    Residual block k is LED k's image at the disk's offsets minus its value at the offsets mirrored
+    about axis k (weighted, less ramps, per usable pair). Its Jacobian comes with it, from the
+    bilinear interpolant's own derivatives: one evaluation per iteration instead of one per
+    parameter. Held fixed in the Jacobian (not in the residuals): the usability weights, and
+    the ramp basis's turn with the axis — both change only where a pair meets a saturated pixel.
+    """
+
+    def __init__(self, window: _Window, disk: _Disk, n_axes: int):
+        self.window, self.disk, self.n_axes = window, disk, n_axes
+        # LED k's image and the usability, side by side: what axis k's mirrored points read.
+        self.axis_windows = [
+            _Window(np.ascontiguousarray(window.planes[..., [k, 3]]), window.origin)
+            for k in range(n_axes)
+        ]
+        self._last = (None, None, None)
+
+    def _evaluate(self, params: np.ndarray):
+        if self._last[0] is not None and np.array_equal(self._last[0], params):
+            return self._last[1:]
+        d = self.disk
+        cx, cy = params[:2]
+        here, here_dr, here_dc = _sample(self.window, cy + d.qy, cx + d.qx, gradient=True)
+        residuals, jacobian = [], np.zeros((self.n_axes * d.qx.size, params.size))
+        for k, theta in enumerate(params[2:]):
+            ux, uy = math.cos(theta), math.sin(theta)
+            along = d.qx * ux + d.qy * uy
+            across = -d.qx * uy + d.qy * ux
+            there, there_dr, there_dc = _sample(
+                self.axis_windows[k], cy + 2 * along * uy - d.qy, cx + 2 * along * ux - d.qx, True
+            )
+            weight = here[3] * there[1]
+            # the mirrored point moves with the centre one for one, and turns with the axis
+            turn = -(there_dc[0] * 2 * (across * ux - along * uy))
+            turn -= there_dr[0] * 2 * (across * uy + along * ux)
+            stack = np.stack(
+                [here[k] - there[0], here_dc[k] - there_dc[0], here_dr[k] - there_dr[0], turn]
+            )
+            # Per pair usable: the mean, not the sum, so that pushing pairs onto saturated pixels
+            # (weight 0) does not pay.
+            cleaned = _without_ramps(stack, weight, theta, d) / math.sqrt(
+                max(float(weight.sum()), 1e-9)
+            )
+            rows = slice(k * d.qx.size, (k + 1) * d.qx.size)
+            residuals.append(cleaned[0])
+            jacobian[rows, 0], jacobian[rows, 1], jacobian[rows, 2 + k] = cleaned[1:]
+        self._last = (params.copy(), np.concatenate(residuals), jacobian)
+        return self._last[1:]
+
+    def __call__(self, params: np.ndarray) -> np.ndarray:
+        return self._evaluate(params)[0]
+
+    def jacobian(self, params: np.ndarray) -> np.ndarray:
+        return self._evaluate(params)[1]
 
 
 def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach: float):
@@ -248,25 +391,12 @@ def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach:
     disk = _Disk.around(coarse, reach)
     start = np.array([coarse.x_px, coarse.y_px])
     axes0 = _dipole_axes(window, unmixing, start, disk)
-
-    def residuals(params):
-        a, b, w = _mirror_pairs(window, disk, params[:2], params[2:])
-        unmixed_a = np.einsum("kc,cq->kq", unmixing, a)
-        unmixed_b = np.einsum("kc,kcq->kq", unmixing, b)
-        # Per pair usable: the mean, not the sum, so that pushing pairs onto saturated pixels
-        # (weight 0) does not pay.
-        return np.concatenate(
-            [
-                _without_ramps(unmixed_a[k] - unmixed_b[k], w[k], theta, disk)
-                / math.sqrt(max(float(w[k].sum()), 1e-9))
-                for k, theta in enumerate(params[2:])
-            ]
-        )
-
+    residuals = _SymmetryResiduals(window.unmixed(unmixing), disk, len(axes0))
     try:
         solution = optimize.least_squares(
             residuals,
             np.concatenate([start, axes0]),
+            jac=residuals.jacobian,
             x_scale=np.concatenate([[1.0, 1.0], np.full(len(axes0), 0.05)]),
             xtol=1e-5,  # last step under ~0.003 px at these centres: far below the noise
             ftol=1e-5,
@@ -333,7 +463,11 @@ def refine_by_symmetry(
         if len(present) > calibration_contacts
         else present
     )
-    windows = {i: _Window.of(np.asarray(frames[i]), blank, smooth_px) for i in calibration}
+
+    def window(i: int) -> _Window:
+        return _Window.around(np.asarray(frames[i]), blank, smooth_px, coarse[i], reach)
+
+    windows = {i: window(i) for i in calibration}
     for _ in range(rounds):
         fits, used = [], []
         for i in calibration:
@@ -346,8 +480,7 @@ def refine_by_symmetry(
         unmixing = _fit_unmixing([windows[i] for i in used], fits, [coarse[i] for i in used], reach)
     contacts: list[Contact | None] = [None] * len(coarse)
     for i in tqdm(present, desc="symmetric centres", unit="contact", disable=not progress):
-        window = windows.get(i) or _Window.of(np.asarray(frames[i]), blank, smooth_px)
-        fit = _symmetry_fit(window, unmixing, coarse[i], reach)
+        fit = _symmetry_fit(windows.get(i) or window(i), unmixing, coarse[i], reach)
         if fit is not None:
             c = coarse[i]
             contacts[i] = Contact(

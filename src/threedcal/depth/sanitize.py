@@ -52,6 +52,12 @@ def sanitize_gradients(
     """
     gx, gy = check_pair(gx, gy, "sanitize_gradients")
     max_angle = check_max_angle(max_angle_deg)
+    # Fastest path, four reductions and no temporary: min and max are NaN when any value is, which
+    # fails every comparison; |gx|, |gy| <= limit / sqrt(2) bounds the slope by the limit.
+    bound = math.inf if max_angle is None else math.tan(math.radians(max_angle)) / math.sqrt(2.0)
+    extremes = [float(f(g)) for g in (gx, gy) for f in (np.min, np.max)] if gx.size else [0.0]
+    if all(-bound < value < bound for value in extremes):
+        return gx, gy, SanitizeReport(0, 0, np.zeros(gx.shape, dtype=bool))
     # Fast path for the common clean field: NaN, Inf (and overflow, rechecked below) fail the test.
     with np.errstate(over="ignore", invalid="ignore"):
         slope2 = gx * gx

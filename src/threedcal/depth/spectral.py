@@ -3,7 +3,8 @@
 poisson_dst: Dirichlet, the outermost ring of pixels is depth 0 (the paper's choice). The interior
     5-point Laplacian is diagonalised by the DST-I with eigenvalues 2 cos(pi k / (n - 1)) - 2, k =
     1..n-2 — transform and eigenvalues must belong to the same DST (the authors' code mixes DST-II
-    with these DST-I eigenvalues, see threedcal.depth.py3dcal).
+    with these DST-I eigenvalues, see threedcal.depth.py3dcal). Only one axis is transformed: each
+    mode is then a tridiagonal system along the other, solved directly in O(n) (`_mode_factors`).
 poisson_dct: Neumann, i.e. the plain least-squares fit over every edge of the grid (no assumption
     about the border: right when contact reaches it). DCT-II, eigenvalues 2 cos(pi k / n) - 2.
 frankot_chellappa: the classic FFT projection onto integrable periodic fields (continuous
@@ -16,6 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 import scipy.fft as sfft
+from scipy.linalg import get_lapack_funcs
 
 from threedcal.depth.convention import apply_offset, divergence, edge_gradients
 from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, prepare
@@ -43,39 +45,63 @@ def _largest_prime_factor(n: int) -> int:
     return max(largest, n)
 
 
+def _smooth_dst1(n: int) -> bool:
+    """Whether scipy's DST-I of length n runs on a fast FFT (2(n + 1) has only small factors)."""
+    return _largest_prime_factor(2 * (n + 1)) <= _SMOOTH_PRIME
+
+
 @lru_cache(maxsize=16)
 def _dst1_matrix(n: int, dtype: str) -> np.ndarray | None:
     """scipy's unnormalised DST-I as an (n, n) matrix, for axes where it beats the FFT; else None."""
-    if n > _MATRIX_DST_MAX or _largest_prime_factor(2 * (n + 1)) <= _SMOOTH_PRIME:
+    if n > _MATRIX_DST_MAX or _smooth_dst1(n):
         return None
     k = np.arange(1, n + 1)
     return _readonly((2.0 * np.sin(np.pi * np.outer(k, k) / (n + 1))).astype(dtype))
 
 
-def _dst1_2d(x: np.ndarray, workers: int | None) -> np.ndarray:
-    """Unnormalised 2-D DST-I of `x`, each axis by matrix product or FFT, whichever is faster.
+def _dst1_columns(x: np.ndarray, workers: int | None) -> np.ndarray:
+    """Unnormalised DST-I of `x` along axis 0, by matrix product or FFT, whichever is faster.
 
-    The DST-I is its own inverse up to a factor 2(n + 1) per axis, so the solve applies this twice
-    and folds that factor into `_dst_multiplier`.
+    The DST-I is symmetric and its own inverse up to a factor 2(n + 1), so the solve applies it
+    forward and back and folds that factor into `_mode_factors`.
     """
-    for axis in (0, 1):
-        matrix = _dst1_matrix(x.shape[axis], str(x.dtype))
-        if matrix is None:
-            x = sfft.dst(x, type=1, axis=axis, overwrite_x=True, workers=workers)
-        else:
-            x = matrix @ x if axis == 0 else x @ matrix  # the DST-I matrix is symmetric
-    return x
+    matrix = _dst1_matrix(x.shape[0], str(x.dtype))
+    if matrix is None:
+        return sfft.dst(x, type=1, axis=0, overwrite_x=True, workers=workers)
+    return matrix @ x
+
+
+def _transform_axis(n_rows: int, n_cols: int) -> int:
+    """The interior axis the solve transforms (the other is solved directly): a fast-FFT axis if
+    there is one, else the shorter (a matrix product costs n per value, an FFT of an awkward length
+    several times its smooth cost)."""
+    key = [(not _smooth_dst1(n), n) for n in (n_rows, n_cols)]
+    return 0 if key[0] <= key[1] else 1
 
 
 @lru_cache(maxsize=16)
-def _dst_multiplier(h: int, w: int, dtype: str, px_per_mm: float) -> np.ndarray:
-    """Everything the Dirichlet spectrum is scaled by, in one array: 1 / the DST-I eigenvalues
-    2 cos(pi k / (n - 1)) - 2 of the interior (h-2, w-2) Laplacian summed over both axes, the 1/2 of
-    the central-difference divergence, the inverse transform's 1 / (2(h-1) * 2(w-1)) and 1 / px_per_mm."""
-    lam_y = 2.0 * np.cos(np.pi * np.arange(1, h - 1) / (h - 1)) - 2.0
-    lam_x = 2.0 * np.cos(np.pi * np.arange(1, w - 1) / (w - 1)) - 2.0
-    constant = 0.5 / (4.0 * (h - 1) * (w - 1) * px_per_mm)
-    return _readonly((constant / (lam_y[:, None] + lam_x[None, :])).astype(dtype))
+def _mode_factors(n_modes: int, n_lines: int, px_per_mm: float):
+    """LDL^T factors (LAPACK dpttrf) of every mode's tridiagonal system, stacked into one.
+
+    After a DST-I across the transformed axis, mode k of the interior 5-point Laplacian is the
+    tridiagonal T_k = tridiag(1, lambda_k - 2, 1) along the other axis, with lambda_k = 2 cos(pi k /
+    (n_modes + 1)) - 2 the DST-I eigenvalues: solving T_k directly (O(n)) replaces the second
+    transform pair. The matrix factored is -T_k / c, positive definite, with c the 1/2 of the
+    central-difference divergence times the inverse DST's 1 / (2(n_modes + 1)) and 1 / px_per_mm;
+    the caller negates the result.
+    """
+    pttrf, pttrs = get_lapack_funcs(("pttrf", "pttrs"), dtype=np.dtype(np.float64))
+    lam = 2.0 * np.cos(np.pi * np.arange(1, n_modes + 1) / (n_modes + 1)) - 2.0
+    inverse_c = 4.0 * (n_modes + 1) * px_per_mm
+    diagonal = np.repeat((2.0 - lam) * inverse_c, n_lines)
+    off = np.full((n_modes, n_lines), -inverse_c)
+    off[:, -1] = 0.0  # one mode's last line does not couple to the next mode's first
+    if diagonal.size == 1:  # one unknown (a 3 x 3 grid): LAPACK's wrapper takes no empty e
+        return _readonly(diagonal), None, None
+    d, e, info = pttrf(diagonal, off.ravel()[:-1])
+    if info != 0:  # cannot happen: -T_k is strictly diagonally dominant
+        raise ArithmeticError(f"tridiagonal factorisation failed (LAPACK info {info})")
+    return _readonly(d), _readonly(e), pttrs
 
 
 @lru_cache(maxsize=16)
@@ -132,12 +158,27 @@ def dirichlet_mm(
 
 
 def _dirichlet_solve(twice_div: np.ndarray, px_per_mm: float, workers: int | None) -> np.ndarray:
-    """(h, w) depth, ring 0, from twice the interior divergence (h-2, w-2)."""
-    h, w = twice_div.shape[0] + 2, twice_div.shape[1] + 2
-    spec = _dst1_2d(twice_div, workers)
-    spec *= _dst_multiplier(h, w, str(twice_div.dtype), px_per_mm)
-    z = np.zeros((h, w), dtype=twice_div.dtype)
-    z[1:-1, 1:-1] = _dst1_2d(spec, workers)
+    """(h, w) depth, ring 0, from twice the interior divergence (h-2, w-2): a DST-I across one
+    axis, one tridiagonal solve per mode along the other, the DST-I back."""
+    n_rows, n_cols = twice_div.shape
+    axis = _transform_axis(n_rows, n_cols)
+    source = twice_div if axis == 0 else twice_div.T
+    spec = _dst1_columns(source, workers)
+    # The tridiagonal solve runs in float64: its modes decay geometrically away from the contact,
+    # into subnormal float32 numbers that slow every later operation on them ~20x.
+    d, e, pttrs = _mode_factors(spec.shape[0], spec.shape[1], px_per_mm)
+    flat = np.asarray(spec, dtype=np.float64, order="C").reshape(-1, 1)
+    if pttrs is None:
+        modes, info = flat / d, 0
+    else:
+        modes, info = pttrs(d, e, flat, overwrite_b=True)
+    if info != 0:
+        raise ArithmeticError(f"tridiagonal solve failed (LAPACK info {info})")
+    modes[np.abs(modes) < np.finfo(spec.dtype).tiny] = 0.0  # subnormal in the output dtype
+    modes = modes.reshape(spec.shape).astype(spec.dtype, copy=False)
+    inner = _dst1_columns(modes, workers)
+    z = np.zeros((n_rows + 2, n_cols + 2), dtype=twice_div.dtype)
+    np.negative(inner if axis == 0 else inner.T, out=z[1:-1, 1:-1])
     return z
 
 

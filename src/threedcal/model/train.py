@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import logging
 import math
 import os
 import time
@@ -252,6 +253,8 @@ def train(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     device = configure_torch(settings)
+    # Where it trains: on a cluster, whether the job's GPU was usable (else the CPU).
+    logging.getLogger(__name__).info("training P=%d on %s", percent, device)
     train_idx = ts.indices("train", percent=percent)
     if len(train_idx) == 0:
         raise ConfigError(f"P={percent}: no training frames in this dataset's split")

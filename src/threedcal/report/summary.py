@@ -162,6 +162,11 @@ def environment(config: Mapping) -> dict[str, Any]:
         "cuda": torch.cuda.is_available(),
         "seed": config.get("seed"),
         "torch_threads": config.get("torch_threads"),
+        # what this job's BLAS/OpenMP pools were given: Snakemake sets them to the job's threads
+        "thread_environment": {
+            name: os.environ.get(name)
+            for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+        },
         "scene_seeds": {name: s["seed"] for name, s in config["scenes"].items()},
         "software": package_versions(),
     }

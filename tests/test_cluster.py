@@ -1,0 +1,190 @@
+"""Where jobs run: printer jobs one at a time and on the submitting machine; the study on Slurm.
+
+One test runs workflow/cluster/check.py (the tiny study on Slurm against a local run) when a Slurm
+controller answers and THREEDCAL_SLURM_CHECK=1 asks for it (it takes minutes); `make cluster-test`
+starts a controller, runs that check and stops it again.
+"""
+
+import base64
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+from conftest import REPO, snakemake, tiny_study_config, write_config
+
+PROFILE = REPO / "workflow/profiles/slurm"
+
+
+def two_printer_scenes() -> dict:
+    # Two small simulated collections, both ready at once: only the printer keeps them apart.
+    scene = {"sensor": "digit", "printer": "ender3", "plan": {"spacing_mm": 4.0, "depth_mm": 1.0}}
+    return {"seed": 1, "torch_threads": 1, "scenes": {"one": scene, "two": dict(scene)}}
+
+
+def job_span(workdir, output: str) -> tuple[float, float]:
+    """When the job that made `output` started and ended, as Snakemake recorded it."""
+    record = workdir / ".snakemake/metadata" / base64.b64encode(output.encode()).decode()
+    data = json.loads(record.read_text())
+    return data["starttime"], data["endtime"]
+
+
+def job_blocks(text: str) -> dict[str, list[str]]:
+    """Rule name -> the text of each of its jobs in Snakemake's output."""
+    blocks: dict[str, list[str]] = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", text):
+        match = re.match(r"(?:local)?rule (\w+):", block.strip())
+        if match:
+            blocks.setdefault(match.group(1), []).append(block.split("\n\n")[0])
+    return blocks
+
+
+@pytest.mark.slow
+def test_collections_take_turns_on_the_printer_without_a_profile(tmp_path):
+    config = write_config(tmp_path, two_printer_scenes())
+    targets = [f"results/{name}/collect/summary.json" for name in ("one", "two")]
+    snakemake(tmp_path, config, *targets)  # bare `snakemake --cores 2`: no profile, no --resources
+    first, second = sorted(job_span(tmp_path, target) for target in targets)
+    assert first[1] <= second[0], f"the collections overlapped: {first} and {second}"
+    bench = pd.read_csv(tmp_path / "results/one/benchmarks/collect.tsv", sep="\t")
+    assert len(bench) == 1 and bench["s"].iloc[0] > 0 and bench["max_rss"].iloc[0] > 0
+
+
+def test_every_rule_writes_a_benchmark_file_beside_its_logs(tmp_path):
+    config = write_config(tmp_path, tiny_study_config(tmp_path))
+    listed = snakemake(tmp_path, config, "--list-rules").stdout.split()
+    dry = snakemake(tmp_path, config, "--dry-run")
+    blocks = job_blocks(dry.stdout + dry.stderr)
+    assert set(blocks) == set(listed)  # the tiny study runs every rule
+    for rule, jobs in blocks.items():
+        if rule == "all":
+            continue
+        for job in jobs:
+            bench = re.search(r"^\s+benchmark: (\S+)$", job, re.MULTILINE)
+            log = re.search(r"^\s+log: (\S+)$", job, re.MULTILINE)
+            assert bench, f"rule {rule} has no benchmark file"
+            # results/{scene}/benchmarks/ beside results/{scene}/logs/; study-wide: results/benchmarks/
+            scope = log.group(1).split("/")[1]
+            study_wide = scope in ("logs", "integration")
+            folder = "results/benchmarks/" if study_wide else f"results/{scope}/benchmarks/"
+            assert bench.group(1).startswith(folder) and bench.group(1).endswith(".tsv"), (
+                rule,
+                bench.group(1),
+            )
+
+
+def test_slurm_profile_asks_a_gpu_for_training_and_the_printer_for_collection(tmp_path):
+    pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
+    config = write_config(tmp_path, tiny_study_config(tmp_path))
+    dry = snakemake(tmp_path, config, "--profile", str(PROFILE), "--dry-run")
+    blocks = job_blocks(dry.stdout + dry.stderr)
+    for job in blocks["train"]:
+        assert "slurm_partition=gpu" in job and "gres=gpu:1" in job
+    for job in blocks["collect"] + blocks["object_presses"]:
+        assert "printer=1" in job
+    for job in blocks["stats"] + blocks["objects"]:
+        assert "slurm_partition=cpu" in job and "gres=" not in job
+
+
+@pytest.mark.slow
+def test_slurm_profile_runs_printer_jobs_on_this_machine_without_sbatch(tmp_path):
+    pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
+    config = two_printer_scenes()
+    config["scenes"] = {"one": config["scenes"]["one"]}
+    config["scenes"]["one"].update(  # the tiny study's plan: enough contacts to register
+        plan={"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1},
+        objects=["pill"],
+        pressing={"presses": 1, "tuning_presses": 1},
+    )
+    config = write_config(tmp_path, config)
+    # No Slurm to submit to (SLURM_CONF names a missing file): a printer job through the profile
+    # succeeds only because it is a local rule, run here and never given to sbatch.
+    no_slurm = dict(os.environ, SLURM_CONF=str(tmp_path / "no-slurm.conf"))
+
+    def through_profile(target: str) -> str:
+        result = snakemake(
+            tmp_path, config, "--profile", str(PROFILE), target, check=False, env=no_slurm
+        )
+        text = result.stdout + result.stderr
+        assert result.returncode == 0, text
+        assert "submitted with SLURM jobid" not in text
+        return text
+
+    assert "localrule collect:" in through_profile("results/one/collect/summary.json")
+    assert (tmp_path / "results/one/raw.zarr/zarr.json").is_file()
+    snakemake(tmp_path, config, "results/one/dataset/registration.json")  # a Slurm job's work
+    pressing = "results/one/objects/pressing/summary.json"
+    assert "localrule object_presses:" in through_profile(pressing)
+    assert (tmp_path / pressing).is_file()
+    assert (tmp_path / "results/one/benchmarks/object_presses.tsv").is_file()
+
+
+def slurm_controller_missing() -> str | None:
+    """Why no Slurm controller can be used here, or None when one answers `scontrol ping`."""
+    if shutil.which("scontrol") is None:
+        return "no Slurm client (scontrol) on this machine"
+    try:
+        ping = subprocess.run(["scontrol", "ping"], capture_output=True, text=True, timeout=20)
+    except subprocess.TimeoutExpired:
+        return "`scontrol ping` timed out"
+    if ping.returncode != 0 or "UP" not in ping.stdout:
+        return f"no Slurm controller answers `scontrol ping` ({(ping.stdout + ping.stderr).strip()[:160]})"
+    return None
+
+
+@pytest.mark.slow
+def test_study_on_slurm_gives_the_local_results(tmp_path):
+    reason = slurm_controller_missing()
+    if reason:
+        pytest.skip(f"{reason}; `make cluster-test` starts one and runs this check")
+    if os.environ.get("THREEDCAL_SLURM_CHECK") != "1":
+        # Minutes of Slurm jobs: not inside `make test` (under 5 minutes) unless asked for.
+        pytest.skip("a Slurm controller answers; THREEDCAL_SLURM_CHECK=1 runs this check on it")
+    pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')
+    result = subprocess.run(
+        [sys.executable, str(REPO / "workflow/cluster/check.py"), str(tmp_path / "work")],
+        capture_output=True,
+        text=True,
+    )
+    print(result.stdout)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def _load_resources():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "cluster_resources", REPO / "workflow/cluster/resources.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_resources_suggests_memory_and_time_per_rule_from_benchmark_files(tmp_path):
+    resources = _load_resources()
+    header = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+    jobs = {  # (wall s, max_rss MB, cpu s)
+        "a/benchmarks/train_P20.tsv": (2000.0, 563.3, 190.2),
+        "b/benchmarks/train_P80.tsv": (945.1, 380.6, 400.0),
+        "benchmarks/environment.tsv": (19.4, 257.3, 2.8),
+    }
+    for name, (wall, rss, cpu) in jobs.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(header + f"{wall}\t0:00:00\t{rss}\t0\t0\t0\t0\t0\t1\t{cpu}\n")
+    table = resources.suggest(resources.measured(tmp_path))
+    assert list(table.index) == ["train", "environment"]  # P is a wildcard: one rule, two jobs
+    train = table.loc["train"]
+    assert train["jobs"] == 2 and train["max_rss_mb"] == 563 and train["max_cpu_s"] == 400
+    assert train["mem_mb"] == 1500  # 563.3 x 1.5 + 500 = 1345 -> next 500 MB
+    assert train["runtime"] == 20  # 3 x 400 s = 20 min
+    assert table.loc["environment", "mem_mb"] == 1000  # 886 -> 1000
+    assert table.loc["environment", "runtime"] == 10  # at least 10 min
+    by_wall = resources.suggest(resources.measured(tmp_path), time="s")
+    assert by_wall.loc["train", "runtime"] == 100  # 3 x 2000 s = 100 min
+    with pytest.raises(SystemExit, match="no benchmarks"):
+        resources.measured(tmp_path / "a/benchmarks")
