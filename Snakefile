@@ -12,6 +12,7 @@ from threedcal.config import (
 )
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
+from threedcal.model.crossval import CV_METHODS, method_settings
 from threedcal.scenes import (
     ablation_scenes,
     full_model_file,
@@ -68,6 +69,7 @@ include: "rules/collect.smk"
 include: "rules/dataset.smk"
 include: "rules/integration_study.smk"
 include: "rules/train.smk"
+include: "rules/ball.smk"
 include: "rules/stats.smk"
 include: "rules/objects.smk"
 include: "rules/presets.smk"

@@ -27,3 +27,15 @@ def ablation_losses(wildcards):
     return [
         model_file(wildcards.scene, p, r, "losses.csv") for p, r in model_keys(scene)
     ]
+
+
+def cv_models(wildcards):
+    """{"model": [fold0 ... foldK-1 model.pt], "lookup": [...]}: every fold model ball_eval scores."""
+    folds = config["scenes"][wildcards.scene]["cv"]["folds"]
+    return {
+        method: [
+            f"results/{wildcards.scene}/cv/{method}/fold{fold}/model.pt"
+            for fold in range(folds)
+        ]
+        for method in CV_METHODS
+    }

@@ -26,7 +26,7 @@ rule presets:
         model=lambda wildcards: config["scenes"][wildcards.scene]["model"],
         seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
-        presets=["compact", "compact_tiny", "context", "lookup"],
+        presets=["compact", "compact_tiny", "context", "multiscale", "lookup"],
         code=code_digest("presets.py"),
     script:
         "../scripts/presets.py"

@@ -1,5 +1,5 @@
-# Stage `train`: one model per (scene, P, replicate) from the scene's model-ready set; ball_eval for
-# imported balls. Replicate r trains on its own nested subset with its own seed (threedcal.dataset.splits).
+# Stage `train`: one model per (scene, P, replicate) from the scene's model-ready set (imported balls:
+# rules/ball.smk). Replicate r trains on its own nested subset with its own seed (threedcal.dataset.splits).
 
 
 rule train:
@@ -27,26 +27,3 @@ rule train:
         code=code_digest("train.py"),
     script:
         "../scripts/train.py"
-
-
-rule ball_eval:
-    input:
-        model=lambda wildcards: full_model_file(
-            wildcards.scene, config["scenes"][wildcards.scene]
-        ),
-        trainset="results/{scene}/dataset/trainset",
-    output:
-        "results/{scene}/ball_eval.json",
-    log:
-        "results/{scene}/logs/ball_eval.log",
-    benchmark:
-        "results/{scene}/benchmarks/ball_eval.tsv"
-    wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",
-    conda:
-        CONDA_ENV
-    params:
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        code=code_digest("ball_eval.py"),
-    script:
-        "../scripts/ball_eval.py"

@@ -1,12 +1,19 @@
-"""Rule `ball_eval`: held-out gradient RMSE and cap depth MAE of the model and the lookup baseline."""
+"""Rule `ball_eval`: cross-validated gradient RMSE and cap depth MAE (with intervals) of the scene's
+model and of the lookup baseline on the imported real images."""
 
 from threedcal.logs import stage_log
 from threedcal.model.ball_eval import ball_eval
 
 with stage_log(snakemake.log[0]):
     ball_eval(
-        snakemake.input.model,
         snakemake.input.trainset,
-        snakemake.output[0],
-        seed=snakemake.params.seed,
+        snakemake.input.folds,
+        {method: list(snakemake.input[method]) for method in ("model", "lookup")},
+        snakemake.params.cv,
+        snakemake.params.seed,
+        snakemake.params.threads,
+        snakemake.output.json,
+        snakemake.output.images,
+        snakemake.output.figure,
+        preset=snakemake.params.preset,
     )

@@ -54,7 +54,7 @@ def test_unknown_key_names_the_key_path_and_allowed_keys():
 def test_bad_enum_value_lists_allowed_values():
     message = error_of(config_with(model={"preset": "huge"}))
     assert (
-        "scenes.s.model.preset: 'huge' is not allowed (allowed: touchnet, compact, compact_tiny, context, lookup)"
+        "scenes.s.model.preset: 'huge' is not allowed (allowed: touchnet, compact, compact_tiny, context, multiscale, lookup)"
         in message
     )
 

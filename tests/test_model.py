@@ -268,19 +268,25 @@ def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):
         )
 
 
-@pytest.mark.parametrize(("preset", "reach_px"), [("compact", 3), ("context", 33)])
-def test_a_preset_sees_exactly_its_receptive_field(preset, reach_px):
-    # `context` exists to see where in the contact a pixel lies: ±33 px (7x7 stem, dilations 2..16).
+def reached_offsets(preset: str, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row and column offsets of the outputs that one bright input pixel at the centre changes."""
     torch.manual_seed(0)
     model = build_model(preset).eval()
-    x = torch.zeros(1, 5, 81, 81)
+    x = torch.zeros(1, 5, size, size)
     bumped = x.clone()
-    bumped[0, :3, 40, 40] = 1.0
+    bumped[0, :3, size // 2, size // 2] = 1.0
     with torch.no_grad():
         changed = (model(bumped) - model(x)).abs().amax(dim=(0, 1)) > 0
     rows, cols = torch.nonzero(changed, as_tuple=True)
-    assert int((rows - 40).abs().max()) == reach_px
-    assert int((cols - 40).abs().max()) == reach_px
+    return (rows - size // 2).abs(), (cols - size // 2).abs()
+
+
+@pytest.mark.parametrize(("preset", "reach_px"), [("compact", 3), ("context", 33)])
+def test_a_preset_sees_exactly_its_receptive_field(preset, reach_px):
+    # `context` exists to see where in the contact a pixel lies: ±33 px (7x7 stem, dilations 2..16).
+    rows, cols = reached_offsets(preset, 81)
+    assert int(rows.max()) == reach_px
+    assert int(cols.max()) == reach_px
 
 
 def test_compact_net_overfits_one_batch():
@@ -377,3 +383,14 @@ def test_skirt_reach_moves_contact_patches_off_the_contact():
     assert np.abs(offsets(0.0)).max() <= 12 / 3 + 1
     far = np.abs(offsets(2.0))
     assert far.max() > 8 and far.max() <= 2.0 * 6.0 + 1  # eval_radius_px is 6
+
+
+def test_multiscale_sees_past_the_contact_at_a_fraction_of_its_cost():
+    # the quarter-resolution branch reaches about +-70 px (context: +-33), where a 40 px contact ends
+    rows, cols = reached_offsets("multiscale", 161)
+    assert int(rows.min()) == 0
+    assert 60 <= int(rows.max()) <= 80 and 60 <= int(cols.max()) <= 80
+    # an odd-sized input keeps its size (the pooled branch is upsampled back to it)
+    with torch.no_grad():
+        out = build_model("multiscale").eval()(torch.zeros(1, 5, 37, 45))
+    assert out.shape == (1, 2, 37, 45)

@@ -40,9 +40,12 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     (root / "b/ball_eval.json").write_text(
         json.dumps(
             {
-                "model": {"gradient_rmse": 0.3, "cap_depth_mae_um": 200.0},
+                "gradient_rmse": 0.3,
+                "cap_depth_mae_um": 200.0,
+                "interval95": {"gradient_rmse": [0.28, 0.32], "cap_depth_mae_um": [180.0, 221.0]},
                 "lookup": {"gradient_rmse": 0.37, "cap_depth_mae_um": 250.0},
-                "n_test_images": 8,
+                "n_test_images": 42,
+                "protocol": {"folds": 6},
             }
         )
     )
@@ -58,7 +61,8 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     paper = "| paper | pill | 20 [16, 24] | 5 [1, 9] | 41 [37, 45] | 70 [66, 74] | 0.900 |"
     assert printer in text and paper in text and text.index(printer) < text.index(paper)
     assert "10 or more per object" in text
-    assert "gradient RMSE 0.300 (lookup 0.370)" in text and "8 images" in text
+    assert "gradient RMSE 0.300 [0.280, 0.320] (lookup 0.370)" in text
+    assert "cap depth MAE 200 [180, 221] µm (lookup 250 µm), 42 images, 6 grouped folds" in text
     assert (tmp_path / "summary.md").read_text() == text
 
 

@@ -50,7 +50,7 @@ def test_bad_config_fails_at_parse_time_naming_the_key(tmp_path):
     assert result.returncode != 0
     output = result.stdout + result.stderr
     assert (
-        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, context, lookup)"
+        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, context, multiscale, lookup)"
         in output
     )
     assert not (tmp_path / "results").exists()
@@ -75,8 +75,11 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
             assert (tmp_path / f"results/{name}/models/P80/r0/model.pt").stat().st_size > 0
             assert (tmp_path / f"results/{name}/models/P80/r0/losses.png").is_file()
             ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
-            assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 8
+            # cross-validated: every real image tested once, by a model that never saw it
+            assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 42
             assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
+            assert len(ball["folds"]) == scene["cv"]["folds"]
+            assert (tmp_path / f"results/{name}/cv/errors.png").is_file()
         if scene["sensor"] == "reskin":
             reskin = json.loads((tmp_path / f"results/{name}/reskin_eval.json").read_text())
             assert reskin["n_test_readings"] > 0 and reskin["median_error_mm"] >= 0
@@ -176,6 +179,8 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
     trains = sorted((wc["p"], wc["r"]) for rule, wc in jobs if rule == "train")
     assert trains == [("20", "0"), ("80", "0")]  # the plain list form: one replicate
     assert ("ball_eval", {"scene": "balls"}) in jobs
+    folds = sorted((wc["method"], wc["fold"]) for rule, wc in jobs if rule == "cv_train")
+    assert folds == [(m, str(f)) for m in ("lookup", "model") for f in range(6)]
     # Asking for one P schedules that training alone (plus the dataset it reads).
     one = scheduled_jobs(
         tmp_path, write_config(tmp_path, config), "results/balls/models/P20/r0/model.pt"

@@ -125,6 +125,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
         targets += [f"{root}/models/inference.json"]
     if is_imported(scene):
         targets += [f"{root}/ball_eval.json", f"{root}/presets.csv", f"{root}/presets.png"]
+        targets += [f"{root}/cv/images.csv", f"{root}/cv/errors.png"]
     if has_objects(scene):
         targets += [f"{root}/objects/{leaf}" for leaf in OBJECT_FILES]
     if has_ablation(scene):

@@ -38,6 +38,10 @@ def build_imported(
         replicates=ablation_replicates(scene),
     )
     trainset.max_slope_deg = check_max_slope(scene["dataset"]["max_slope_deg"])
+    if scene["dataset"].get("refine_labels"):
+        from threedcal.dataset.refine import refine_labels
+
+        trainset = refine_labels(trainset)
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
     xy = np.full((int(data.point.max()) + 1, 2), np.nan)

@@ -2,19 +2,23 @@
 
 Both figures are computed per held-out image over the pixels whose label is trusted (eval_mask: a
 shrunk contact circle) and averaged over images, so each image weighs the same. Depth is integrated
-from the full predicted gradient field and compared with the exact sphere cap (µm).
+from the full predicted gradient field and compared with the exact sphere cap (µm). `ball_eval`
+pools them over the grouped cross-validation folds (threedcal.model.crossval).
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from threedcal.dataset.labels import sphere_depth
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.depth import integrate
+from threedcal.errors import ConfigError
 from threedcal.model.inference import DepthEstimator
 
 
@@ -43,30 +47,62 @@ def evaluate(estimator: DepthEstimator, ts: TrainingSet, indices: np.ndarray) ->
 
 
 def ball_eval(
-    model_path: str | Path, trainset_dir: str | Path, out_path: str | Path, seed: int = 0
+    trainset_dir: str | Path,
+    folds_path: str | Path,
+    models: Mapping[str, Sequence[str | Path]],
+    cv: Mapping,
+    seed: int,
+    threads: int,
+    json_path: str | Path,
+    images_path: str | Path,
+    figure_path: str | Path,
+    preset: str | None = None,
 ) -> dict:
-    """ball_eval.json: the trained model and the lookup baseline (fitted on the same training images)."""
-    from threedcal.model.train import TrainSettings, train
+    """ball_eval.json: cross-validated figures of the scene's model (top level) and of `lookup`.
 
+    `models[method]` lists the fold models in fold order. The top level keeps the keys of the
+    single-split evaluation (gradient_rmse, cap_depth_mae_um, n_test_images, lookup) and adds the
+    interval, the per-fold figures, the label-uncertainty spread and the protocol
+    (threedcal.model.crossval).
+    """
+    from threedcal.model import crossval
+
+    settings = crossval.CVSettings(**dict(cv))
     ts = TrainingSet.load(trainset_dir)
-    test = ts.indices("val")
-    estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
-    result = {"preset": estimator.preset, **evaluate(estimator, ts, test)}
-    percent = int(estimator_percent(model_path))
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        lookup = train(
-            ts, tmp, percent, TrainSettings.of(preset="lookup", seed=seed), progress=False
-        )
-    result["lookup"] = evaluate(DepthEstimator(lookup, device="cpu"), ts, test)
-    result["P"] = percent
-    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
-    Path(out_path).write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+    folds = crossval.read_folds(folds_path, ts)
+    for method, paths in models.items():
+        if len(paths) != settings.folds:
+            raise ConfigError(
+                f"ball_eval: {len(paths)} {method} fold models for {settings.folds} folds"
+            )
+    predictions = {
+        method: crossval.predict_held_out(ts, folds, paths, threads)
+        for method, paths in models.items()
+    }
+    tables, draws = crossval.score_methods(ts, folds, predictions, settings, seed)
+    summary = crossval.summarise(tables, draws, settings, seed)
+    main = next(m for m in models if m != "lookup")
+    result = {
+        "preset": preset,
+        **summary[main],
+        "lookup": summary.get("lookup"),
+        "protocol": crossval.protocol(folds, settings, seed),
+        "label_spread_from_duplicates": crossval.label_spread_from_duplicates(
+            folds, crossval.contact_radius_px(ts)
+        ),
+        "label_noise_floor": crossval.label_noise_floor(ts, settings, seed),
+        "error_sources": {
+            method: crossval.error_sources(ts, folds, frames)
+            for method, frames in predictions.items()
+        },
+    }
+    Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+    Path(json_path).write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+    pd.concat(tables.values()).to_csv(images_path, index=False, float_format="%.6g")
+    crossval.cv_figure(
+        tables,
+        summary,
+        figure_path,
+        f"{settings.folds}-fold grouped cross-validation, {len(folds)} real images",
+    )
     return result
-
-
-def estimator_percent(model_path: str | Path) -> int:
-    from threedcal.model.checkpoint import read_checkpoint
-
-    return int(read_checkpoint(model_path).get("training", {}).get("percent", 80))

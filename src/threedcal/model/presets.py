@@ -98,11 +98,46 @@ class ContextNet(nn.Module):
         return self.head(x)
 
 
+class MultiScaleNet(nn.Module):
+    """`compact`'s full-resolution 7×7 colour+position layer, and a context branch at 1/`factor` size.
+
+    Where in a contact a pixel lies (and so how steep its saturated shading really is) needs tens of
+    pixels of context; `context` buys it at full resolution. Here the stem's features are average-
+    pooled by `factor`, pass residual 3×3 layers dilated 1, 2, 4, 8 (±16 pooled px = ±64 px at
+    factor 4), are upsampled bilinearly and join the full-resolution features in a 1×1 head: the
+    context costs 1/factor² of its full-resolution price.
+    """
+
+    def __init__(
+        self, hidden: int = 16, kernel: int = 7, context: int = 24, factor: int = 4, levels: int = 4
+    ) -> None:
+        super().__init__()
+        self.factor = int(factor)
+        self.stem = nn.Conv2d(INPUT_CHANNELS, hidden, kernel, padding=kernel // 2)
+        self.enter = nn.Conv2d(hidden, context, 3, padding=1)
+        self.context = nn.ModuleList(
+            nn.Conv2d(context, context, 3, padding=2**i, dilation=2**i) for i in range(levels)
+        )
+        self.head = nn.Sequential(
+            nn.Conv2d(hidden + context, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, OUTPUT_CHANNELS, 1)
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        local = F.relu(self.stem(x))
+        c = F.avg_pool2d(local, self.factor, ceil_mode=True)
+        c = F.relu(self.enter(c))
+        for layer in self.context:
+            c = c + F.relu(layer(c))
+        c = F.interpolate(c, size=local.shape[-2:], mode="bilinear", align_corners=False)
+        return self.head(torch.cat([local, c], 1))
+
+
 # Preset name → (constructor, keyword arguments stored in the checkpoint).
 PIXELNET_ARGS = {
     "compact": {"hidden": 16, "depth": 2, "kernel": 7},
     "compact_tiny": {"hidden": 8, "depth": 2, "kernel": 3},
 }
+MULTISCALE_ARGS = {"hidden": 16, "kernel": 7, "context": 24, "factor": 4, "levels": 4}
 
 
 def build_model(preset: str, **overrides) -> nn.Module:
@@ -117,6 +152,8 @@ def build_model(preset: str, **overrides) -> nn.Module:
         return LookupTable(**overrides)
     if preset == "context":
         return ContextNet(**overrides)
+    if preset == "multiscale":
+        return MultiScaleNet(**{**MULTISCALE_ARGS, **overrides})
     return PixelNet(**{**PIXELNET_ARGS[preset], **overrides})
 
 
@@ -125,6 +162,8 @@ def preset_args(preset: str) -> dict:
         from threedcal.model.lookup import LOOKUP_DEFAULTS
 
         return dict(LOOKUP_DEFAULTS)
+    if preset == "multiscale":
+        return dict(MULTISCALE_ARGS)
     return dict(PIXELNET_ARGS.get(preset, {}))
 
 

@@ -24,6 +24,12 @@ def _fmt(value, digits: int = 2) -> str:
     return str(value)
 
 
+def _interval(figures: Mapping, key: str, digits: int) -> str:
+    """' [lo, hi]' of a cross-validated figure's 95 % interval, or nothing."""
+    bounds = figures.get("interval95", {}).get(key)
+    return f" [{bounds[0]:.{digits}f}, {bounds[1]:.{digits}f}]" if bounds else ""
+
+
 def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
     root = results / name
     lines = [f"## {name}", "", f"{scene.get('description', '')}".strip(), ""]
@@ -63,12 +69,16 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
     ball = _json(root / "ball_eval.json")
     if ball:
         learned, lookup = ball.get("model", ball), ball.get("lookup", {})
+        folds = ball.get("protocol", {}).get("folds")
         facts.append(
             (
-                "ball eval (held-out images)",
-                f"gradient RMSE {_fmt(learned.get('gradient_rmse'), 3)} (lookup {_fmt(lookup.get('gradient_rmse'), 3)}), "
-                f"cap depth MAE {_fmt(learned.get('cap_depth_mae_um'), 0)} µm (lookup {_fmt(lookup.get('cap_depth_mae_um'), 0)} µm), "
-                f"{ball.get('n_test_images')} images",
+                "real images, cross-validated" if folds else "ball eval (held-out images)",
+                f"gradient RMSE {_fmt(learned.get('gradient_rmse'), 3)}{_interval(learned, 'gradient_rmse', 3)} "
+                f"(lookup {_fmt(lookup.get('gradient_rmse'), 3)}), "
+                f"cap depth MAE {_fmt(learned.get('cap_depth_mae_um'), 0)}{_interval(learned, 'cap_depth_mae_um', 0)} µm "
+                f"(lookup {_fmt(lookup.get('cap_depth_mae_um'), 0)} µm), "
+                f"{ball.get('n_test_images')} images"
+                + (f", {folds} grouped folds" if folds else ""),
             )
         )
     reskin = _json(root / "reskin_eval.json")

@@ -1,0 +1,709 @@
+"""Cross-validated accuracy on an imported scene's real frames: grouped k-fold, intervals, label noise.
+
+Protocol (docs/real_data.md):
+
+- Every image is tested exactly once: k folds, each fold's model trained on the other folds' images.
+- Presses whose centres lie closer than ``group_fraction`` x their contact radius (and the frames of
+  one probe coordinate) form a group, and a group never straddles two folds: a nearly repeated press
+  is never tested against a model that saw its twin. Groups are joined transitively (single
+  linkage); on the real GelSight set a whole contact radius chains all 42 presses into one group,
+  so the default fraction is a quarter of it (0.5 mm there), where the largest group holds 5.
+- Figures are pooled over all test images (gradient RMSE = sqrt of the mean per-image MSE; cap
+  depth MAE = mean of per-image MAEs) with a 95 % percentile interval from a bootstrap that
+  resamples press *groups* (neighbouring presses are not independent), and listed per fold.
+- Label uncertainty: the hand-drawn contact radius and centre are perturbed by their standard
+  deviation (``radius_sigma_px``, ``centre_sigma_px``) ``label_draws`` times and the figures
+  recomputed against each perturbed truth with the same predictions: the spread says how far the
+  figures could move with other, equally plausible labels.
+
+Training subsets and variants plug in through :func:`fold_trainset` (``n_train``: the first n of a
+fixed shuffle of a fold's training images, nested: 4 within 8 within 16) and the method settings
+(``init`` = a checkpoint to fine-tune from): the same folds score every variant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from threedcal.dataset.labels import sphere_depth, sphere_gradients
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.errors import ConfigError
+
+FOLD_COLUMNS = ("frame", "image", "group", "fold", "center_x_px", "center_y_px", "contact_px")
+IMAGE_COLUMNS = (
+    "method",
+    "frame",
+    "image",
+    "group",
+    "fold",
+    "gradient_mse",
+    "cap_depth_mae_um",
+    "cap_depth_bias_um",
+    "cap_shape_mae_um",
+    "nearest_train_px",
+)
+# A fold's model needs at least this many training images (and every fold a test image).
+MIN_TRAIN_IMAGES = 3
+METRICS = ("gradient_rmse", "cap_depth_mae_um")
+
+
+@dataclass(frozen=True)
+class CVSettings:
+    """The scene's `cv:` section."""
+
+    folds: int = 6
+    group_fraction: float = 0.25
+    bootstrap: int = 2000
+    radius_sigma_px: float = 2.0
+    centre_sigma_px: float = 1.5
+    label_draws: int = 100
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> CVSettings:
+        section = dict(scene.get("cv") or {})
+        unknown = set(section) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(
+                f"cv: unknown setting(s) {sorted(unknown)} (allowed: {sorted(cls.__dataclass_fields__)})"
+            )
+        return cls(**section)
+
+
+# ------------------------------------------------------------------------------------ the folds
+def contact_radius_px(ts: TrainingSet) -> np.ndarray:
+    """(N,) contact radius of each press in px, from its depth: sqrt(2Rd - d²)."""
+    r = ts.sphere_radius_mm
+    d = np.minimum(ts.depth_mm, r)
+    return np.sqrt(np.maximum(2 * r * d - d * d, 0.0)) * ts.px_per_mm
+
+
+def press_groups(
+    center_px: np.ndarray, contact_px: np.ndarray, fraction: float, point: np.ndarray | None = None
+) -> np.ndarray:
+    """(N,) group id: presses closer than `fraction` x their mean contact radius, joined transitively.
+
+    Frames of one probe coordinate (`point`) always share a group. Ids are numbered by first frame.
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    centres = np.asarray(center_px, dtype=float)
+    radius = np.asarray(contact_px, dtype=float)
+    n = len(centres)
+    if not (math.isfinite(fraction) and fraction >= 0):
+        raise ConfigError(f"cv.group_fraction must be a number >= 0, got {fraction!r}")
+    distance = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
+    linked = distance < fraction * 0.5 * (radius[:, None] + radius[None, :])
+    if point is not None:
+        point = np.asarray(point)
+        linked |= point[:, None] == point[None, :]
+    _, labels = connected_components(linked, directed=False)
+    # Renumber by first appearance, so ids do not depend on scipy's traversal order.
+    _, first = np.unique(labels, return_index=True)
+    order = np.argsort(np.argsort(first))
+    return order[labels] if n else labels
+
+
+def grouped_folds(groups: np.ndarray, folds: int, seed: int, where: str = "dataset") -> np.ndarray:
+    """(N,) fold id 0..folds-1: whole groups, folds as equal in size as the groups allow.
+
+    Groups are shuffled (seeded), then placed largest first, each in the fold with the fewest
+    images so far. Raises a ConfigError naming `where` when the data cannot make `folds` folds.
+    """
+    groups = np.asarray(groups)
+    n = len(groups)
+    if not isinstance(folds, int | np.integer) or folds < 2:
+        raise ConfigError(f"cv.folds must be a whole number >= 2, got {folds!r}")
+    n_groups = len(np.unique(groups))
+    if n < folds or n_groups < folds:
+        raise ConfigError(
+            f"{where}: {n} labelled image(s) in {n_groups} independent press group(s) cannot make "
+            f"{folds} folds (each fold needs its own group); use fewer folds or label more images"
+        )
+    if n - n / folds < MIN_TRAIN_IMAGES:
+        raise ConfigError(
+            f"{where}: {n} labelled images leave fewer than {MIN_TRAIN_IMAGES} training images per "
+            f"fold with {folds} folds; label more images"
+        )
+    ids, sizes = np.unique(groups, return_counts=True)
+    rng = np.random.default_rng([seed, 0xF01D])
+    shuffled = rng.permutation(len(ids))
+    order = shuffled[np.argsort(-sizes[shuffled], kind="stable")]
+    load = np.zeros(folds, dtype=int)
+    fold_of_group = {}
+    for g in order:
+        target = int(np.argmin(load))
+        fold_of_group[ids[g]] = target
+        load[target] += sizes[g]
+    fold = np.array([fold_of_group[g] for g in groups], dtype=int)
+    # A fold far above its share would test many images with a model trained on few.
+    if (
+        load.min() == 0
+        or n - load.max() < MIN_TRAIN_IMAGES
+        or load.max() > 2 * math.ceil(n / folds)
+    ):
+        raise ConfigError(
+            f"{where}: the press groups (largest {sizes.max()} of {n} images) cannot be spread over "
+            f"{folds} folds; lower cv.group_fraction or cv.folds"
+        )
+    return fold
+
+
+def make_folds(
+    ts: TrainingSet, settings: CVSettings, seed: int, where: str = "dataset"
+) -> pd.DataFrame:
+    """The folds table (FOLD_COLUMNS): one row per frame of the model-ready set."""
+    contact = contact_radius_px(ts)
+    groups = press_groups(ts.center_px, contact, settings.group_fraction, ts.point)
+    fold = grouped_folds(groups, settings.folds, seed, where)
+    names = (ts.meta or {}).get("names") or [f"frame{i}" for i in range(len(ts.frames))]
+    return pd.DataFrame(
+        {
+            "frame": np.arange(len(groups)),
+            "image": names,
+            "group": groups,
+            "fold": fold,
+            "center_x_px": ts.center_px[:, 0],
+            "center_y_px": ts.center_px[:, 1],
+            "contact_px": contact,
+        },
+        columns=list(FOLD_COLUMNS),
+    )
+
+
+def read_folds(path: str | Path, ts: TrainingSet) -> pd.DataFrame:
+    table = pd.read_csv(path)
+    missing = [c for c in FOLD_COLUMNS if c not in table]
+    if missing or len(table) != len(ts.frames):
+        raise ConfigError(
+            f"{path}: not the folds table of this dataset ({len(table)} rows for {len(ts.frames)} "
+            f"frames; missing {missing or 'nothing'})"
+        )
+    return table
+
+
+def training_images(folds: pd.DataFrame, fold: int, n_train: int | None, seed: int) -> np.ndarray:
+    """Frames a fold trains on: all other folds' frames, or the first n_train of a seeded shuffle.
+
+    The shuffle depends on (seed, fold) only, so the subsets are nested (n = 4 within 8 within 16).
+    """
+    pool = folds.loc[folds["fold"] != fold, "frame"].to_numpy()
+    if n_train is None:
+        return np.sort(pool)
+    if not 1 <= n_train <= len(pool):
+        raise ConfigError(
+            f"fold {fold}: n_train={n_train} images requested, {len(pool)} training images exist"
+        )
+    order = np.random.default_rng([seed, fold, 0x5EB5E7]).permutation(pool)
+    return np.sort(order[:n_train])
+
+
+def fold_trainset(
+    ts: TrainingSet, folds: pd.DataFrame, fold: int, n_train: int | None = None, seed: int = 0
+) -> TrainingSet:
+    """A copy of `ts` whose split marks the fold's training frames 'train' (at P = 80) and its test
+    frames 'test'; frames outside `folds` or left out of a subset are 'unused'. No frame is 'val':
+    training records no validation loss, so nothing about the test fold reaches the model."""
+    if fold not in set(folds["fold"]):
+        raise ConfigError(f"fold {fold} does not exist (folds: {sorted(set(folds['fold']))})")
+    train_frames = training_images(folds, fold, n_train, seed)
+    frames = folds["frame"].to_numpy()
+    samples = ts.samples.copy()
+    split = np.full(len(samples), "unused", dtype=object)
+    split[train_frames] = "train"
+    split[frames[folds["fold"].to_numpy() == fold]] = "test"
+    samples["split"] = split
+    samples["min_p"] = np.where(split == "train", 80, 0)
+    return dataclasses.replace(ts, samples=samples)
+
+
+def inner_folds(folds: pd.DataFrame, fold: int, k: int, seed: int) -> pd.DataFrame:
+    """The folds table of outer fold `fold`'s training frames only, split again into k grouped folds:
+    what a nested choice of settings may look at (never the outer test fold)."""
+    inner = folds[folds["fold"] != fold].copy()
+    inner["fold"] = grouped_folds(
+        inner["group"].to_numpy(), k, seed, where=f"training images of fold {fold}"
+    )
+    return inner
+
+
+# ------------------------------------------------------------------------------- scoring images
+@dataclass
+class Truth:
+    """What a test image is scored against: contact centre (px), depth (mm), evaluation radius (px)."""
+
+    center_px: np.ndarray  # (N, 2)
+    depth_mm: np.ndarray  # (N,)
+    eval_radius_px: np.ndarray  # (N,)
+
+    @classmethod
+    def of(cls, ts: TrainingSet) -> Truth:
+        return cls(ts.center_px.copy(), ts.depth_mm.copy(), ts.eval_radius_px.copy())
+
+
+def image_errors(
+    grads: np.ndarray, depth: np.ndarray, ts: TrainingSet, i: int, truth: Truth
+) -> tuple[float, float, float, float]:
+    """(gradient MSE, cap depth MAE µm, bias µm, shape MAE µm) of one image inside its evaluation disc.
+
+    The shape MAE is the depth MAE after removing the mean error inside the disc: inside the
+    contact, caps of one sphere differ only by a constant, so it does not depend on the labelled
+    radius (the depth label's most uncertain part) — only on the centre.
+    """
+    height, width = ts.image_shape
+    cx, cy = truth.center_px[i]
+    rows = np.arange(height)[:, None]
+    cols = np.arange(width)[None, :]
+    mask = (cols - cx) ** 2 + (rows - cy) ** 2 <= truth.eval_radius_px[i] ** 2
+    if not mask.any():
+        return math.nan, math.nan, math.nan, math.nan
+    label = sphere_gradients(
+        ts.image_shape,
+        (cx, cy),
+        ts.sphere_radius_mm,
+        float(truth.depth_mm[i]),
+        ts.px_per_mm,
+        ts.max_slope_deg,
+    )
+    cap = sphere_depth(
+        ts.image_shape, (cx, cy), ts.sphere_radius_mm, float(truth.depth_mm[i]), ts.px_per_mm
+    )
+    error = depth[mask] - cap[mask]
+    return (
+        float(np.mean((grads[mask] - label[mask]) ** 2)),
+        1000.0 * float(np.mean(np.abs(error))),
+        1000.0 * float(np.mean(error)),
+        1000.0 * float(np.mean(np.abs(error - error.mean()))),
+    )
+
+
+def perturbed_truth(ts: TrainingSet, settings: CVSettings, rng: np.random.Generator) -> Truth:
+    """The labels moved by their uncertainty: contact radius +N(0, σr), centre +N(0, σc) per axis.
+
+    Depth follows the radius through a = sqrt(2Rd - d²) (capped at 0.98 R, as the importer caps
+    it) and the evaluation radius keeps its ratio to the contact radius.
+    """
+    truth = Truth.of(ts)
+    n = len(truth.depth_mm)
+    contact = contact_radius_px(ts)
+    ball_px = ts.sphere_radius_mm * ts.px_per_mm
+    moved = np.clip(contact + rng.normal(0.0, settings.radius_sigma_px, n), 1.0, 0.98 * ball_px)
+    ratio = np.divide(truth.eval_radius_px, contact, out=np.ones(n), where=contact > 0)
+    a_mm = moved / ts.px_per_mm
+    r = ts.sphere_radius_mm
+    truth.depth_mm = r - np.sqrt(r * r - a_mm * a_mm)
+    truth.eval_radius_px = ratio * moved
+    truth.center_px = truth.center_px + rng.normal(0.0, settings.centre_sigma_px, (n, 2))
+    return truth
+
+
+# ------------------------------------------------------------------------------- aggregating
+def pooled(table: pd.DataFrame) -> dict[str, float]:
+    """Gradient RMSE (sqrt of the mean per-image MSE) and cap depth MAE (mean per image)."""
+    out = {
+        "gradient_rmse": float(np.sqrt(table["gradient_mse"].mean())),
+        "cap_depth_mae_um": float(table["cap_depth_mae_um"].mean()),
+    }
+    for column in ("cap_depth_bias_um", "cap_shape_mae_um"):
+        if column in table:
+            out[column] = float(table[column].mean())
+    return out
+
+
+def group_bootstrap(
+    tables: Mapping[str, pd.DataFrame], resamples: int, seed: int
+) -> dict[str, dict[str, np.ndarray]]:
+    """Per method, the pooled figures over `resamples` resamplings of the press groups.
+
+    Every method is resampled with the same groups, so differences between methods are paired.
+    """
+    first = next(iter(tables.values()))
+    groups = np.unique(first["group"])
+    rng = np.random.default_rng([seed, 0xB007])
+    picks = rng.integers(0, len(groups), (resamples, len(groups)))
+    out = {}
+    for name, table in tables.items():
+        index = {g: np.flatnonzero(table["group"].to_numpy() == g) for g in groups}
+        mse = table["gradient_mse"].to_numpy()
+        mae = table["cap_depth_mae_um"].to_numpy()
+        grads, depths = np.empty(resamples), np.empty(resamples)
+        for b, pick in enumerate(picks):
+            rows = np.concatenate([index[groups[g]] for g in pick])
+            grads[b] = np.sqrt(mse[rows].mean())
+            depths[b] = mae[rows].mean()
+        out[name] = {"gradient_rmse": grads, "cap_depth_mae_um": depths}
+    return out
+
+
+def interval(values: np.ndarray) -> list[float]:
+    lo, hi = np.percentile(values, [2.5, 97.5])
+    return [float(lo), float(hi)]
+
+
+def summarise(
+    tables: Mapping[str, pd.DataFrame],
+    label_draws: Mapping[str, pd.DataFrame],
+    settings: CVSettings,
+    seed: int,
+) -> dict[str, dict]:
+    """Per method: pooled figures, 95 % group-bootstrap interval, per-fold figures, label spread."""
+    boot = group_bootstrap(tables, settings.bootstrap, seed)
+    out = {}
+    for name, table in tables.items():
+        figures = pooled(table)
+        per_fold = [
+            {"fold": int(f), "n_test_images": int(len(part)), **pooled(part)}
+            for f, part in table.groupby("fold")
+        ]
+        draws = label_draws.get(name)
+        result = {
+            **figures,
+            "n_test_images": int(len(table)),
+            "interval95": {m: interval(boot[name][m]) for m in METRICS},
+            "folds": per_fold,
+        }
+        if draws is not None and len(draws):
+            result["label_uncertainty"] = {
+                m: {"mean": float(draws[m].mean()), "interval95": interval(draws[m].to_numpy())}
+                for m in METRICS
+            }
+        out[name] = result
+    if "lookup" in tables:
+        for name in tables:
+            if name == "lookup":
+                continue
+            out[name]["versus_lookup"] = {
+                m: {
+                    "difference": out[name][m] - out["lookup"][m],
+                    "interval95": interval(boot[name][m] - boot["lookup"][m]),
+                }
+                for m in METRICS
+            }
+    return out
+
+
+def nearest_training_distance(folds: pd.DataFrame) -> np.ndarray:
+    """(N,) distance (px) from each press to the nearest press its fold's model trained on."""
+    centres = folds[["center_x_px", "center_y_px"]].to_numpy(float)
+    fold = folds["fold"].to_numpy()
+    distance = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
+    distance[fold[:, None] == fold[None, :]] = np.inf
+    return distance.min(axis=1)
+
+
+def label_spread_from_duplicates(
+    folds: pd.DataFrame, radius_drawn_px: np.ndarray, within_px: float = 3.0
+) -> dict:
+    """Radius disagreement of presses (nearly) at one place: an upper bound of hand-label noise.
+
+    Two presses whose centres lie within `within_px` were very likely the same press; their drawn
+    radii should agree. sigma = RMS difference / sqrt(2) (an upper bound: the depths may differ).
+    """
+    centres = folds[["center_x_px", "center_y_px"]].to_numpy(float)
+    n = len(centres)
+    diffs = [
+        radius_drawn_px[i] - radius_drawn_px[j]
+        for i in range(n)
+        for j in range(i + 1, n)
+        if math.hypot(*(centres[i] - centres[j])) <= within_px
+    ]
+    if not diffs:
+        return {"pairs": 0, "within_px": within_px, "radius_sigma_px": None}
+    rms = float(np.sqrt(np.mean(np.square(diffs))))
+    return {"pairs": len(diffs), "within_px": within_px, "radius_sigma_px": rms / math.sqrt(2)}
+
+
+def score_methods(
+    ts: TrainingSet,
+    folds: pd.DataFrame,
+    predictions: Mapping[str, Mapping[int, tuple[np.ndarray, np.ndarray]]],
+    settings: CVSettings,
+    seed: int,
+) -> tuple[dict[str, pd.DataFrame], dict[str, pd.DataFrame]]:
+    """Per method, the per-image table (IMAGE_COLUMNS) and the pooled figures of each label draw.
+
+    `predictions[method][frame]` = (gradients (H, W, 2), depth (H, W) mm) of the frame, predicted
+    by the model of the fold that held it out.
+    """
+    nearest = nearest_training_distance(folds)
+    truth = Truth.of(ts)
+    tables, draws = {}, {}
+    rng_draws = [
+        perturbed_truth(ts, settings, np.random.default_rng([seed, 0x1AB, k]))
+        for k in range(settings.label_draws)
+    ]
+    for method, frames in predictions.items():
+        rows, per_draw = [], []
+        for frame in folds["frame"]:
+            grads, depth = frames[int(frame)]
+            mse, mae, bias, shape = image_errors(grads, depth, ts, int(frame), truth)
+            rows.append(
+                {
+                    "method": method,
+                    "frame": int(frame),
+                    "image": folds.at[frame, "image"],
+                    "group": int(folds.at[frame, "group"]),
+                    "fold": int(folds.at[frame, "fold"]),
+                    "gradient_mse": mse,
+                    "cap_depth_mae_um": mae,
+                    "cap_depth_bias_um": bias,
+                    "cap_shape_mae_um": shape,
+                    "nearest_train_px": float(nearest[frame]),
+                }
+            )
+        for perturbed in rng_draws:
+            errs = np.array(
+                [image_errors(*frames[int(f)], ts, int(f), perturbed)[:2] for f in folds["frame"]]
+            )
+            per_draw.append(
+                {
+                    "gradient_rmse": float(np.sqrt(np.nanmean(errs[:, 0]))),
+                    "cap_depth_mae_um": float(np.nanmean(errs[:, 1])),
+                }
+            )
+        tables[method] = pd.DataFrame(rows, columns=list(IMAGE_COLUMNS))
+        draws[method] = pd.DataFrame(per_draw, columns=list(METRICS))
+    return tables, draws
+
+
+def cv_figure(
+    tables: Mapping[str, pd.DataFrame], summary: Mapping, path: str | Path, title: str
+) -> None:
+    """Per-image errors of every method (dots) with the pooled figure and its 95 % interval (bar)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
+    names = list(tables)
+    for ax, metric, column, label in (
+        (axes[0], "gradient_rmse", "gradient_mse", "gradient RMSE"),
+        (axes[1], "cap_depth_mae_um", "cap_depth_mae_um", "cap depth MAE (µm)"),
+    ):
+        for x, name in enumerate(names):
+            values = tables[name][column].to_numpy()
+            values = np.sqrt(values) if column == "gradient_mse" else values
+            jitter = np.linspace(-0.15, 0.15, len(values))
+            ax.scatter(x + jitter, values, s=8, alpha=0.5, color="grey")
+            lo, hi = summary[name]["interval95"][metric]
+            centre = summary[name][metric]
+            ax.errorbar(
+                x, centre, yerr=[[centre - lo], [hi - centre]], fmt="o", color="C3", capsize=4
+            )
+        ax.set_xticks(range(len(names)), names)
+        ax.set_ylabel(label)
+    fig.suptitle(title, fontsize=9)
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+
+
+def method_settings(scene: Mapping, method: str) -> dict:
+    """The `model:` settings a CV method trains with: `model` = the scene's own, `lookup` = the
+    baseline (the same settings, preset lookup). Item 3's variants add entries here."""
+    model = dict(scene.get("model") or {})
+    if method == "model":
+        return model
+    if method == "lookup":
+        return {**model, "preset": "lookup"}
+    raise ConfigError(
+        f"unknown cross-validation method {method!r} (allowed: {', '.join(CV_METHODS)})"
+    )
+
+
+CV_METHODS = ("model", "lookup")
+
+
+def train_fold(
+    trainset_dir: str | Path,
+    folds_path: str | Path,
+    fold: int,
+    model: Mapping,
+    seed: int,
+    threads: int,
+    out_dir: str | Path,
+    n_train: int | None = None,
+    progress: bool = True,
+) -> dict:
+    """Train one fold's model (out_dir/model.pt, losses.csv) on the images outside the fold."""
+    from threedcal.model.train import TrainSettings, train
+
+    ts = TrainingSet.load(trainset_dir)
+    folds = read_folds(folds_path, ts)
+    settings = TrainSettings.from_scene(
+        {"model": dict(model), "seed": seed, "torch_threads": threads}
+    )
+    return train(fold_trainset(ts, folds, fold, n_train, seed), out_dir, 80, settings, progress)
+
+
+def predict_held_out(
+    ts: TrainingSet, folds: pd.DataFrame, models: Sequence[str | Path], threads: int
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """frame -> (gradients, depth) from the model of the fold that held the frame out."""
+    import torch
+
+    from threedcal.model.inference import DepthEstimator
+
+    torch.set_num_threads(threads)
+    out = {}
+    for fold, path in enumerate(models):
+        estimator = DepthEstimator.from_checkpoint(path, device="cpu")
+        for frame in folds.loc[folds["fold"] == fold, "frame"]:
+            image = np.asarray(ts.frames[int(frame)])
+            grads = estimator.gradients(image)
+            out[int(frame)] = (grads, _integrate(grads, ts.px_per_mm))
+    return out
+
+
+def _integrate(grads: np.ndarray, px_per_mm: float) -> np.ndarray:
+    from threedcal.depth import integrate
+
+    return integrate(grads[..., 0], grads[..., 1], px_per_mm=px_per_mm)
+
+
+def protocol(folds: pd.DataFrame, settings: CVSettings, seed: int) -> dict:
+    """How the figures were made, for ball_eval.json."""
+    sizes = folds.groupby("group").size()
+    return {
+        "folds": settings.folds,
+        "fold_sizes": folds.groupby("fold").size().astype(int).tolist(),
+        "group_fraction": settings.group_fraction,
+        "groups": int(len(sizes)),
+        "largest_group": int(sizes.max()),
+        "min_nearest_train_px": float(nearest_training_distance(folds).min()),
+        "interval": f"95 % percentile bootstrap over press groups, {settings.bootstrap} resamples",
+        "label_uncertainty": (
+            f"{settings.label_draws} draws: contact radius +N(0, {settings.radius_sigma_px} px), "
+            f"centre +N(0, {settings.centre_sigma_px} px) per axis; same predictions"
+        ),
+        "seed": seed,
+    }
+
+
+def write_folds(
+    trainset_dir: str | Path, cv: Mapping, seed: int, out_path: str | Path, where: str | None = None
+) -> pd.DataFrame:
+    """folds.csv of a model-ready set; `where` (the imported folder) names the data in errors."""
+    ts = TrainingSet.load(trainset_dir)
+    where = where or str(trainset_dir)
+    table = make_folds(ts, CVSettings(**dict(cv)), seed, where)
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out_path, index=False, float_format="%.6g")
+    return table
+
+
+def error_sources(
+    ts: TrainingSet, folds: pd.DataFrame, frames: Mapping[int, tuple[np.ndarray, np.ndarray]]
+) -> dict[str, float]:
+    """Where a method's cap depth error comes from: the same MAE (µm) with parts of the field swapped.
+
+    - ``as_predicted``: the predicted gradients integrated over the whole frame (the figure);
+    - ``integration_only``: the label gradients integrated (the solver and the 75-degree clamp);
+    - ``inside_contact_only``: predictions inside the labelled contact, zero outside;
+    - ``outside_contact_only``: labels inside the contact, predictions outside (the slopes the net
+      sees on the deformed gel around the contact, which the Poisson solve accumulates);
+    - ``shape_only``: the figure after removing each image's mean depth error (offset-free).
+    """
+    truth = Truth.of(ts)
+    rows = []
+    for frame in folds["frame"]:
+        i = int(frame)
+        grads, depth = frames[i]
+        c, d = tuple(truth.center_px[i]), float(truth.depth_mm[i])
+        label = sphere_gradients(
+            ts.image_shape, c, ts.sphere_radius_mm, d, ts.px_per_mm, ts.max_slope_deg
+        )
+        contact = sphere_depth(ts.image_shape, c, ts.sphere_radius_mm, d, ts.px_per_mm) > 0
+        inside = contact[..., None]
+        row = {}
+        for name, field in (
+            ("integration_only", label),
+            ("inside_contact_only", np.where(inside, grads, 0.0)),
+            ("outside_contact_only", np.where(inside, label, grads)),
+        ):
+            z = _integrate(field.astype(np.float32), ts.px_per_mm)
+            row[name] = image_errors(field, z, ts, i, truth)[1]
+        _, row["as_predicted"], _, row["shape_only"] = image_errors(grads, depth, ts, i, truth)
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    return {
+        k: float(table[k].mean())
+        for k in (
+            "as_predicted",
+            "integration_only",
+            "inside_contact_only",
+            "outside_contact_only",
+            "shape_only",
+        )
+    }
+
+
+def label_noise_floor(ts: TrainingSet, settings: CVSettings, seed: int) -> dict[str, float]:
+    """The figures a perfect predictor (the labels' own sphere) scores against the perturbed labels:
+    how much of a method's error the label uncertainty alone accounts for."""
+    exact = {}
+    for i in range(len(ts.depth_mm)):
+        c, d = tuple(ts.center_px[i]), float(ts.depth_mm[i])
+        exact[i] = (
+            sphere_gradients(
+                ts.image_shape, c, ts.sphere_radius_mm, d, ts.px_per_mm, ts.max_slope_deg
+            ),
+            sphere_depth(ts.image_shape, c, ts.sphere_radius_mm, d, ts.px_per_mm),
+        )
+    draws = []
+    for k in range(max(settings.label_draws, 1)):
+        truth = perturbed_truth(ts, settings, np.random.default_rng([seed, 0x1AB, k]))
+        errs = np.array([image_errors(*exact[i], ts, i, truth)[:2] for i in exact])
+        draws.append((np.sqrt(np.nanmean(errs[:, 0])), np.nanmean(errs[:, 1])))
+    mean = np.mean(draws, axis=0)
+    return {"gradient_rmse": float(mean[0]), "cap_depth_mae_um": float(mean[1])}
+
+
+def nested_choice(
+    ts: TrainingSet,
+    folds: pd.DataFrame,
+    fold: int,
+    candidates: Mapping[str, Mapping],
+    inner_k: int,
+    seed: int,
+    threads: int,
+    work_dir: str | Path,
+) -> dict:
+    """Pick model settings for outer `fold` by a grouped inner CV of its training images alone.
+
+    Each candidate (name -> `model:` settings) is trained on inner_k - 1 inner folds and scored on
+    the remaining one; the pooled inner figures are compared as relative scores (each figure over
+    the best candidate's, summed over gradient RMSE and cap depth MAE): lowest wins.
+    Returns {"chosen": name, "inner": {name: pooled figures}}.
+    """
+    from threedcal.model.train import TrainSettings, train
+
+    inner = inner_folds(folds, fold, inner_k, seed)
+    figures = {}
+    for name, model in candidates.items():
+        settings = TrainSettings.from_scene(
+            {"model": dict(model), "seed": seed, "torch_threads": threads}
+        )
+        paths = []
+        for k in range(inner_k):
+            out = Path(work_dir) / f"outer{fold}" / name / f"inner{k}"
+            train(fold_trainset(ts, inner, k), out, 80, settings, progress=False)
+            paths.append(out / "model.pt")
+        frames = predict_held_out(ts, inner, paths, threads)
+        truth = Truth.of(ts)
+        errors = np.array(
+            [image_errors(*frames[int(f)], ts, int(f), truth)[:2] for f in inner["frame"]]
+        )
+        figures[name] = {
+            "gradient_rmse": float(np.sqrt(np.nanmean(errors[:, 0]))),
+            "cap_depth_mae_um": float(np.nanmean(errors[:, 1])),
+        }
+    best = {m: min(f[m] for f in figures.values()) for m in METRICS}
+    score = {name: sum(f[m] / best[m] for m in METRICS) for name, f in figures.items()}
+    return {"chosen": min(score, key=score.get), "inner": figures}
