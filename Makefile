@@ -26,8 +26,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e ".[dev]"
 	touch $(STAMP)
 
+# The suite runs in TEST_WORKERS processes (pytest-xdist); --durations lists where the time goes.
+TEST_WORKERS ?= $(CORES)
 test: $(STAMP)
-	set -o pipefail; $(BIN)/python -m pytest 2>&1 | tee .pytest-last.log
+	set -o pipefail; $(BIN)/python -m pytest -n $(TEST_WORKERS) --durations=10 2>&1 | tee .pytest-last.log
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests scripts benchmarks workflow/cluster

@@ -219,13 +219,15 @@ def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_sin
     assert trains == [("balls", p, r) for p in ("20", "80") for r in ("0", "1")] + [
         ("sim", p, r) for p in ("20", "80") for r in ("0", "1", "2")
     ]
-    # objects, inference_speed and ball_eval read replicate 0 (of every P / of the largest P)
+    # objects and inference_speed read replicate 0 (of every P / of the largest P); ball_eval
+    # scores the cross-validation's fold models, never an ablation replicate
     objects = blocks[("objects", "sim", None, None)]
     assert "models/P20/r0/model.pt" in objects and "models/P80/r0/model.pt" in objects
     assert "/r1/" not in objects and "/r2/" not in objects
-    for rule, scene in (("inference_speed", "sim"), ("ball_eval", "balls")):
-        block = blocks[(rule, scene, None, None)]
-        assert "models/P80/r0/model.pt" in block and "/r1/" not in block, rule
+    speed = blocks[("inference_speed", "sim", None, None)]
+    assert "models/P80/r0/model.pt" in speed and "/r1/" not in speed
+    ball_eval = blocks[("ball_eval", "balls", None, None)]
+    assert "cv/model/fold0/model.pt" in ball_eval and "/models/P" not in ball_eval
     stats_block = blocks[("stats", "sim", None, None)]
     assert all(f"models/P{p}/r{r}/model.pt" in stats_block for p in (20, 80) for r in range(3))
 
