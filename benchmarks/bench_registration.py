@@ -3,7 +3,7 @@ baseline) on the same simulated GelSight Mini frames, timed in this run; and wha
 plan (1,221 points) costs at these rates.
 
 Frames: a 2 mm sphere 1 mm deep on a grid of known sub-pixel centres (each the mean of 3 renders,
-against a 10-frame blank), as tests/test_registration.py builds them; the error of each locator
+against a 10-frame blank), as tests/dataset/test_registration.py builds them; the error of each locator
 against those centres is printed beside its speed. At scale the unmixing is fitted on 40 contacts
 in 2 rounds (80 extra fits) and every contact is fitted once; here the fits are timed with the
 unmixing already fitted (rounds=0 after one calibration), so the figure is the per-contact cost.

@@ -283,7 +283,7 @@ def locators() -> None:
 
 
 def registration() -> None:
-    """tests/test_collect_bench.py's two registration set-ups, with each gel."""
+    """tests/collect/test_collect_bench.py's two registration set-ups, with each gel."""
     from threedcal.collect.session import collect_scene
     from threedcal.config import validate_config
     from threedcal.dataset.build import build_collected

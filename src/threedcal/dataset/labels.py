@@ -14,7 +14,7 @@ whole height), and equal to the point gradient to second order wherever the surf
 This matches the integrators' convention (threedcal.depth: the depth step across the edge between
 two pixels is the mean of their gradients), so integrating perfect labels gives back the depth:
 the spherical cap to well under a micrometre, the volume to 0.05 %, and a vertical wall as a step
-spread over the two or three pixels next to it (tests/test_labels.py).
+spread over the two or three pixels next to it (tests/dataset/test_labels.py).
 
 ``max_slope_deg`` optionally clamps each label's slope magnitude (direction kept). That is a
 deviation from the paper (the authors label up to about 84°): clamped labels are not the gradient

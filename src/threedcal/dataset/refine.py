@@ -15,7 +15,7 @@ frame, the blank and the labels' own average:
    s_i times the mean labelled radius — the images give the relative sizes, the hand labels only
    their common level (whose noise averages out over all images).
 
-Tested on simulated frames (tests/test_refine.py): centre within 0.5 px, radius within 0.5 px of the
+Tested on simulated frames (tests/dataset/test_refine.py): centre within 0.5 px, radius within 0.5 px of the
 rendered ball's where hand labels scatter by 2.5 px. Depth follows the radius (a = sqrt(2Rd - d²)).
 """
 

@@ -232,7 +232,7 @@ class _Disk:
         # Each row shifted by a golden-ratio fraction of a pixel: on an integer lattice every
         # sample crosses a pixel boundary at the same centre, and the bilinear residuals kink
         # there together. Spread out, the objective is smoother (on the 9 contacts of
-        # tests/test_registration.py: 15.3 -> 14.4 iterations, max error 0.181 -> 0.178 px).
+        # tests/dataset/test_registration.py: 15.3 -> 14.4 iterations, max error 0.181 -> 0.178 px).
         qx = qx + (np.arange(g.size)[:, None] * 0.6180339887) % 1.0 - 0.5
         inside = qx * qx + qy * qy <= reach_px * reach_px
         return cls(qx=qx[inside], qy=qy[inside], radius_px=contact.radius_px)

@@ -5,7 +5,7 @@ What their solver does, re-expressed here: gradients are read as forward differe
 outermost ring is held at 0 — all consistent with a Dirichlet solve. But the source is transformed
 with an orthonormal DST-II and divided by the eigenvalues of the DST-I Laplacian
 (2 cos(pi k / (n - 1)) - 2). The DST-II does not diagonalise that operator, so even a field the
-solver should reproduce exactly comes back wrong (tests/test_depth.py measures it). Their
+solver should reproduce exactly comes back wrong (tests/depth/test_depth.py measures it). Their
 `get_depthmap` then clips negative depth to 0, which `py3dcal` (the integrate method) does too.
 """
 

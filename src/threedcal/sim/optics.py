@@ -571,7 +571,7 @@ class GelSimulator:
         """ΔI (unblurred) of an elastic gel: shaded in full where the deformation's slope exceeds
         LINEAR_SLOPE (the contact and its surroundings, where shadows fall too), to first order in
         the deformation (slope and height) elsewhere, with the Jacobian of the shading taken at the
-        undeformed gel. The first-order error is ~ gain x slope^2 / 2: below 0.05 DN (tests/test_sim_elastic.py)."""
+        undeformed gel. The first-order error is ~ gain x slope^2 / 2: below 0.05 DN (tests/sim/test_sim_elastic.py)."""
         y0, y1, x0, x1 = win
         s = self.px_per_mm
         dz = z - self.Z0[y0:y1, x0:x1]

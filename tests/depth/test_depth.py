@@ -23,7 +23,7 @@ from threedcal.depth.spectral import dirichlet_edges_px
 from threedcal.errors import ConfigError
 
 # The authors' file, where `make bench` unpacks it (tests never download it; they skip without it).
-AUTHORS = Path(__file__).parents[1] / ".cache/py3dcal/py3DCal/model_training/lib/fast_poisson.py"
+AUTHORS = Path(__file__).parents[2] / ".cache/py3dcal/py3DCal/model_training/lib/fast_poisson.py"
 FAST = ["poisson_dst", "poisson_dct", "frankot_chellappa"]
 SHAPES = [(240, 320), (320, 240)]
 
