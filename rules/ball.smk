@@ -12,12 +12,12 @@ rule cv_folds:
     benchmark:
         "results/{scene}/benchmarks/cv_folds.tsv"
     wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(IMPORTED_SCENES),
     conda:
         CONDA_ENV
     params:
         cv=lambda wildcards: config["scenes"][wildcards.scene]["cv"],
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
+        seed=scene_seed,
         where=lambda wildcards: config["scenes"][wildcards.scene]["import"]["path"],
         code=code_digest("cv_folds.py"),
     script:
@@ -36,18 +36,18 @@ rule cv_train:
     benchmark:
         "results/{scene}/benchmarks/cv_{method}_fold{fold}.tsv"
     wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",
+        scene=one_of(IMPORTED_SCENES),
         method="|".join(CV_METHODS),
         fold=r"\d+",
     conda:
         CONDA_ENV
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    threads: scene_threads
     params:
         model=lambda wildcards: method_settings(
             config["scenes"][wildcards.scene], wildcards.method
         ),
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
+        seed=scene_seed,
+        threads=scene_threads,
         code=code_digest("cv_train.py"),
     script:
         "../scripts/cv_train.py"
@@ -72,13 +72,13 @@ rule ball_eval:
     benchmark:
         "results/{scene}/benchmarks/ball_eval.tsv"
     wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",
+        scene=one_of(IMPORTED_SCENES),
     conda:
         CONDA_ENV
     params:
         cv=lambda wildcards: config["scenes"][wildcards.scene]["cv"],
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
+        seed=scene_seed,
+        threads=scene_threads,
         preset=lambda wildcards: config["scenes"][wildcards.scene]["model"]["preset"],
         code=code_digest("ball_eval.py"),
     script:

@@ -33,7 +33,7 @@ rule collect:
     benchmark:
         "results/{scene}/benchmarks/collect.tsv"
     wildcard_constraints:
-        scene="|".join(COLLECTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(COLLECTED_SCENES),
     conda:
         CONDA_ENV
     resources:

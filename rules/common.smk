@@ -8,6 +8,27 @@ def code_digest(script):
     return script_digest(Path(workflow.basedir) / "scripts" / script)
 
 
+def one_of(scenes):
+    """A wildcard constraint matching exactly these scene names ("(?!)": none, when empty)."""
+    return "|".join(map(re.escape, scenes)) or "(?!)"
+
+
+def scene_seed(wildcards):
+    return config["scenes"][wildcards.scene]["seed"]
+
+
+def scene_threads(wildcards):
+    """The scene's torch threads: the job's `threads` and what its script sets torch to."""
+    return config["scenes"][wildcards.scene]["torch_threads"]
+
+
+def collect_summary(wildcards):
+    """{"summary": results/{scene}/collect/summary.json} for a collected scene, {} for an imported one."""
+    if wildcards.scene in COLLECTED_SCENES:
+        return {"summary": f"results/{wildcards.scene}/collect/summary.json"}
+    return {}
+
+
 def scene_models(wildcards):
     """{"P5_r0": "results/{scene}/models/P5/r0/model.pt", ...}: every model of a scene, by fraction and replicate."""
     scene = config["scenes"][wildcards.scene]

@@ -10,7 +10,7 @@ rule dataset_import:
     benchmark:
         "results/{scene}/benchmarks/dataset_import.tsv"
     wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(IMPORTED_SCENES),
     conda:
         CONDA_ENV
     params:
@@ -42,7 +42,7 @@ rule dataset_collected:
     benchmark:
         "results/{scene}/benchmarks/dataset_collected.tsv"
     wildcard_constraints:
-        scene="|".join(COLLECTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(COLLECTED_SCENES),
     conda:
         CONDA_ENV
     params:

@@ -25,7 +25,7 @@ rule object_presses:
     benchmark:
         "results/{scene}/benchmarks/object_presses.tsv"
     wildcard_constraints:
-        scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(OBJECT_SCENES),
     conda:
         CONDA_ENV
     resources:
@@ -69,10 +69,10 @@ rule objects:
     benchmark:
         "results/{scene}/benchmarks/objects.tsv"
     wildcard_constraints:
-        scene="|".join(OBJECT_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(OBJECT_SCENES),
     conda:
         CONDA_ENV
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    threads: scene_threads
     params:
         scene=lambda wildcards: stage_config(
             config["scenes"][wildcards.scene], "objects"

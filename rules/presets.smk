@@ -18,14 +18,14 @@ rule presets:
     benchmark:
         "results/{scene}/benchmarks/presets.tsv"
     wildcard_constraints:
-        scene="|".join(IMPORTED_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(IMPORTED_SCENES),
     conda:
         CONDA_ENV
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    threads: scene_threads
     params:
         model=lambda wildcards: config["scenes"][wildcards.scene]["model"],
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
+        seed=scene_seed,
+        threads=scene_threads,
         presets=["compact", "compact_tiny", "context", "multiscale", "lookup"],
         code=code_digest("presets.py"),
     script:

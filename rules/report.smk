@@ -38,9 +38,9 @@ rule inference_speed:
         "results/{scene}/benchmarks/inference_speed.tsv"
     conda:
         CONDA_ENV
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    threads: scene_threads
     params:
-        threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
+        threads=scene_threads,
         code=code_digest("inference_speed.py"),
     script:
         "../scripts/inference_speed.py"

@@ -15,16 +15,14 @@ rule reskin_train:
     benchmark:
         "results/{scene}/benchmarks/reskin_train.tsv"
     wildcard_constraints:
-        scene="|".join(RESKIN_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(RESKIN_SCENES),
     conda:
         CONDA_ENV
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    threads: scene_threads
     params:
         settings=lambda wildcards: config["scenes"][wildcards.scene]["reskin"],
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        torch_threads=lambda wildcards: config["scenes"][wildcards.scene][
-            "torch_threads"
-        ],
+        seed=scene_seed,
+        torch_threads=scene_threads,
         code=code_digest("reskin_train.py"),
     script:
         "../scripts/reskin_train.py"
@@ -48,7 +46,7 @@ rule reskin_eval:
     benchmark:
         "results/{scene}/benchmarks/reskin_eval.tsv"
     wildcard_constraints:
-        scene="|".join(RESKIN_SCENES) or "(?!)",
+        scene=one_of(RESKIN_SCENES),
     conda:
         CONDA_ENV
     params:

@@ -7,6 +7,7 @@
 rule stats:
     input:
         unpack(scene_models),
+        unpack(collect_summary),
         losses=ablation_losses,
         trainset="results/{scene}/dataset/trainset",
         splits="results/{scene}/dataset/splits.csv",
@@ -62,18 +63,13 @@ rule stats:
     benchmark:
         "results/{scene}/benchmarks/stats.tsv"
     wildcard_constraints:
-        scene="|".join(ABLATION_SCENES) or "(?!)",  # "(?!)" matches nothing
+        scene=one_of(ABLATION_SCENES),
     conda:
         CONDA_ENV
     params:
         models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
         settings=config["stats"],
-        seed=lambda wildcards: config["scenes"][wildcards.scene]["seed"],
-        summary=lambda wildcards: (
-            f"results/{wildcards.scene}/collect/summary.json"
-            if wildcards.scene in COLLECTED_SCENES
-            else None
-        ),
+        seed=scene_seed,
         code=code_digest("stats.py"),
     script:
         "../scripts/stats.py"

@@ -18,7 +18,7 @@ rule train:
         r=r"\d+",
     conda:
         CONDA_ENV
-    threads: lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"]
+    threads: scene_threads
     params:
         settings=lambda wildcards: {
             key: config["scenes"][wildcards.scene][key]

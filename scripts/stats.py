@@ -11,7 +11,7 @@ with stage_log(snakemake.log[0]) as log:
         dict(zip(keys, snakemake.input.losses, strict=True)),
         snakemake.input.trainset,
         snakemake.input.splits,
-        snakemake.params.summary,
+        snakemake.input.get("summary"),
         snakemake.params.settings,
         snakemake.params.seed,
         dict(snakemake.output.items()),
