@@ -32,8 +32,9 @@ LABELS = (
 )
 
 
-def scene_config(**bench):
-    config = {
+def study(**bench) -> dict:
+    """A one-scene Mini study as a user writes it (not yet validated)."""
+    return {
         "seed": 5,
         "scenes": {
             "s": {
@@ -51,7 +52,10 @@ def scene_config(**bench):
             }
         },
     }
-    return validate_config(config)
+
+
+def scene_config(**bench):
+    return validate_config(study(**bench))
 
 
 def assert_same_store(a, b):
@@ -96,26 +100,8 @@ def captured_points(store) -> int:
 @pytest.mark.slow
 def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp_path, reference):
     config_path = tmp_path / "config.yaml"
-    config_path.write_text(
-        yaml.safe_dump(
-            {
-                "seed": 5,
-                "scenes": {
-                    "s": {
-                        "sensor": "gelsight_mini",
-                        "printer": "ender3",
-                        # the reference's plan: kills land in the touch search and the grid
-                        "plan": {
-                            "spacing_mm": 3.0,
-                            "depth_mm": 1.0,
-                            "frames": 2,
-                            "touch_search": {"points": 1},
-                        },
-                    }
-                },
-            }
-        )
-    )
+    # the reference's plan: kills land in the touch search and the grid
+    config_path.write_text(yaml.safe_dump(study()))
     store = tmp_path / "raw.zarr"
     command = [
         sys.executable,
