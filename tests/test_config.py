@@ -285,3 +285,21 @@ def test_a_magnetic_sensor_names_its_board_as_reader_not_camera():
     assert "scenes.s.reader" in message and "camera" in message
     ok = validate_config(config_with(sensor="reskin", reader="/dev/ttyACM0"))
     assert ok["scenes"]["s"]["reader"] == "/dev/ttyACM0"
+
+
+def test_cv_settings_have_no_defaults_of_their_own_the_schema_fills_them():
+    import dataclasses
+
+    from threedcal.model.crossval import CVSettings
+    from threedcal.schema import load_schema
+
+    fields = dataclasses.fields(CVSettings)
+    assert all(f.default is dataclasses.MISSING for f in fields)
+    cv = load_schema("config")["$defs"]["cv"]["properties"]
+    settings = CVSettings.of()
+    assert {f.name: getattr(settings, f.name) for f in fields} == {
+        f.name: cv[f.name]["default"] for f in fields
+    }
+    assert CVSettings.of(folds=3).folds == 3
+    with pytest.raises(ConfigError, match="folds"):
+        CVSettings.of(folds=0)

@@ -130,6 +130,20 @@ def schema_errors(instance: Any, schema: Mapping) -> list[str]:
     return [_describe(e) for e in _iter_errors(instance, schema)]
 
 
+def section(name: str, values: Mapping[str, Any], where: str | None = None) -> dict:
+    """A config section (`$defs/<name>` of the config schema) validated, the schema's defaults filled.
+
+    What settings classes are built from, so no class keeps defaults of its own."""
+    schema = load_schema("config")
+    node = schema["$defs"][name]
+    values = copy.deepcopy(dict(values))
+    problems = schema_errors(values, node)
+    if problems:
+        raise ConfigError(f"{where or name}: " + "; ".join(problems))
+    fill_defaults(values, node, schema)
+    return values
+
+
 def fill_defaults(instance: Any, schema: Mapping, root: Mapping | None = None) -> None:
     """Fill `default` values of the schema into `instance`, in place (validated input only)."""
     root = schema if root is None else root

@@ -149,7 +149,7 @@ def test_fold_trainset_marks_train_and_test_and_subsets_are_nested(tmp_path):
 
     make_ball_folder(tmp_path / "balls", n=12)
     ts = TrainingSet.load(trainset_of(tmp_path / "balls", tmp_path))
-    folds = crossval.make_folds(ts, crossval.CVSettings(folds=3), seed=0)
+    folds = crossval.make_folds(ts, crossval.CVSettings.of(folds=3), seed=0)
     for fold in range(3):
         part = crossval.fold_trainset(ts, folds, fold)
         test = folds["fold"].to_numpy() == fold
@@ -207,12 +207,14 @@ def test_exact_prediction_scores_zero_and_a_depth_offset_scores_its_size():
 
 def test_label_perturbation_moves_depth_with_the_contact_radius():
     ts = _sphere_set()
-    zero = crossval.CVSettings(radius_sigma_px=0.0, centre_sigma_px=0.0)
+    zero = crossval.CVSettings.of(radius_sigma_px=0.0, centre_sigma_px=0.0)
     same = crossval.perturbed_truth(ts, zero, np.random.default_rng(0))
     np.testing.assert_allclose(same.depth_mm, ts.depth_mm)
     np.testing.assert_allclose(same.eval_radius_px, ts.eval_radius_px)
     moved = crossval.perturbed_truth(
-        ts, crossval.CVSettings(radius_sigma_px=2.0, centre_sigma_px=1.0), np.random.default_rng(0)
+        ts,
+        crossval.CVSettings.of(radius_sigma_px=2.0, centre_sigma_px=1.0),
+        np.random.default_rng(0),
     )
     contact = np.sqrt(2 * BALL_MM * moved.depth_mm - moved.depth_mm**2) * PX_PER_MM
     np.testing.assert_allclose(moved.eval_radius_px, 0.9 * contact)  # ratio kept
@@ -233,7 +235,7 @@ def test_group_bootstrap_interval_brackets_the_figure_and_pairs_methods():
     )
     worse = table.assign(cap_depth_mae_um=table["cap_depth_mae_um"] + 20)
     summary = crossval.summarise(
-        {"model": table, "lookup": worse}, {}, crossval.CVSettings(bootstrap=500), seed=0
+        {"model": table, "lookup": worse}, {}, crossval.CVSettings.of(bootstrap=500), seed=0
     )
     model = summary["model"]
     for metric in crossval.METRICS:

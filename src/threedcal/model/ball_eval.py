@@ -67,7 +67,7 @@ def ball_eval(
     """
     from threedcal.model import crossval
 
-    settings = crossval.CVSettings(**dict(cv))
+    settings = crossval.CVSettings.of(**cv)
     ts = TrainingSet.load(trainset_dir)
     folds = crossval.read_folds(folds_path, ts)
     for method, paths in models.items():

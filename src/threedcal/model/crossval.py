@@ -35,6 +35,7 @@ import pandas as pd
 from threedcal.dataset.labels import sphere_depth, sphere_gradients
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
+from threedcal.schema import section
 
 FOLD_COLUMNS = ("frame", "image", "group", "fold", "center_x_px", "center_y_px", "contact_px")
 IMAGE_COLUMNS = (
@@ -56,24 +57,22 @@ METRICS = ("gradient_rmse", "cap_depth_mae_um")
 
 @dataclass(frozen=True)
 class CVSettings:
-    """The scene's `cv:` section."""
+    """The scene's `cv:` section; no defaults of its own (`of` fills them from the config schema)."""
 
-    folds: int = 6
-    group_fraction: float = 0.25
-    bootstrap: int = 2000
-    radius_sigma_px: float = 2.0
-    centre_sigma_px: float = 1.5
-    label_draws: int = 100
+    folds: int
+    group_fraction: float
+    bootstrap: int
+    radius_sigma_px: float
+    centre_sigma_px: float
+    label_draws: int
+
+    @classmethod
+    def of(cls, **settings) -> CVSettings:
+        return cls(**section("cv", settings))
 
     @classmethod
     def from_scene(cls, scene: Mapping) -> CVSettings:
-        section = dict(scene.get("cv") or {})
-        unknown = set(section) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ConfigError(
-                f"cv: unknown setting(s) {sorted(unknown)} (allowed: {sorted(cls.__dataclass_fields__)})"
-            )
-        return cls(**section)
+        return cls.of(**(scene.get("cv") or {}))
 
 
 # ------------------------------------------------------------------------------------ the folds
@@ -592,7 +591,7 @@ def write_folds(
     """folds.csv of a model-ready set; `where` (the imported folder) names the data in errors."""
     ts = TrainingSet.load(trainset_dir)
     where = where or str(trainset_dir)
-    table = make_folds(ts, CVSettings(**dict(cv)), seed, where)
+    table = make_folds(ts, CVSettings.of(**cv), seed, where)
     Path(out_path).parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(out_path, index=False, float_format="%.6g")
     return table

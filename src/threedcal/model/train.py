@@ -37,7 +37,7 @@ from threedcal.model.checkpoint import (
 )
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.presets import build_model, is_learned, preset_args
-from threedcal.schema import fill_defaults, load_schema, schema_errors
+from threedcal.schema import load_schema, section
 
 RESUME_NAME = "checkpoint.pt"
 LOSS_COLUMNS = ("epoch", "train_loss", "val_loss", "seconds")
@@ -83,11 +83,9 @@ class TrainSettings:
     def of(cls, **settings) -> TrainSettings:
         """Settings from `model:` keys plus seed and torch_threads; the schema fills the rest."""
         schema = load_schema("config")
-        model = {k: v for k, v in settings.items() if k not in ("seed", "torch_threads")}
-        problems = schema_errors(model, schema["$defs"]["model"])
-        if problems:
-            raise ConfigError("model: " + "; ".join(problems))
-        fill_defaults(model, schema["$defs"]["model"], schema)
+        model = section(
+            "model", {k: v for k, v in settings.items() if k not in ("seed", "torch_threads")}
+        )
         top = schema["properties"]
         return cls(
             seed=int(_or(settings.get("seed"), top["seed"]["default"])),
