@@ -22,7 +22,9 @@ PROFILE = REPO / "workflow/profiles/slurm"
 
 def two_printer_scenes() -> dict:
     # Two small simulated collections, both ready at once: only the printer keeps them apart.
-    scene = {"sensor": "digit", "printer": "ender3", "plan": {"spacing_mm": 4.0, "depth_mm": 1.0}}
+    # (one touch-search place and one frame a point: the printer's turn-taking, not the search)
+    plan = {"spacing_mm": 4.0, "depth_mm": 1.0, "frames": 1, "touch_search": {"points": 1}}
+    scene = {"sensor": "digit", "printer": "ender3", "plan": plan}
     return {"seed": 1, "torch_threads": 1, "scenes": {"one": scene, "two": dict(scene)}}
 
 
@@ -96,7 +98,7 @@ def test_slurm_profile_runs_printer_jobs_on_this_machine_without_sbatch(tmp_path
     config = two_printer_scenes()
     config["scenes"] = {"one": config["scenes"]["one"]}
     config["scenes"]["one"].update(  # the tiny study's plan: enough contacts to register
-        plan={"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1},
+        plan={"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1, "touch_search": {"points": 1}},
         objects=["pill"],
         pressing={"presses": 1, "tuning_presses": 1},
     )

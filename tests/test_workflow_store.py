@@ -30,7 +30,13 @@ CONFIG = {
         "t": {
             "sensor": "gelsight_mini",
             "printer": "ender3",
-            "plan": {"spacing_mm": 6.0, "depth_mm": 1.0, "frames": 1},
+            # one touch-search place (26 frames), not three: the store's protection, not the search
+            "plan": {
+                "spacing_mm": 6.0,
+                "depth_mm": 1.0,
+                "frames": 1,
+                "touch_search": {"points": 1},
+            },
             "probe": {"radius_mm": 2.0},
         }
     },
@@ -90,7 +96,9 @@ def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
     # Repro: swapping spacing_mm and depth_mm (same values) made Snakemake delete and recollect.
     reordered = copy.deepcopy(CONFIG)
     plan = reordered["scenes"]["t"]["plan"]
-    reordered["scenes"]["t"]["plan"] = {k: plan[k] for k in ("depth_mm", "frames", "spacing_mm")}
+    reordered["scenes"]["t"]["plan"] = {
+        k: plan[k] for k in ("touch_search", "depth_mm", "frames", "spacing_mm")
+    }
     reordered["scenes"]["t"] = dict(reversed(list(reordered["scenes"]["t"].items())))
     result = snakemake(tmp_path, write(tmp_path, reordered), SUMMARY)
     assert "Nothing to be done" in result.stdout + result.stderr
