@@ -505,7 +505,7 @@ def main(argv=None) -> int:
         f"{len(train)} training jobs ran in partition gpu with one GPU allocated",
     )
     devices = {
-        log.name: re.search(r"training P=\d+ on (\S+)", log.read_text())
+        log.name: re.search(r"training P=\d+(?: r\d+)? on (\S+)", log.read_text())
         for log in sorted((cluster / "results").glob("*/logs/train_P*.log"))
     }
     named = {name: m.group(1) if m else "?" for name, m in devices.items()}
