@@ -75,6 +75,7 @@ EXCLUDED = {
 # Tables compared without their timing columns: pattern -> (columns, why).
 TIMING_COLUMNS = {
     "*/models/P*/losses.csv": (["seconds"], "training time per epoch"),
+    "*/cv/*/fold*/losses.csv": (["seconds"], "training time per epoch"),
     # Estimated probing time comes from the collection runs that finished, so after a killed run
     # it leaves out the killed run's share (a gap of the collection summary, docs/cluster.md).
     f"{KILLED_SCENE}/stats/error_vs_cost.csv": (
