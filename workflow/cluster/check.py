@@ -552,10 +552,10 @@ def main(argv=None) -> int:
         shown = ", ".join(names[:3]) + (f", ... ({len(names)} files)" if len(names) > 3 else "")
         print(f"  not compared ({note}): {shown}")
     for scene, leaf in [
-        (KILLED_SCENE, "models/P80/model.pt"),
+        (KILLED_SCENE, "models/P80/r0/model.pt"),
         (KILLED_SCENE, "objects/errors.csv"),
         (KILLED_SCENE, "stats/tests.csv"),
-        (FAILING_SCENE, "models/P80/model.pt"),
+        (FAILING_SCENE, "models/P80/r0/model.pt"),
     ]:
         check(f"{scene}/{leaf}" in set(equal), f"{scene}/{leaf}: equal bytes")
     total_s = time.monotonic() - started
