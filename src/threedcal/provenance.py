@@ -44,7 +44,7 @@ def _lazy_attributes(tree: ast.Module) -> dict[str, set[ast.AST]]:
     return lazy
 
 
-def imported_modules(path: Path, package: str | None) -> set[str]:
+def imported_modules(path: Path, package: str | None, root: Path = PACKAGE_ROOT) -> set[str]:
     """Every threedcal module a file imports anywhere in it (top level, functions, branches).
 
     A package's lazy attributes (imports inside its `__getattr__`) count for the importer that
@@ -69,13 +69,13 @@ def imported_modules(path: Path, package: str | None) -> set[str]:
             found.add(module)
             # `from threedcal.sim import optics` imports the submodule too
             found.update(f"{module}.{alias.name}" for alias in node.names)
-            found.update(_lazy_targets(module, [alias.name for alias in node.names]))
+            found.update(_lazy_targets(module, [alias.name for alias in node.names], root))
     return {m for m in found if m == PACKAGE or m.startswith(PACKAGE + ".")}
 
 
-def _lazy_targets(module: str, names: list[str]) -> set[str]:
+def _lazy_targets(module: str, names: list[str], root: Path) -> set[str]:
     """The modules a package's `__getattr__` imports for the given attribute names."""
-    path = module_file(module)
+    path = module_file(module, root)
     if path is None or path.name != "__init__.py":
         return set()
     lazy = _lazy_attributes(ast.parse(path.read_bytes(), filename=str(path)))
@@ -96,7 +96,7 @@ def module_closure(script: str | Path, root: Path = PACKAGE_ROOT) -> list[Path]:
 @cache
 def _closure(script: Path, root: Path) -> tuple[Path, ...]:
     seen: dict[str, Path] = {}
-    todo = sorted(imported_modules(script, None))
+    todo = sorted(imported_modules(script, None, root))
     while todo:
         module = todo.pop()
         for name in _with_parents(module):
@@ -107,7 +107,7 @@ def _closure(script: Path, root: Path) -> tuple[Path, ...]:
                 continue  # an attribute (`from threedcal.config import load_yaml`), not a module
             seen[name] = path
             package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-            todo.extend(imported_modules(path, package) - set(seen))
+            todo.extend(imported_modules(path, package, root) - set(seen))
     return tuple(sorted(set(seen.values())))
 
 
