@@ -13,7 +13,11 @@ FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 .PHONY: all smoke setup test lint bench report clean cluster-test cluster-clean
 
 all: $(STAMP)
-	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all
+	@start=$$(date +%s); \
+	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all; rc=$$?; \
+	took=$$(( $$(date +%s) - start )); \
+	echo "make all: the study took $$(( took / 60 )) min $$(( took % 60 )) s (exit $$rc); stage times in results/summary.md"; \
+	exit $$rc
 
 # A fast first run: the README's first scene (config/first_scene.yaml), results in results/my_digit/.
 smoke: $(STAMP)
@@ -26,10 +30,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e ".[dev]"
 	touch $(STAMP)
 
-# The suite runs in TEST_WORKERS processes (pytest-xdist); --durations lists where the time goes.
+# The suite runs in TEST_WORKERS processes (pytest-xdist), handed out one test at a time in the order
+# tests/conftest.py sets (the end-to-end run first, then the slow files); --durations lists where the time goes.
 TEST_WORKERS ?= $(CORES)
 test: $(STAMP)
-	set -o pipefail; $(BIN)/python -m pytest -n $(TEST_WORKERS) --durations=10 2>&1 | tee .pytest-last.log
+	set -o pipefail; $(BIN)/python -m pytest -n $(TEST_WORKERS) --maxschedchunk 1 --durations=10 2>&1 | tee .pytest-last.log
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests scripts benchmarks workflow/cluster

@@ -13,11 +13,19 @@ from threedcal.config import (
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
 from threedcal.model.crossval import CV_METHODS, method_settings
+from threedcal.model.sim2real import (
+    SIM2REAL_CONDITIONS,
+    sensor_profile,
+    sim2real_inputs,
+    sim2real_keys,
+)
 from threedcal.scenes import (
     ablation_scenes,
     full_model_file,
     has_objects,
     model_file,
+    realism_files,
+    realism_sets,
     reskin_scenes,
     stage_config,
     study_targets,

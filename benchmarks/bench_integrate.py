@@ -5,6 +5,12 @@ The baseline is the authors' file itself when it is unpacked (`make bench` fetch
 of it: same numerics, but on scipy.fft without transposes, so about 2x faster than the original and
 a harder baseline. Both get the same gradients, float32 (as a network yields them) and float64; then
 the three spectral solvers at every size of the integration study.
+
+poisson_dst transforms short awkward axes by a dense product (BLAS). BLAS runs single-threaded here
+unless OPENBLAS_NUM_THREADS says otherwise, as in every workflow job (Snakemake sets it to the
+job's threads): on a loaded machine a threaded product of this size waits for a second core and
+turns erratic (5-20x slower). Each figure is the median wall-clock ms and, in brackets, the median
+CPU ms of this process (steadier when the machine is shared; the ratio uses wall-clock).
 """
 
 import importlib.util
@@ -12,10 +18,12 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from threedcal.depth import integrate, py3dcal_fast_poisson
-from threedcal.depth.scenarios import make_scene
+import numpy as np  # noqa: E402
+
+from threedcal.depth import integrate, py3dcal_fast_poisson  # noqa: E402
+from threedcal.depth.scenarios import make_scene  # noqa: E402
 
 AUTHORS = Path(
     os.environ.get(
@@ -35,13 +43,15 @@ def baseline():
 
 
 def median_ms(fn, repeats=REPEATS):
+    """(wall-clock, CPU) median ms per call."""
     fn()  # warm-up: plans and cached eigenvalues
-    times = []
+    wall, cpu = [], []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+        wall.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
+    return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
 
 
 SIZES = [(240, 320), (320, 240), (480, 640), (960, 1280)]  # the integration study's (paper.yaml)
@@ -53,14 +63,15 @@ def main():
     fast_poisson, name = baseline()
     workers = os.cpu_count()
     print(
-        f"240x320 cap; {workers} CPUs; load average {os.getloadavg()[0]:.1f}; median of {REPEATS}"
+        f"240x320 cap; {workers} CPUs; load average {os.getloadavg()[0]:.1f}; median of {REPEATS}; "
+        f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}"
     )
     print(f"baseline: {name}")
     for dtype in (np.float32, np.float64):
         gx = scene.gx.astype(dtype)
         gy = scene.gy.astype(dtype)
-        base = median_ms(lambda gx=gx, gy=gy: fast_poisson(gx, gy))
-        print(f"{dtype.__name__}: baseline {base:.3f} ms/frame")
+        base, base_cpu = median_ms(lambda gx=gx, gy=gy: fast_poisson(gx, gy))
+        print(f"{dtype.__name__}: baseline {base:.3f} ms/frame ({base_cpu:.3f} CPU)")
         rows = [
             (
                 "poisson_dst workers=1",
@@ -76,9 +87,15 @@ def main():
             ),
         ]
         for label, fn in rows:
-            ms = median_ms(fn)
-            print(f"  {label}: {ms:.3f} ms/frame  -> {base / ms:.2f}x faster than the baseline")
-    print("\nspectral solvers at the integration study's sizes (ms/frame, workers=1, median)")
+            ms, cpu = median_ms(fn)
+            print(
+                f"  {label}: {ms:.3f} ms/frame ({cpu:.3f} CPU)  -> {base / ms:.2f}x faster than "
+                f"the baseline ({base_cpu / cpu:.2f}x in CPU time)"
+            )
+    print(
+        "\nspectral solvers at the integration study's sizes "
+        "(median ms/frame wall-clock (CPU), workers=1)"
+    )
     print(f"{'size':>10s} {'dtype':>8s} " + " ".join(f"{m:>18s}" for m in SPECTRAL) + "  slowest")
     for h, w in SIZES:
         sized = make_scene("cap", h, w)
@@ -89,8 +106,8 @@ def main():
                 m: median_ms(lambda m=m, gx=gx, gy=gy: integrate(gx, gy, m, workers=1), repeats)
                 for m in SPECTRAL
             }
-            slowest = max(ms, key=ms.get)
-            cells = " ".join(f"{ms[m]:18.2f}" for m in SPECTRAL)
+            slowest = max(ms, key=lambda m: ms[m][0])
+            cells = " ".join(f"{ms[m][0]:9.2f} ({ms[m][1]:6.2f})" for m in SPECTRAL)
             print(f"{h:>4d}x{w:<5d} {dtype.__name__:>8s} {cells}  {slowest}")
 
 

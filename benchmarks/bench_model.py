@@ -1,8 +1,9 @@
 """Frames/s of DepthEstimator.depth (network + DST Poisson integration) for every preset at 240×320,
 and training samples/s per preset.
 
-The baseline is the paper's TouchNet on the same frame (and the same training batch) in the same run; the goal for the default CPU
-preset is ≥ 30 frames/s and ≥ 100× TouchNet. Weights are freshly initialised (speed does not depend
+The baseline is the paper's TouchNet on the same frame (and the same training batch) in the same run; the goal for the
+presets the default scenes train is ≥ 30 frames/s and ≥ 100× TouchNet. Each preset is also timed with the network's
+tensors in PyTorch's default (contiguous NCHW) layout, the baseline of the channels-last layout DepthEstimator uses. Weights are freshly initialised (speed does not depend
 on their values). Each figure is the median time of single-frame calls, which a busy shared machine
 disturbs less than a mean.
 
@@ -43,7 +44,7 @@ BALL_SETTINGS = dict(
 )
 
 
-def estimator(preset: str, blank: np.ndarray) -> DepthEstimator:
+def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> DepthEstimator:
     torch.manual_seed(0)
     checkpoint = {
         "format": FORMAT,
@@ -56,7 +57,7 @@ def estimator(preset: str, blank: np.ndarray) -> DepthEstimator:
         "px_per_mm": 20.0,
         "image_shape": [HEIGHT, WIDTH],
     }
-    return DepthEstimator(checkpoint, device="cpu", batch_size=1)
+    return DepthEstimator(checkpoint, device="cpu", batch_size=1, channels_last=channels_last)
 
 
 def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float) -> float:
@@ -136,11 +137,24 @@ def main() -> None:
     frame = np.clip(blank + rng.normal(0, 20, blank.shape), 0, 255).astype(np.uint8)
     print(f"DepthEstimator.depth at {HEIGHT}x{WIDTH}, CPU, torch threads {args.threads}")
     ms = {p: ms_per_frame(estimator(p, blank), frame, args.seconds) for p in PRESET_NAMES}
+    nchw = {
+        p: ms_per_frame(estimator(p, blank, channels_last=False), frame, args.seconds)
+        for p in PRESET_NAMES
+        if p != "touchnet"
+    }
     base = ms["touchnet"]
-    print(f"{'preset':14s} {'frames/s':>10s} {'ms/frame':>10s} {'x touchnet':>11s}")
+    print(
+        f"{'preset':14s} {'frames/s':>10s} {'ms/frame':>10s} {'x touchnet':>11s} "
+        f"{'NCHW ms':>8s} {'x NCHW':>7s}"
+    )
     for preset, value in ms.items():
         mark = "  (default)" if preset == DEFAULT_PRESET else ""
-        print(f"{preset:14s} {1000 / value:10.2f} {value:10.1f} {base / value:10.0f}x{mark}")
+        layout = (
+            f"{nchw[preset]:8.1f} {nchw[preset] / value:6.2f}x" if preset in nchw else f"{'':16s}"
+        )
+        print(
+            f"{preset:14s} {1000 / value:10.2f} {value:10.1f} {base / value:10.0f}x {layout}{mark}"
+        )
     rates = {p: training_samples_per_s(p, args.seconds) for p in PRESET_NAMES}
     base = rates["touchnet"]
     print(f"\ntraining, batch of 16 patches 48x48: {'samples/s':>10s} {'x touchnet':>11s}")

@@ -83,3 +83,123 @@ rule ball_eval:
         code=code_digest("ball_eval.py"),
     script:
         "../scripts/ball_eval.py"
+
+
+# Stage `sim2real` (scenes with sim_to_real.enabled; docs/real_data.md): simulated presses of the
+# scene's sensor profile -> a pretrained model -> per fold and k, fine-tuned and real-only models
+# -> error against k.
+
+
+rule sim2real_simulate:
+    input:
+        trainset="results/{scene}/dataset/trainset",
+    output:
+        directory("results/{scene}/sim2real/simset"),
+    log:
+        "results/{scene}/logs/sim2real_simulate.log",
+    benchmark:
+        "results/{scene}/benchmarks/sim2real_simulate.tsv"
+    wildcard_constraints:
+        scene=one_of(IMPORTED_SCENES),
+    conda:
+        CONDA_ENV
+    params:
+        profile=lambda wildcards: sensor_profile(config["scenes"][wildcards.scene]),
+        sim_to_real=lambda wildcards: sim2real_keys(
+            config["scenes"][wildcards.scene], "simulate"
+        ),
+        seed=scene_seed,
+        code=code_digest("sim2real_simulate.py"),
+    script:
+        "../scripts/sim2real_simulate.py"
+
+
+rule sim2real_pretrain:
+    input:
+        simset="results/{scene}/sim2real/simset",
+    output:
+        model="results/{scene}/sim2real/pretrained/model.pt",
+        losses="results/{scene}/sim2real/pretrained/losses.csv",
+    log:
+        "results/{scene}/logs/sim2real_pretrain.log",
+    benchmark:
+        "results/{scene}/benchmarks/sim2real_pretrain.tsv"
+    wildcard_constraints:
+        scene=one_of(IMPORTED_SCENES),
+    conda:
+        CONDA_ENV
+    threads: scene_threads
+    params:
+        model=lambda wildcards: config["scenes"][wildcards.scene]["model"],
+        sim_to_real=lambda wildcards: sim2real_keys(
+            config["scenes"][wildcards.scene], "pretrain"
+        ),
+        seed=scene_seed,
+        threads=scene_threads,
+        code=code_digest("sim2real_pretrain.py"),
+    script:
+        "../scripts/sim2real_pretrain.py"
+
+
+rule sim2real_train:
+    input:
+        unpack(sim2real_init),
+        trainset="results/{scene}/dataset/trainset",
+        folds="results/{scene}/cv/folds.csv",
+    output:
+        model="results/{scene}/sim2real/{condition}/k{k}/fold{fold}/model.pt",
+        losses="results/{scene}/sim2real/{condition}/k{k}/fold{fold}/losses.csv",
+    log:
+        "results/{scene}/logs/sim2real_{condition}_k{k}_fold{fold}.log",
+    benchmark:
+        "results/{scene}/benchmarks/sim2real_{condition}_k{k}_fold{fold}.tsv"
+    wildcard_constraints:
+        scene=one_of(IMPORTED_SCENES),
+        condition="|".join(SIM2REAL_CONDITIONS),
+        k=r"\d+|all",
+        fold=r"\d+",
+    conda:
+        CONDA_ENV
+    threads: scene_threads
+    params:
+        model=lambda wildcards: config["scenes"][wildcards.scene]["model"],
+        sim_to_real=lambda wildcards: sim2real_keys(
+            config["scenes"][wildcards.scene], "train"
+        ),
+        seed=scene_seed,
+        threads=scene_threads,
+        code=code_digest("sim2real_train.py"),
+    script:
+        "../scripts/sim2real_train.py"
+
+
+rule sim2real_eval:
+    input:
+        unpack(sim2real_models),
+        trainset="results/{scene}/dataset/trainset",
+        folds="results/{scene}/cv/folds.csv",
+    output:
+        errors="results/{scene}/sim2real/errors.csv",
+        images="results/{scene}/sim2real/images.csv",
+        figure=report(
+            "results/{scene}/sim2real/error_vs_k.png",
+            caption="../workflow/report/sim2real.rst",
+            category="{scene}",
+            subcategory="3 models",
+        ),
+    log:
+        "results/{scene}/logs/sim2real_eval.log",
+    benchmark:
+        "results/{scene}/benchmarks/sim2real_eval.tsv"
+    wildcard_constraints:
+        scene=one_of(IMPORTED_SCENES),
+    conda:
+        CONDA_ENV
+    params:
+        sim_to_real=lambda wildcards: config["scenes"][wildcards.scene]["sim_to_real"],
+        cv=lambda wildcards: config["scenes"][wildcards.scene]["cv"],
+        seed=scene_seed,
+        threads=scene_threads,
+        code=code_digest("sim2real_eval.py"),
+    script:
+        "../scripts/sim2real_eval.py"

@@ -60,3 +60,15 @@ def cv_models(wildcards):
         ]
         for method in CV_METHODS
     }
+
+
+def sim2real_init(wildcards):
+    """{"pretrained": the scene's sim-pretrained model} for a fine-tuned model, {} for real-only."""
+    if wildcards.condition == "sim_real":
+        return {"pretrained": f"results/{wildcards.scene}/sim2real/pretrained/model.pt"}
+    return {}
+
+
+def sim2real_models(wildcards):
+    """{"sim_real_k4": [fold models ...], ..., "scene": [cv/model fold models]}: what sim2real_eval scores."""
+    return sim2real_inputs(wildcards.scene, config["scenes"][wildcards.scene])

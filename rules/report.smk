@@ -47,6 +47,8 @@ rule inference_speed:
 
 
 rule realism:
+    input:
+        realism_files(config),
     output:
         table=report(
             "results/realism/table.txt",
@@ -61,8 +63,8 @@ rule realism:
     conda:
         CONDA_ENV
     params:
-        real=config.get("realism", {}).get("real"),
-        sensor=config.get("realism", {}).get("sensor", "gelsight_mini"),
+        sets=realism_sets(config),
+        split_seed=config.get("realism", {}).get("split_seed", 0),
         seed=config["seed"],
         code=code_digest("realism.py"),
     script:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import fcntl
+import os
+import pickle
 import re
 import subprocess
 import sys
@@ -13,6 +16,54 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "data"
 SNAKEMAKE = Path(sys.executable).with_name("snakemake")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Start the long tests first: the end-to-end run, then the rest of its file (quick dry runs:
+    the one test xdist queues behind it on the same worker), then every file holding `slow` tests,
+    slow ones first. `make test` hands tests out one at a time in this order (`--maxschedchunk 1`),
+    so the other worker works through everything else while the end-to-end run goes, and both
+    finish together instead of one starting a two-minute test when the other is done. A file's
+    tests stay together, so a module fixture is built at most once per worker."""
+    first = "test_end_to_end_run_then_reruns_only_what_a_change_touches"
+    first_files = {item.path for item in items if item.name == first}
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    files: dict[Path, int] = {}
+    for item in items:
+        files.setdefault(item.path, len(files))
+
+    def rank(pair):
+        position, item = pair
+        if item.name == first:
+            group = 0
+        elif item.path in first_files:
+            group = 1
+        elif item.path in slow_files:
+            group = 2
+        else:
+            group = 3
+        slow_first = group == 2 and not item.get_closest_marker("slow")
+        return (group, files[item.path], slow_first, position)
+
+    items[:] = [item for _, item in sorted(enumerate(items), key=rank)]
+
+
+def shared_across_workers(tmp_path_factory, name: str, build):
+    """`build(folder)` run once for the whole test session, even across pytest-xdist workers
+    (the first worker builds under a file lock; the others wait, then read its result): for
+    expensive read-only fixtures that several test files use. Returns (folder, build's result)."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # shared by the workers of this run
+    folder = base / f"shared-{name}"
+    with open(base / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        done = folder / ".result.pickle"
+        if not done.is_file():
+            folder.mkdir(exist_ok=True)
+            result = build(folder)
+            done.write_bytes(pickle.dumps(result))
+        return folder, pickle.loads(done.read_bytes())
 
 
 @pytest.fixture
@@ -103,8 +154,13 @@ def snakemake(
 def scheduled_jobs(workdir: Path, configfile: Path, *args: str) -> list[tuple[str, dict[str, str]]]:
     """The (rule, wildcards) of every job a dry run would execute."""
     result = snakemake(workdir, configfile, "--dry-run", *args)
+    return dry_run_jobs(result.stdout + result.stderr)
+
+
+def dry_run_jobs(text: str) -> list[tuple[str, dict[str, str]]]:
+    """The (rule, wildcards) of every job in a dry run's output."""
     jobs: list[tuple[str, dict[str, str]]] = []
-    for block in re.split(r"\n(?=(?:local)?rule \w+:)", result.stdout + result.stderr):
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", text):
         match = re.match(r"(?:local)?rule (\w+):", block.strip())
         if not match:
             continue
@@ -116,31 +172,50 @@ def scheduled_jobs(workdir: Path, configfile: Path, *args: str) -> list[tuple[st
     return jobs
 
 
-def bench_scene(sensor, plan, seed, bench=None):
+@pytest.fixture(scope="session")
+def tiny_study_dry_run(tmp_path_factory) -> tuple[dict, str]:
+    """tests/config/test.yaml (paths absolute) and the output of one `snakemake --dry-run` of it,
+    shared by the tests that read what the tiny study schedules: (config, stdout + stderr)."""
+
+    def dry_run(folder):
+        config = tiny_study_config(folder)
+        result = snakemake(folder, write_config(folder, config), "--dry-run")
+        return config, result.stdout + result.stderr
+
+    return shared_across_workers(tmp_path_factory, "tiny_study_dry_run", dry_run)[1]
+
+
+def bench_scene(sensor, plan, seed, bench=None, dataset=None):
     """A validated scene on the simulated bench (hidden touch height up to ±0.1 mm by default)."""
     from threedcal.config import validate_config
 
     scene = {"sensor": sensor, "printer": "ender3", "plan": plan}
     scene["bench"] = bench or {"touch_offset_mm": 0.1}
+    if dataset is not None:
+        scene["dataset"] = dataset
     return validate_config({"seed": seed, "scenes": {"s": scene}})["scenes"]["s"]
 
 
-def collect_on_bench(folder, sensor, plan, seed, bench=None):
+def collect_on_bench(folder, sensor, plan, seed, bench=None, dataset=None):
     """Collect a scene on the simulated bench into folder/raw.zarr (its truth beside it)."""
     from threedcal.collect.session import collect_scene
 
-    scene = bench_scene(sensor, plan, seed, bench)
+    scene = bench_scene(sensor, plan, seed, bench, dataset)
     collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)
     return scene
 
 
-def collect_and_register(folder, sensor, plan, seed):
+def collect_and_register(folder, sensor, plan, seed, dataset=None):
     """collect_on_bench, then the dataset stage (folder/reg.json, ts/, ...): its record."""
     from threedcal.dataset.build import build_collected
 
-    scene = collect_on_bench(folder, sensor, plan, seed)
+    scene = collect_on_bench(folder, sensor, plan, seed, dataset=dataset)
     paths = [folder / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
     return build_collected(scene, folder / "raw.zarr", *paths, progress=False)
+
+
+# config/paper.yaml trains on its d = R presses (the paper's data), as every press of its plan is one
+PAPER_DATASET = {"max_depth_over_radius": None}
 
 
 @pytest.fixture(scope="session")
@@ -148,7 +223,20 @@ def paper_digit_calibration(tmp_path_factory):
     """A DIGIT calibrated on the bench at config/paper.yaml's depth (d = 2.0 mm = R: a vertical
     contact rim), the default first-contact search first, a coarse grid (3 mm, one frame a point):
     (scene, folder with raw.zarr, truth.json, reg.json, ..., the dataset stage's record)."""
-    folder = tmp_path_factory.mktemp("paper_digit")
     plan = {"spacing_mm": 3.0, "depth_mm": 2.0, "frames": 1}
-    record = collect_and_register(folder, "digit", plan, 3)
-    return bench_scene("digit", plan, 3), folder, record
+    folder, record = shared_across_workers(
+        tmp_path_factory,
+        "paper_digit",
+        lambda folder: collect_and_register(folder, "digit", plan, 3, PAPER_DATASET),
+    )
+    return bench_scene("digit", plan, 3, dataset=PAPER_DATASET), folder, record
+
+
+def load_file_module(relative: str, name: str):
+    """A repository script that is not a package module (workflow/cluster/*.py, docs/diagnostics)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO / relative)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -15,7 +15,7 @@ import sys
 
 import pandas as pd
 import pytest
-from conftest import REPO, snakemake, tiny_study_config, write_config
+from conftest import REPO, load_file_module, snakemake, tiny_study_config, write_config
 
 PROFILE = REPO / "workflow/profiles/slurm"
 
@@ -56,11 +56,11 @@ def test_collections_take_turns_on_the_printer_without_a_profile(tmp_path):
     assert len(bench) == 1 and bench["s"].iloc[0] > 0 and bench["max_rss"].iloc[0] > 0
 
 
-def test_every_rule_writes_a_benchmark_file_beside_its_logs(tmp_path):
-    config = write_config(tmp_path, tiny_study_config(tmp_path))
+def test_every_rule_writes_a_benchmark_file_beside_its_logs(tmp_path, tiny_study_dry_run):
+    tiny, dry_run = tiny_study_dry_run
+    config = write_config(tmp_path, tiny)
     listed = snakemake(tmp_path, config, "--list-rules").stdout.split()
-    dry = snakemake(tmp_path, config, "--dry-run")
-    blocks = job_blocks(dry.stdout + dry.stderr)
+    blocks = job_blocks(dry_run)
     assert set(blocks) == set(listed)  # the tiny study runs every rule
     for rule, jobs in blocks.items():
         if rule == "all":
@@ -157,14 +157,7 @@ def test_study_on_slurm_gives_the_local_results(tmp_path):
 
 
 def _load_resources():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(
-        "cluster_resources", REPO / "workflow/cluster/resources.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_file_module("workflow/cluster/resources.py", "cluster_resources")
 
 
 def test_resources_suggests_memory_and_time_per_rule_from_benchmark_files(tmp_path):

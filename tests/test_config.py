@@ -303,3 +303,20 @@ def test_cv_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     assert CVSettings.of(folds=3).folds == 3
     with pytest.raises(ConfigError, match="folds"):
         CVSettings.of(folds=0)
+
+
+def test_sim_to_real_needs_an_imported_vision_scene_and_valid_k():
+    collected = {**SIM_SCENE, "sim_to_real": {"enabled": True}}
+    assert "sim_to_real.enabled: the sim-to-real stage needs an imported scene" in error_of(
+        {"scenes": {"s": collected}}
+    )
+    imported = {
+        "sensor": "gelsight_mini",
+        "import": {"format": "ball_folder", "path": "x"},
+        "sim_to_real": {"enabled": True, "k": [4, "some"]},
+    }
+    assert "sim_to_real.k" in error_of({"scenes": {"s": imported}})
+    imported["sim_to_real"]["k"] = [4, "all"]
+    assert (
+        validate_config({"scenes": {"s": imported}})["scenes"]["s"]["sim_to_real"]["frames"] == 300
+    )

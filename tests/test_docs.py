@@ -138,6 +138,7 @@ def run_shell(block: dict, page: Path, workspace: Path) -> None:
         assert done.returncode == 0, f"{where}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
 
 
+@pytest.mark.slow  # a page dry-runs the default study: tens of seconds
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
 def test_page_examples_run(page, workspace):
     namespace: dict = {"tiny_checkpoint": tiny_checkpoint, "sim_frame": sim_frame}

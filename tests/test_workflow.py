@@ -6,16 +6,22 @@ import re
 import pandas as pd
 import pytest
 import yaml
-from conftest import scheduled_jobs, snakemake, tiny_study_config, write_config
+from conftest import (
+    dry_run_jobs,
+    load_file_module,
+    scheduled_jobs,
+    snakemake,
+    tiny_study_config,
+    write_config,
+)
 
 from threedcal.config import validate_config
 from threedcal.scenes import scene_targets, study_targets
 
 
-def test_dry_run_schedules_exactly_each_scenes_own_targets(tmp_path):
-    config = tiny_study_config(tmp_path)
-    path = write_config(tmp_path, config)
-    jobs = scheduled_jobs(tmp_path, path)
+def test_dry_run_schedules_exactly_each_scenes_own_targets(tiny_study_dry_run):
+    config, output = tiny_study_dry_run
+    jobs = dry_run_jobs(output)
     scenes = {wc["scene"] for rule, wc in jobs if "scene" in wc}
     assert scenes == set(config["scenes"])
     assert ("all", {}) in jobs
@@ -62,6 +68,10 @@ def test_config_without_scenes_is_refused(tmp_path):
     assert "'scenes' is a required property" in result.stdout + result.stderr
 
 
+def cluster_check():
+    return load_file_module("workflow/cluster/check.py", "cluster_check")
+
+
 @pytest.mark.slow
 def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     config = tiny_study_config(tmp_path)
@@ -80,6 +90,11 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
             assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
             assert len(ball["folds"]) == scene["cv"]["folds"]
             assert (tmp_path / f"results/{name}/cv/errors.png").is_file()
+            errors = pd.read_csv(tmp_path / f"results/{name}/sim2real/errors.csv")
+            pooled = errors[errors["fold"].astype(str) == "all"]
+            assert set(pooled["condition"]) == {"sim+real", "real-only", "scene model"}
+            assert (pooled["cap_depth_mae_um"] > 0).all()
+            assert (tmp_path / f"results/{name}/sim2real/error_vs_k.png").is_file()
         if scene["sensor"] == "reskin":
             reskin = json.loads((tmp_path / f"results/{name}/reskin_eval.json").read_text())
             assert reskin["n_test_readings"] > 0 and reskin["median_error_mm"] >= 0
@@ -120,7 +135,10 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert (tuning["presses"] == 1).all()
     for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
         assert (tmp_path / f"results/{leaf}").is_file(), leaf
-    assert collected in (tmp_path / "results/summary.md").read_text()
+    summary = (tmp_path / "results/summary.md").read_text()
+    assert collected in summary
+    # the stage-time table: the training of the collected scene is among the summed stages
+    assert f"| train | {collected} | 4 |" in summary
     # Snakemake limits every job's BLAS/OpenMP pools to the job's threads (1 for this rule)
     environment = json.loads((tmp_path / "results/environment.json").read_text())
     assert environment["thread_environment"] == dict.fromkeys(
@@ -140,6 +158,9 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     tests = pd.read_csv(stats_dir / "tests.csv")
     assert set(tests["family"]) == {"paper", "paired", "equivalence"}
     assert "margin of mean validation MSE" in (stats_dir / "recommendation.txt").read_text()
+    # `make cluster-test` compares this study's outputs with a Slurm run's byte for byte, timing
+    # columns excepted: every table that times something must be named there.
+    assert cluster_check().uncovered_timing_tables(tmp_path / "results") == []
     # Nothing changed: nothing to do.
     assert scheduled_jobs(tmp_path, path) == []
     # A model setting of one scene: its trainings and what reads them rerun, not its collection
@@ -186,6 +207,27 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
         tmp_path, write_config(tmp_path, config), "results/balls/models/P20/r0/model.pt"
     )
     assert sorted(rule for rule, _ in one) == ["dataset_import", "train"]
+
+
+def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path):
+    balls = {
+        "sensor": "gelsight_mini",
+        "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
+        "sim_to_real": {"enabled": True, "k": [4, "all"], "folds": [1, 3]},
+    }
+    jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
+    trains = sorted(
+        (wc["condition"], wc["k"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train"
+    )
+    assert trains == [
+        (c, k, f) for c in ("real_only", "sim_real") for k in ("4", "all") for f in ("1", "3")
+    ]
+    for rule in ("sim2real_simulate", "sim2real_pretrain", "sim2real_eval"):
+        assert (rule, {"scene": "balls"}) in jobs
+    # Off (the default): no sim-to-real job.
+    del balls["sim_to_real"]
+    jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
+    assert not [rule for rule, _ in jobs if rule.startswith("sim2real")]
 
 
 def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_single_model_stages(

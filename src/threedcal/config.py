@@ -73,6 +73,13 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         printer = load_profile("printer", scene["printer"]) if scene.get("printer") else None
     except ConfigError as exc:
         return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
+    if (scene.get("sim_to_real") or {}).get("enabled") and not (
+        is_imported(scene) and sensor.get("type") == "vision"
+    ):
+        return [
+            "sim_to_real.enabled: the sim-to-real stage needs an imported scene of a vision "
+            "sensor (its real frames are what the simulated pretraining is tested on)"
+        ]
     if is_imported(scene):
         if not check_files:
             return []  # read by `config check` and by the import stage itself

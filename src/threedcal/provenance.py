@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 import hashlib
+from collections.abc import Iterator
 from functools import cache
 from pathlib import Path
 
@@ -32,6 +33,17 @@ def module_file(module: str, root: Path = PACKAGE_ROOT) -> Path | None:
     return None
 
 
+def _parsed(path: Path) -> ast.Module:
+    """The file's syntax tree, parsed once per content: a Snakefile parse digests ~20 scripts whose
+    closures share most modules (parsing each anew cost ~2 s of CPU on every `snakemake` call)."""
+    return _parse(path.read_bytes(), str(path))
+
+
+@cache
+def _parse(source: bytes, filename: str) -> ast.Module:
+    return ast.parse(source, filename=filename)
+
+
 def _lazy_attributes(tree: ast.Module) -> dict[str, set[ast.AST]]:
     """Imports inside a module-level `__getattr__` (PEP 562), by the attribute that triggers them."""
     lazy: dict[str, set[ast.AST]] = {}
@@ -50,10 +62,17 @@ def imported_modules(path: Path, package: str | None, root: Path = PACKAGE_ROOT)
     A package's lazy attributes (imports inside its `__getattr__`) count for the importer that
     names them (`from threedcal import DepthEstimator`), not for every importer of the package.
     """
-    tree = ast.parse(path.read_bytes(), filename=str(path))
+    return set(_imported_modules(path.read_bytes(), str(path), package, root))
+
+
+@cache
+def _imported_modules(
+    source: bytes, filename: str, package: str | None, root: Path
+) -> frozenset[str]:
+    tree = _parse(source, filename)
     lazy = {node for nodes in _lazy_attributes(tree).values() for node in nodes}
     found = set()
-    for node in ast.walk(tree):
+    for node in _statements(tree.body):
         if node in lazy:
             continue
         if isinstance(node, ast.Import):
@@ -70,7 +89,18 @@ def imported_modules(path: Path, package: str | None, root: Path = PACKAGE_ROOT)
             # `from threedcal.sim import optics` imports the submodule too
             found.update(f"{module}.{alias.name}" for alias in node.names)
             found.update(_lazy_targets(module, [alias.name for alias in node.names], root))
-    return {m for m in found if m == PACKAGE or m.startswith(PACKAGE + ".")}
+    return frozenset(m for m in found if m == PACKAGE or m.startswith(PACKAGE + "."))
+
+
+def _statements(nodes: list) -> Iterator[ast.AST]:
+    """Every statement, nested ones included (function, class, if/try/with/match bodies): an
+    import is a statement, so expressions (most of a tree) need not be walked."""
+    for node in nodes:
+        yield node
+        for field in ("body", "orelse", "finalbody", "handlers", "cases"):
+            children = getattr(node, field, None)
+            if isinstance(children, list):
+                yield from _statements(children)
 
 
 def _lazy_targets(module: str, names: list[str], root: Path) -> set[str]:
@@ -78,7 +108,7 @@ def _lazy_targets(module: str, names: list[str], root: Path) -> set[str]:
     path = module_file(module, root)
     if path is None or path.name != "__init__.py":
         return set()
-    lazy = _lazy_attributes(ast.parse(path.read_bytes(), filename=str(path)))
+    lazy = _lazy_attributes(_parsed(path))
     return {node.module for name in names for node in lazy.get(name, ()) if node.module}
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from threedcal.config import FULL_TRAINING_P, is_imported, model_keys, training_fractions
+from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -101,6 +102,15 @@ RESKIN_FILES = (
 COLLECT_FILES = ("collect/summary.json", "collect/coverage.png", "collect/frames.png")
 
 
+# Per-scene outputs of the sim-to-real stage (rules/ball.smk, threedcal.model.sim2real).
+SIM2REAL_FILES = ("sim2real/errors.csv", "sim2real/images.csv", "sim2real/error_vs_k.png")
+
+
+def has_sim2real(scene: Mapping) -> bool:
+    """Imported scenes with `sim_to_real.enabled`: pretrain on simulated presses, fine-tune on real."""
+    return is_imported(scene) and bool((scene.get("sim_to_real") or {}).get("enabled"))
+
+
 def is_magnetic_scene(scene: Mapping) -> bool:
     """A scene whose sensor profile is `type: magnetic` (ReSkin): readings, not images."""
     return load_profile("sensor", scene["sensor"]).get("type") == "magnetic"
@@ -126,6 +136,8 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if is_imported(scene):
         targets += [f"{root}/ball_eval.json", f"{root}/presets.csv", f"{root}/presets.png"]
         targets += [f"{root}/cv/images.csv", f"{root}/cv/errors.png"]
+    if has_sim2real(scene):
+        targets += [f"{root}/{leaf}" for leaf in SIM2REAL_FILES]
     if has_objects(scene):
         targets += [f"{root}/objects/{leaf}" for leaf in OBJECT_FILES]
     if has_ablation(scene):
@@ -218,3 +230,22 @@ def write_scene_record(name: str, scene: Mapping, path: str | Path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(scene_record(name, scene), indent=2, sort_keys=True) + "\n")
+
+
+def realism_sets(config: Mapping[str, Any]) -> list[list[str]]:
+    """[real folder, sensor] pairs the realism stage fits and compares (realism.real/sensor first,
+    then realism.also); [] without a realism section."""
+    realism = config.get("realism") or {}
+    if not realism:
+        return []
+    sets = [[str(realism["real"]), str(realism.get("sensor", "gelsight_mini"))]]
+    return sets + [[str(s["real"]), str(s["sensor"])] for s in realism.get("also", [])]
+
+
+def realism_files(config: Mapping[str, Any]) -> list[str]:
+    """Every file of the realism stage's real folders (its inputs)."""
+    sets = realism_sets(config)
+    for real, _ in sets:
+        if not Path(real).is_dir():
+            raise ConfigError(f"realism: real folder {real} is not a folder (realism.real / also)")
+    return [str(p) for real, _ in sets for p in sorted(Path(real).iterdir()) if p.is_file()]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import json
 from collections.abc import Iterator, Mapping
+from functools import lru_cache
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
@@ -63,7 +64,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 
 def parse_yaml(text: str, source: str = "YAML") -> Any:
-    """Parse YAML text like yaml.safe_load, but refuse duplicate keys; errors name `source`."""
+    """Parse YAML text like yaml.safe_load, but refuse duplicate keys; errors name `source`.
+
+    Each call gets its own copy; a text is parsed once per process (a Snakefile parse reads the
+    schemas and profiles dozens of times, ~1 s of pure-Python YAML each `snakemake` call)."""
+    return copy.deepcopy(_parse_yaml(text, source))
+
+
+@lru_cache(maxsize=256)  # bounded: fuzz tests parse thousands of texts
+def _parse_yaml(text: str, source: str) -> Any:
     try:
         return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
     except DuplicateKeyError as exc:

@@ -8,6 +8,7 @@ import sys
 import time
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from conftest import REPO, collect_and_register, collect_on_bench, snapshot
@@ -16,6 +17,7 @@ from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
 from threedcal.config import validate_config
 from threedcal.dataset.build import build_collected
+from threedcal.errors import ConfigError
 
 LABELS = (
     "point",
@@ -178,6 +180,7 @@ def test_invalid_plan_fails_before_any_motion(tmp_path):
     assert not (tmp_path / "raw.zarr").exists()
 
 
+@pytest.mark.slow
 def test_registration_recovers_the_hidden_seating(tmp_path):
     scene = validate_config(
         {
@@ -222,6 +225,7 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
     assert abs(record["touch_offset_error_mm"]) <= 0.01, record
 
 
+@pytest.mark.slow
 def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_path):
     """One depth: the rim's edge offset reads as 0.09 mm of extra depth (README, registration).
     Several: both are fitted, and the touch height comes out within 0.05 mm."""
@@ -247,7 +251,8 @@ def assert_search_found_the_touch(record, folder):
     assert record["error_px"] < 0.5, record
     # touch frames only locate the gel: the training set holds grid frames alone
     samples = (folder / "ts" / "samples.csv").read_text().splitlines()
-    assert len(samples) - 1 == record["frames_in_view"]
+    assert len(samples) - 1 == record["frames_labelled"]
+    assert record["frames_labelled"] + record["frames_too_deep"] == record["frames_in_view"]
     raw = open_raw(folder / "raw.zarr")
     assert record["frames_in_view"] <= raw.sizes["frame"] - record["touch_search"]["frames"]
 
@@ -270,8 +275,25 @@ def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path
         "frames": 1,
         "arm_width_mm": 2.0,
     }
-    record = collect_and_register(tmp_path, "digit", plan, 5)
+    scene = collect_on_bench(tmp_path, "digit", plan, 5)
+    paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
+    record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
     assert_search_found_the_touch(record, tmp_path)
+    # null keeps them; a limit below every press leaves nothing to train on: refused, naming the key
+    every = {**scene, "dataset": {**scene["dataset"], "max_depth_over_radius": None}}
+    kept = build_collected(every, tmp_path / "raw.zarr", *paths[:4], progress=False)
+    assert kept["frames_too_deep"] == 0 and kept["frames_labelled"] == kept["frames_in_view"]
+    assert kept["probe_points_labelled"] == kept["probe_points_in_view"]
+    none = {**scene, "dataset": {**scene["dataset"], "max_depth_over_radius": 0.1}}
+    with pytest.raises(ConfigError, match="dataset.max_depth_over_radius: 0.1 leaves no frame"):
+        build_collected(none, tmp_path / "raw.zarr", *paths[:4], progress=False)
+    record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
+    # the 3 mm presses (a 1 mm wall the camera looks along) register the rig but are not trained
+    # on (dataset.max_depth_over_radius, default 0.75): every labelled frame is a 1 mm press
+    samples = pd.read_csv(tmp_path / "ts" / "samples.csv")
+    assert record["frames_too_deep"] > 0 and record["frames_labelled"] > 0
+    assert 0 < record["probe_points_labelled"] < record["probe_points_in_view"]
+    assert samples["depth_mm"].between(0.9, 1.1).all()
 
 
 def touch_height_diagnostic():

@@ -7,6 +7,7 @@ from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import (
     ChangeDetector,
     RegistrationError,
+    _levenberg_marquardt,
     estimate_touch,
     find_contact,
     fit_affine,
@@ -215,6 +216,55 @@ def test_register_uses_only_the_rim_on_a_domed_gel():
     assert result.unmixing is None
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     assert error.max() < 0.5
+
+
+class _CircleThroughPoints:
+    """Least squares with a known zero-residual answer: a circle (centre, radius) through points."""
+
+    def __init__(self, centre, radius, n=40):
+        angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+        self.points = np.column_stack(
+            [centre[0] + radius * np.cos(angles), centre[1] + radius * np.sin(angles)]
+        )
+        self.evaluations = 0
+
+    def normal_equations(self, params):
+        self.evaluations += 1
+        d = self.points - params[:2]
+        distance = np.hypot(d[:, 0], d[:, 1])
+        r = distance - params[2]
+        jacobian = np.column_stack([-d[:, 0] / distance, -d[:, 1] / distance, -np.ones(len(r))])
+        return float(r @ r), jacobian.T @ r, jacobian.T @ jacobian
+
+
+def test_levenberg_marquardt_reaches_a_known_minimum():
+    problem = _CircleThroughPoints((3.2, -1.7), 5.0)
+    x, converged = _levenberg_marquardt(
+        problem, np.array([0.0, 0.0, 1.0]), np.ones(3), tolerance=1e-9
+    )
+    assert converged
+    np.testing.assert_allclose(x, [3.2, -1.7, 5.0], atol=1e-9)
+    assert problem.evaluations < 30
+    # A start far off (radius 100x, centre outside the circle) still lands: the damping holds
+    # the steps where Gauss-Newton alone would overshoot.
+    x, converged = _levenberg_marquardt(
+        problem, np.array([40.0, 30.0, 500.0]), np.ones(3), tolerance=1e-9
+    )
+    assert converged
+    np.testing.assert_allclose(x, [3.2, -1.7, 5.0], atol=1e-9)
+
+
+def test_levenberg_marquardt_reports_a_non_finite_problem():
+    class Broken(_CircleThroughPoints):
+        def normal_equations(self, params):
+            cost, gradient, normal = super().normal_equations(params)
+            return float("nan"), gradient, normal
+
+    x, converged = _levenberg_marquardt(
+        Broken((0, 0), 1.0), np.array([0.1, 0.2, 1.5]), np.ones(3), tolerance=1e-6
+    )
+    assert not converged
+    np.testing.assert_array_equal(x, [0.1, 0.2, 1.5])
 
 
 # ---------------------------------------------------------------- first-contact search

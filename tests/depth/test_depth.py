@@ -332,7 +332,7 @@ def test_bad_shapes_are_refused():
         integrate(np.zeros((4, 5)), np.zeros((4, 5)), "lstsq_sparse", mask=np.ones((5, 4), bool))
 
 
-@pytest.mark.parametrize("shape", [(238, 318), (12, 10), (1278, 40)])
+@pytest.mark.parametrize("shape", [(238, 318), (317, 9), (12, 10), (1278, 40)])
 def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
     import scipy.fft as sfft
 
@@ -344,13 +344,18 @@ def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
     # Applied twice it is the identity times 2(n + 1), the factor the solve folds away.
     twice = _dst1_columns(forward.copy(), workers=None) / (2.0 * (shape[0] + 1))
     np.testing.assert_allclose(twice, x, atol=1e-12)
-    # 238 + 1 = 239 is prime: that axis goes through the matrix; 11 stays with the FFT.
-    assert (_dst1_matrix(238, "float64") is not None) and _dst1_matrix(10, "float64") is None
+    # 238 + 1 = 239 is prime and 2 * 318 = 4 * 3 * 53: those axes go through the split product
+    # (317 odd: its middle row joins the odd outputs only); 11 stays with the FFT.
+    assert _dst1_matrix(238, "float64") is not None and _dst1_matrix(317, "float64") is not None
+    assert _dst1_matrix(10, "float64") is None
 
 
 @pytest.mark.parametrize(
     "shape",  # one unknown; thin; transformed axis 0 or 1 by matrix, smooth FFT or awkward FFT
-    [(3, 3), (3, 9), (9, 3), (240, 320), (320, 240), (12, 514), (30, 12), (602, 602)],
+    [
+        *[(3, 3), (3, 9), (9, 3), (240, 320), (320, 240), (12, 514), (30, 12), (602, 602)],
+        *[(319, 402), (1032, 1032)],  # split product of odd length; awkward FFT (2 * 1031)
+    ],
 )
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_dst_solve_is_exact_on_every_path_and_dtype(shape, dtype):
@@ -359,3 +364,26 @@ def test_dst_solve_is_exact_on_every_path_and_dtype(shape, dtype):
     depth = poisson_dst(gx.astype(dtype), gy.astype(dtype), max_angle_deg=None, offset="none")
     assert depth.dtype == dtype
     assert rel(depth, z) <= (1e-12 if dtype == np.float64 else 1e-4)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_dst_modes_never_go_subnormal_and_stay_exact(dtype):
+    """A contact at one end of a long strip: its modes decay along the 1498 lines by up to 0.17 per
+    line, through float32's and float64's subnormal range (where every operation is ~20-100x
+    slower). The floor added before the tridiagonal solve keeps every mode normal; the depth stays
+    exact, and a zero field stays exactly zero."""
+    from threedcal.depth.spectral import _dst1_columns, _solve_modes
+
+    z = np.zeros((40, 1500))
+    z[1:-1, 1:6] = np.random.default_rng(11).normal(size=(38, 5))
+    gx, gy = consistent_gradients(z)
+    depth = poisson_dst(gx.astype(dtype), gy.astype(dtype), max_angle_deg=None, offset="none")
+    assert rel(depth, z) <= (1e-12 if dtype == np.float64 else 1e-4)
+    gx, gy = gx.astype(dtype), gy.astype(dtype)
+    rhs = gx[1:-1, 2:] - gx[1:-1, :-2] + gy[2:, 1:-1] - gy[:-2, 1:-1]  # as dirichlet_mm forms it
+    spec = _dst1_columns(rhs, workers=None)  # 38 rows: 2 * 39 = 78 is smooth, lines along 1498
+    modes = _solve_modes(spec, 1.0)
+    assert modes.dtype == dtype
+    assert np.all(np.abs(modes) >= np.finfo(dtype).tiny)  # no subnormal, no zero
+    zero = poisson_dst(np.zeros((40, 1500), dtype), np.zeros((40, 1500), dtype), offset="none")
+    assert not zero.any()

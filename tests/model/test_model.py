@@ -12,7 +12,12 @@ from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
 from threedcal.model import PRESET_NAMES
-from threedcal.model.checkpoint import CheckpointError, adapt_inputs, read_checkpoint
+from threedcal.model.checkpoint import (
+    OUR_NORMALISATION,
+    CheckpointError,
+    adapt_inputs,
+    read_checkpoint,
+)
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.lookup import LookupTable
 from threedcal.model.presets import TouchNet, build_model
@@ -246,6 +251,29 @@ def test_checkpoint_round_trip_carries_what_inference_needs(tmp_path):
     assert depth.shape == (3, *SHAPE) and depth.dtype == np.float32
     with pytest.raises(ConfigError, match=r"\(H, W\) = \(40, 48\)"):
         est.gradients(np.zeros((10, 10, 3), np.uint8))
+
+
+@pytest.mark.parametrize("preset", [p for p in PRESET_NAMES if p != "touchnet"])
+def test_channels_last_inference_gives_the_contiguous_layouts_gradients(preset):
+    ts = synthetic_set()
+    torch.manual_seed(0)
+    model = build_model(preset)
+    checkpoint = {
+        "preset": preset,
+        "preset_args": {},
+        "state_dict": model.state_dict(),
+        "normalisation": dict(OUR_NORMALISATION),
+        "blank": ts.blank,
+        "px_per_mm": 8.0,
+        "image_shape": list(SHAPE),
+    }
+    frames = np.asarray(ts.frames[:2])
+    fast = DepthEstimator(checkpoint, device="cpu", channels_last=True)
+    plain = DepthEstimator(checkpoint, device="cpu", channels_last=False)
+    # the lookup table has no convolution to gain from NHWC
+    expected = torch.contiguous_format if preset == "lookup" else torch.channels_last
+    assert fast.memory_format == expected
+    np.testing.assert_allclose(fast.gradients(frames), plain.gradients(frames), atol=1e-5)
 
 
 def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):

@@ -49,10 +49,38 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
             }
         )
     )
+    (root / "b/sim2real").mkdir()
+    errors = []
+    for k, n_train, condition, mae in (
+        ("8", 8, "sim+real", 90.0),
+        ("8", 8, "real-only", 140.0),
+        ("all", 35.0, "real-only", 100.0),
+    ):
+        for fold in ("0", "1", "all"):
+            errors.append(
+                {"k": k, "n_train": n_train, "condition": condition, "fold": fold}
+                | {"n_test_images": 7, "gradient_rmse": 0.1, "cap_depth_mae_um": mae}
+                | {"gradient_rmse_lo": 0.09, "gradient_rmse_hi": 0.11}
+                | {"cap_depth_mae_um_lo": mae - 10, "cap_depth_mae_um_hi": mae + 10}
+            )
+    pd.DataFrame(errors).to_csv(root / "b/sim2real/errors.csv", index=False)
     config = {
-        "scenes": {"a": {"sensor": "digit", "description": "sim"}, "b": {"sensor": "gelsight_mini"}}
+        "scenes": {
+            "a": {"sensor": "digit", "description": "sim"},
+            "b": {
+                "sensor": "gelsight_mini",
+                "import": {"format": "ball_folder", "path": "x"},
+                "sim_to_real": {"enabled": True},
+            },
+        }
     }
     text = write_summary(config, root, tmp_path / "summary.md")
+    # the scene on real frames leads, though the config lists it second
+    assert "Scenes on real sensor frames first (b); every other scene is" in text
+    assert text.index("## b") < text.index("## a")
+    assert "Sim-to-real (held-out real images of folds 0, 1;" in text
+    assert "| 8 | sim+real | 0.100 [0.090, 0.110] | 90 [80, 100] |" in text
+    assert "| all (35) | real-only | 0.100 [0.090, 0.110] | 100 [90, 110] |" in text
     assert "2.00 h (7200 s)" in text
     assert "0.100 px / 0.250 px" in text
     assert "probe at least 60 points" in text

@@ -8,22 +8,30 @@ from threedcal.profiles import load_profile
 from threedcal.sim.optics import sphere_normals
 from threedcal.sim.realism import BallLabel, compare, image_figures, load_ball_dataset
 
+# The figures added with the out-of-sample fit that the built-in Mini profile does not meet: its
+# noise is white (no noise_correlation_px) and the geometric gel has no broad halo around a contact
+# (docs/simulator.md, Realism out of sample)
+KNOWN_GAPS = {"noise_acf1", "halo_r50_px", "halo_width_px"}
 
-def test_realism_passes_on_the_vendored_real_data(real_data, capsys):
-    code = main(["sim", "realism", "--real", str(real_data / "gelsight_ball_fots")])
+
+def test_realism_in_sample_passes_the_figures_the_profile_was_fitted_to(real_data, capsys):
+    code = main(["sim", "realism", "--in-sample", "--real", str(real_data / "gelsight_ball_fots")])
     out = capsys.readouterr().out
-    assert "bg_lowfreq_std" in out and "r2_G" in out and "hf_noise_std" in out
-    assert code == 0, out
+    assert "IN SAMPLE" in out and "bg_lowfreq_std" in out and "r2_G" in out
+    failing = {line.split()[0] for line in out.splitlines() if line.endswith("OUT OF RANGE")}
+    assert failing == KNOWN_GAPS, out
+    assert code == 1
 
 
-def test_realism_passes_with_the_elastic_gel_too(real_data):
+def test_realism_with_the_elastic_gel_too(real_data):
     """The Mini with gel.mechanics: elastic (its contact at a given depth is smaller, so each label's
-    depth comes from the elastic gel's own contact radius) stays within every tolerance."""
+    depth comes from the elastic gel's own contact radius) stays within every tolerance but the
+    known gaps."""
     data = load_ball_dataset(real_data / "gelsight_ball_fots")
     profile = copy.deepcopy(load_profile("sensor", "gelsight_mini"))
     profile["gel"]["mechanics"] = "elastic"
     rows = compare(data, profile)
-    assert all(r["ok"] for r in rows), [r for r in rows if not r["ok"]]
+    assert all(r["ok"] for r in rows if r["figure"] not in KNOWN_GAPS), rows
 
 
 def test_realism_fails_when_the_simulator_is_too_noisy(real_data):

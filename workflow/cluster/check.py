@@ -76,6 +76,7 @@ EXCLUDED = {
 TIMING_COLUMNS = {
     "*/models/P*/losses.csv": (["seconds"], "training time per epoch"),
     "*/cv/*/fold*/losses.csv": (["seconds"], "training time per epoch"),
+    "*/sim2real/*losses.csv": (["seconds"], "training time per epoch"),
     # Estimated probing time comes from the collection runs that finished, so after a killed run
     # it leaves out the killed run's share (a gap of the collection summary, docs/cluster.md).
     f"{KILLED_SCENE}/stats/error_vs_cost.csv": (
@@ -334,6 +335,24 @@ def compare_results(local: Path, cluster: Path) -> list[tuple[str, str, str]]:
     if problems:
         raise CheckFailed("local and cluster outputs differ:\n    " + "\n    ".join(problems))
     return rows
+
+
+# Column names that hold a duration measured on the machine that ran the job.
+TIMED_COLUMNS = {"seconds", "ms_per_frame", "train_s", "training_min"}
+
+
+def uncovered_timing_tables(results: Path) -> list[str]:
+    """Tables under `results` with a timing column that no rule above exempts: the cluster run
+    would differ from the local one there, so a new such output needs its line in TIMING_COLUMNS."""
+    missing = []
+    for path in sorted(results.rglob("*.csv")):
+        relative = path.relative_to(results).as_posix()
+        if matches(relative, TIMING_COLUMNS) or matches(relative, EXCLUDED):
+            continue
+        header = path.open().readline().strip().split(",")
+        if TIMED_COLUMNS & set(header):
+            missing.append(relative)
+    return missing
 
 
 def _drop(value, keys):

@@ -18,13 +18,39 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         default="gelsight_mini",
         help="sensor profile whose optics are rendered, at the dataset's frame size and scale",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="the renderer's seed")
+    parser.add_argument(
+        "--split-seed",
+        type=int,
+        default=0,
+        help="which presses go to the fitting half and which to the compared half",
+    )
+    parser.add_argument(
+        "--in-sample",
+        action="store_true",
+        help="compare the profile as it is with every image (no fit, no split)",
+    )
+    parser.add_argument(
+        "--write-fitted",
+        metavar="PATH",
+        help="also write the profile fitted on the fitting half as YAML (not with --in-sample)",
+    )
 
 
 def _realism(args: argparse.Namespace) -> int:
-    from threedcal.sim.realism import realism_report
+    from threedcal.errors import ConfigError
+    from threedcal.sim.fit import realism_report
 
-    text, ok = realism_report(args.real, args.sensor, seed=args.seed)
+    if args.in_sample and args.write_fitted:
+        raise ConfigError("--write-fitted needs the fit: leave out --in-sample")
+    text, ok = realism_report(
+        args.real,
+        args.sensor,
+        seed=args.seed,
+        split_seed=args.split_seed,
+        fit=not args.in_sample,
+        fitted_out=args.write_fitted,
+    )
     print(text, end="")
     return 0 if ok else 1
 
@@ -32,7 +58,7 @@ def _realism(args: argparse.Namespace) -> int:
 COMMANDS = [
     Command(
         ("sim", "realism"),
-        "compare simulator statistics with a real ball-image dataset (exit 1 when out of tolerance)",
+        "fit the optics on half of a real ball-image dataset, compare on the other half (exit 1 when out of tolerance)",
         _realism,
         _configure,
     )

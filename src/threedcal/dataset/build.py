@@ -200,7 +200,21 @@ def build_collected(
         & (depth > 0)
         & (store.phase[raw["point"].values] == "grid")
     )
-    keep = np.flatnonzero(inside)
+    # Past d = R the contact stops growing and the rest of the press is a vertical wall the camera
+    # looks along: frames that differ only in its height look alike while their rim labels do not.
+    # Such presses serve the registration and the touch height, not the model (docs/labels.md).
+    max_ratio = scene["dataset"]["max_depth_over_radius"]
+    too_deep = np.zeros_like(inside)
+    if max_ratio is not None:
+        # the plan's depth, as the user wrote it: the dome's sag would split presses at the limit
+        too_deep = inside & (raw["depth_mm"].values > float(max_ratio) * radius_mm + 1e-9)
+    keep = np.flatnonzero(inside & ~too_deep)
+    if len(keep) == 0:
+        raise ConfigError(
+            f"dataset.max_depth_over_radius: {max_ratio} leaves no "
+            f"frame to train on ({int(too_deep.sum())} of {int(inside.sum())} labelled frames are "
+            f"pressed deeper than {max_ratio} x R = {float(max_ratio) * radius_mm:g} mm)"
+        )
     coords = pd.DataFrame({"x_mm": plan_xy[keep, 0], "y_mm": plan_xy[keep, 1]})
     coordinate_id = coords.groupby(["x_mm", "y_mm"], sort=True).ngroup().to_numpy()
     unique = coords.assign(point=coordinate_id).drop_duplicates("point").sort_values("point")
@@ -253,8 +267,11 @@ def build_collected(
         **{k: v for k, v in touch.items() if k != "touch_offset_mm"},
         "touch_offset_mm": round(offset, 4),
         "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + offset, 4),
-        "frames_in_view": int(len(keep)),
-        "probe_points_in_view": int(len(unique)),
+        "frames_in_view": int(inside.sum()),
+        "frames_too_deep": int(too_deep.sum()),
+        "frames_labelled": int(len(keep)),
+        "probe_points_in_view": len({tuple(xy) for xy in plan_xy[inside]}),
+        "probe_points_labelled": int(len(unique)),
     }
     if truth_path is not None and Path(truth_path).is_file():
         truth = json.loads(Path(truth_path).read_text())

@@ -79,8 +79,12 @@ def find_contact(
     if height < min_contrast_sigma * sigma:
         return None
     labels, _ = ndimage.label(magnitude > background + level * height)
-    blob = ndimage.binary_fill_holes(labels == labels[peak_index])
-    rows, cols = np.nonzero(blob)
+    # Holes filled in the blob's bounding box, one pixel wider (the same as in the whole frame).
+    box = ndimage.find_objects(labels)[labels[peak_index] - 1]
+    top, left = max(box[0].start - 1, 0), max(box[1].start - 1, 0)
+    region = labels[top : box[0].stop + 1, left : box[1].stop + 1] == labels[peak_index]
+    rows, cols = np.nonzero(ndimage.binary_fill_holes(region))
+    rows, cols = rows + top, cols + left
     return Contact(
         x_px=float(cols.mean()),
         y_px=float(rows.mean()),
@@ -104,7 +108,21 @@ def refine_contact(
     outlier rejection. Equal angular sampling keeps the fit symmetric: a brighter side, a one-sided
     shadow or a lighting gradient barely moves it (an area centroid moves by pixels).
     """
-    diff = colour_change(frame, blank)
+    height, width = frame.shape[:2]
+    r0 = coarse.radius_px
+    radii = np.linspace(0.5 * r0, 1.6 * r0, max(int(4.4 * r0), 8))
+    angles = np.linspace(0.0, 2 * np.pi, n_rays, endpoint=False)
+    xs = coarse.x_px + np.cos(angles)[:, None] * radii
+    ys = coarse.y_px + np.sin(angles)[:, None] * radii
+    if xs.min() < 0 or ys.min() < 0 or xs.max() > width - 1 or ys.max() > height - 1:
+        return None  # the rim may be cut by the frame's edge: no unbiased circle
+    # Only the box the rays cross, widened by the smoothing's and the gradient's reach, is
+    # filtered: inside it the values are the whole frame's.
+    reach = int(4 * smooth_px + 0.5) + 3
+    top, left = max(int(ys.min()) - reach, 0), max(int(xs.min()) - reach, 0)
+    bottom = min(int(ys.max()) + reach + 2, height)
+    right = min(int(xs.max()) + reach + 2, width)
+    diff = colour_change(frame[top:bottom, left:right], blank[top:bottom, left:right])
     if diff.ndim == 2:
         diff = diff[..., None]
     energy = np.zeros(diff.shape[:2], dtype=np.float32)
@@ -112,16 +130,9 @@ def refine_contact(
         gy, gx = np.gradient(ndimage.gaussian_filter(diff[..., channel], smooth_px))
         energy += gx * gx + gy * gy
     edge = np.sqrt(energy)
-    height, width = edge.shape
-    r0 = coarse.radius_px
-    radii = np.linspace(0.5 * r0, 1.6 * r0, max(int(4.4 * r0), 8))
+    profiles = ndimage.map_coordinates(edge, [ys - top, xs - left], order=1)
     points = []
-    for angle in np.linspace(0.0, 2 * np.pi, n_rays, endpoint=False):
-        xs = coarse.x_px + radii * np.cos(angle)
-        ys = coarse.y_px + radii * np.sin(angle)
-        if xs.min() < 0 or ys.min() < 0 or xs.max() > width - 1 or ys.max() > height - 1:
-            return None  # the rim may be cut by the frame's edge: no unbiased circle
-        profile = ndimage.map_coordinates(edge, [ys, xs], order=1)
+    for angle, profile in zip(angles, profiles, strict=True):
         k = int(np.argmax(profile))
         offset = 0.0
         if 0 < k < len(profile) - 1:
@@ -161,17 +172,16 @@ class _Window:
     """One contact's neighbourhood: colour change per channel (smoothed once) and usability.
 
     Only a box around the contact is kept (everything a fit can sample, plus the filters' reach,
-    so its values equal the whole frame's); points outside the box count as unusable.
+    so its values equal the whole frame's); points outside the box count as unusable. What is
+    kept is each pixel's bilinear cell coefficients (`_bilinear_table`), which is all sampling
+    needs.
     """
 
-    # (h, w, 4) float64: frame − blank per channel, then 1 where usable. Not float32: its rounding
-    # (1e-6 DN) over a finite-difference step (1e-6 px) makes the Jacobian noise, and the
-    # least-squares fit then takes ~3x the iterations to settle.
-    planes: np.ndarray
-    origin: tuple[int, int]  # (row, column) of planes[0, 0] in the frame
-
-    def __post_init__(self):
-        object.__setattr__(self, "table", _bilinear_table(self.planes))
+    # (h*w, 4P) float64, P planes: frame − blank per channel, then 1 where usable. Float64, not
+    # float32: rounding in the samples makes the fit's steps noise near its minimum.
+    table: np.ndarray
+    shape: tuple[int, int, int]  # (h, w, P)
+    origin: tuple[int, int]  # (row, column) of the box's first pixel in the frame
 
     @classmethod
     def of(cls, frame: np.ndarray, blank: np.ndarray, smooth_px: float, box=None) -> _Window:
@@ -189,7 +199,7 @@ class _Window:
             planes[..., c] = ndimage.gaussian_filter(diff[..., c], smooth_px)
         saturated = ((frame >= SATURATED_DN) | (blank >= SATURATED_DN)).any(axis=-1)
         planes[..., 3] = ndimage.binary_erosion(~saturated, iterations=2, border_value=1)
-        return cls(planes=planes, origin=(r0, c0))
+        return cls(table=_bilinear_table(planes), shape=planes.shape, origin=(r0, c0))
 
     @classmethod
     def around(
@@ -209,31 +219,26 @@ class _Window:
         )
         return cls.of(frame, blank, smooth_px, box)
 
-    def unmixed(self, unmixing: np.ndarray) -> _Window:
-        """The same window with the colour channels mixed into LED images (rows of `unmixing`)."""
-        planes = self.planes.copy()
-        planes[..., :3] = self.planes[..., :3] @ unmixing.T
-        return _Window(planes=planes, origin=self.origin)
-
 
 @dataclass(frozen=True)
 class _Disk:
-    """Integer offsets (x, y) from a contact's centre within `reach_px`; the rim at `radius_px`."""
+    """Offsets (x, y) from a contact's centre within `reach_px`, `spacing` px apart; the rim at
+    `radius_px`."""
 
     qx: np.ndarray
     qy: np.ndarray
     radius_px: float
 
     @classmethod
-    def around(cls, contact: Contact, reach: float) -> _Disk:
+    def around(cls, contact: Contact, reach: float, spacing: int = 1) -> _Disk:
         reach_px = reach * contact.radius_px
-        g = np.arange(-math.ceil(reach_px), math.ceil(reach_px) + 1, dtype=np.float64)
+        g = np.arange(-math.ceil(reach_px), math.ceil(reach_px) + 1, spacing, dtype=np.float64)
         qx, qy = np.meshgrid(g, g)
-        # Each row shifted by a golden-ratio fraction of a pixel: on an integer lattice every
+        # Each row shifted by a golden-ratio fraction of the spacing: on an integer lattice every
         # sample crosses a pixel boundary at the same centre, and the bilinear residuals kink
         # there together. Spread out, the objective is smoother (on the 9 contacts of
         # tests/dataset/test_registration.py: 15.3 -> 14.4 iterations, max error 0.181 -> 0.178 px).
-        qx = qx + (np.arange(g.size)[:, None] * 0.6180339887) % 1.0 - 0.5
+        qx = qx + spacing * ((np.arange(g.size)[:, None] * 0.6180339887) % 1.0 - 0.5)
         inside = qx * qx + qy * qy <= reach_px * reach_px
         return cls(qx=qx[inside], qy=qy[inside], radius_px=contact.radius_px)
 
@@ -248,16 +253,17 @@ def _bilinear_table(planes: np.ndarray) -> np.ndarray:
 
 
 def _sample(window: _Window, rows: np.ndarray, cols: np.ndarray, gradient: bool = False):
-    """Bilinear values (P, Q) of the window's planes (the last: usability) at frame points; points
-    outside the window are 0 and unusable. With `gradient`, also the interpolant's derivatives
-    along rows and columns, (P, Q) each.
+    """Bilinear values (P, ...) of the window's planes (the last: usability) at frame points
+    (any shape); points outside the window are 0 and unusable. With `gradient`, also the
+    interpolant's derivatives along rows and columns, (P, ...) each.
 
     One gather of precomputed cell coefficients serves every plane (map_coordinates per plane
     costs ~10x).
     """
-    height, width, n = window.planes.shape
-    r = rows - window.origin[0]
-    c = cols - window.origin[1]
+    height, width, n = window.shape
+    shape = np.shape(rows)
+    r = np.ravel(rows) - window.origin[0]
+    c = np.ravel(cols) - window.origin[1]
     on = ((r >= 0) & (r <= height - 1) & (c >= 0) & (c <= width - 1))[:, None]
     r = np.clip(r, 0, height - 1)
     c = np.clip(c, 0, width - 1)
@@ -267,15 +273,18 @@ def _sample(window: _Window, rows: np.ndarray, cols: np.ndarray, gradient: bool 
     fc = (c - c0)[:, None]
     cell = window.table[r0 * width + c0]
     v00, dc, dr, twist = cell[:, :n], cell[:, n : 2 * n], cell[:, 2 * n : 3 * n], cell[:, 3 * n :]
-    values = (v00 + fc * dc + fr * (dr + fc * twist)) * on
+    values = ((v00 + fc * dc + fr * (dr + fc * twist)) * on).T.reshape((n, *shape))
     if not gradient:
-        return values.T
-    return values.T, ((dr + fc * twist) * on).T, ((dc + fr * twist) * on).T
+        return values
+    along_rows = ((dr + fc * twist) * on).T.reshape((n, *shape))
+    along_cols = ((dc + fr * twist) * on).T.reshape((n, *shape))
+    return values, along_rows, along_cols
 
 
-def _mirrored(disk: _Disk, centre, theta: float):
-    """Frame (rows, cols) of the disk's offsets mirrored about the axis at `theta` through `centre`."""
-    ux, uy = math.cos(theta), math.sin(theta)
+def _mirrored(disk: _Disk, centre, axes):
+    """Frame (rows, cols), (K, Q) each, of the disk's offsets mirrored about each axis (angles,
+    (K,)) through `centre`."""
+    ux, uy = np.cos(axes)[:, None], np.sin(axes)[:, None]
     along = disk.qx * ux + disk.qy * uy
     return centre[1] + 2 * along * uy - disk.qy, centre[0] + 2 * along * ux - disk.qx
 
@@ -287,12 +296,8 @@ def _mirror_pairs(window: _Window, disk: _Disk, centre, axes):
     is saturated or off the image.
     """
     here = _sample(window, centre[1] + disk.qy, centre[0] + disk.qx)
-    out_b, weights = [], []
-    for theta in axes:
-        there = _sample(window, *_mirrored(disk, centre, theta))
-        out_b.append(there[:3])
-        weights.append(here[3] * there[3])
-    return here[:3], np.stack(out_b), np.stack(weights)
+    there = _sample(window, *_mirrored(disk, centre, np.asarray(axes, dtype=float)))  # (P, K, Q)
+    return here[:3], there[:3].transpose(1, 0, 2), here[3] * there[3]
 
 
 def _dipole_axes(window: _Window, unmixing: np.ndarray, centre, disk: _Disk) -> np.ndarray:
@@ -303,9 +308,9 @@ def _dipole_axes(window: _Window, unmixing: np.ndarray, centre, disk: _Disk) -> 
 
 
 def _without_ramps(
-    differences: np.ndarray, weight: np.ndarray, theta: float, disk: _Disk
+    differences: np.ndarray, weight: np.ndarray, axes: np.ndarray, disk: _Disk
 ) -> np.ndarray:
-    """Weighted mirror differences (..., Q) about axis `theta`, less their best-fitting ramps.
+    """Weighted mirror differences (K, R, Q) about axes (K,), less their best-fitting ramps.
 
     Not all of frame − blank follows one LED's mirror symmetry: the unmixing leaves some of the
     other LEDs' scattered light (its colour is not their direct light's), and a domed blank is
@@ -313,103 +318,141 @@ def _without_ramps(
     whose mirror difference is proportional to the distance from the axis. One such term inside
     the contact and one outside it are fitted and removed. On the Mini's flat gel this takes the
     symmetric centres' RMS error from 0.16 to 0.09 px (docs/diagnostics/registration_bias.py).
-    The two terms have disjoint supports, so each is a one-unknown least-squares fit.
+    The two terms have disjoint supports, so each is a one-unknown least-squares fit. `weight`
+    is (K, Q): each pair's usability about each axis.
     """
-    across = (-disk.qx * math.sin(theta) + disk.qy * math.cos(theta)) * weight
+    axes = np.asarray(axes, dtype=float)[:, None]
+    across = (-disk.qx * np.sin(axes) + disk.qy * np.cos(axes)) * weight  # (K, Q)
     inner = np.hypot(disk.qx, disk.qy) <= disk.radius_px
-    weighted = differences * weight
+    weighted = differences * weight[:, None, :]
     for part in (inner, ~inner):
         basis = across * part
-        norm = float(basis @ basis)
-        if norm > 0:
-            weighted = weighted - np.multiply.outer(weighted @ basis / norm, basis).reshape(
-                weighted.shape
-            )
+        norm = np.einsum("kq,kq->k", basis, basis)
+        share = np.einsum("krq,kq->kr", weighted, basis) / np.where(norm > 0, norm, 1.0)[:, None]
+        weighted = weighted - share[:, :, None] * basis[:, None, :]
     return weighted
 
 
 class _SymmetryResiduals:
-    """The symmetry fit's residuals and their Jacobian, for one contact and unmixing.
+    """The symmetry fit's normal equations, for one contact and unmixing.
 
     Residual block k is LED k's image at the disk's offsets minus its value at the offsets mirrored
     about axis k (weighted, less ramps, per usable pair). Its Jacobian comes with it, from the
     bilinear interpolant's own derivatives: one evaluation per iteration instead of one per
     parameter. Held fixed in the Jacobian (not in the residuals): the usability weights, and
     the ramp basis's turn with the axis — both change only where a pair meets a saturated pixel.
+    Block k depends on the centre and axis k only: all blocks are evaluated together and the
+    normal matrix is summed block by block, never forming the (KQ × 2+K) Jacobian.
     """
 
-    def __init__(self, window: _Window, disk: _Disk, n_axes: int):
-        self.window, self.disk, self.n_axes = window, disk, n_axes
-        # LED k's image and the usability, side by side: what axis k's mirrored points read.
-        self.axis_windows = [
-            _Window(np.ascontiguousarray(window.planes[..., [k, 3]]), window.origin)
-            for k in range(n_axes)
-        ]
-        self._last = (None, None, None)
+    def __init__(self, window: _Window, unmixing: np.ndarray, disk: _Disk):
+        self.window, self.unmixing, self.disk = window, unmixing, disk
 
-    def _evaluate(self, params: np.ndarray):
-        if self._last[0] is not None and np.array_equal(self._last[0], params):
-            return self._last[1:]
-        d = self.disk
+    def normal_equations(self, params: np.ndarray):
+        """(cost, gradient, normal matrix): Σr², Jᵀr and JᵀJ at `params` (centre x, y, axes)."""
+        d, k, u = self.disk, len(self.unmixing), self.unmixing
         cx, cy = params[:2]
+        axes = params[2:]
+        # The colour planes are sampled and then unmixed (cheaper than unmixing the window).
         here, here_dr, here_dc = _sample(self.window, cy + d.qy, cx + d.qx, gradient=True)
-        residuals, jacobian = [], np.zeros((self.n_axes * d.qx.size, params.size))
-        for k, theta in enumerate(params[2:]):
-            ux, uy = math.cos(theta), math.sin(theta)
-            along = d.qx * ux + d.qy * uy
-            across = -d.qx * uy + d.qy * ux
-            there, there_dr, there_dc = _sample(
-                self.axis_windows[k], cy + 2 * along * uy - d.qy, cx + 2 * along * ux - d.qx, True
-            )
-            weight = here[3] * there[1]
-            # the mirrored point moves with the centre one for one, and turns with the axis
-            turn = -(there_dc[0] * 2 * (across * ux - along * uy))
-            turn -= there_dr[0] * 2 * (across * uy + along * ux)
-            stack = np.stack(
-                [here[k] - there[0], here_dc[k] - there_dc[0], here_dr[k] - there_dr[0], turn]
-            )
-            # Per pair usable: the mean, not the sum, so that pushing pairs onto saturated pixels
-            # (weight 0) does not pay.
-            cleaned = _without_ramps(stack, weight, theta, d) / math.sqrt(
-                max(float(weight.sum()), 1e-9)
-            )
-            rows = slice(k * d.qx.size, (k + 1) * d.qx.size)
-            residuals.append(cleaned[0])
-            jacobian[rows, 0], jacobian[rows, 1], jacobian[rows, 2 + k] = cleaned[1:]
-        self._last = (params.copy(), np.concatenate(residuals), jacobian)
-        return self._last[1:]
+        ux, uy = np.cos(axes)[:, None], np.sin(axes)[:, None]
+        along = d.qx * ux + d.qy * uy
+        across = -d.qx * uy + d.qy * ux
+        there, there_dr, there_dc = _sample(
+            self.window, cy + 2 * along * uy - d.qy, cx + 2 * along * ux - d.qx, True
+        )  # (P, K, Q): every plane about every axis; axis k reads LED k's image
+        weight = here[3] * there[3]
+        here, here_dr, here_dc = (
+            np.einsum("kj,jq->kq", u, v[:3]) for v in (here, here_dr, here_dc)
+        )
+        there, there_dr, there_dc = (
+            np.einsum("kj,jkq->kq", u, v[:3]) for v in (there, there_dr, there_dc)
+        )
+        # the mirrored point moves with the centre one for one, and turns with the axis
+        turn = -(there_dc * 2 * (across * ux - along * uy))
+        turn -= there_dr * 2 * (across * uy + along * ux)
+        stack = np.stack([here - there, here_dc - there_dc, here_dr - there_dr, turn], axis=1)
+        # (K, 4, Q): residual, then its derivatives along x, y and axis k
+        # Per pair usable: the mean, not the sum, so that pushing pairs onto saturated pixels
+        # (weight 0) does not pay.
+        cleaned = _without_ramps(stack, weight, axes, d)
+        cleaned /= np.sqrt(np.maximum(weight.sum(axis=1), 1e-9))[:, None, None]
+        blocks = np.einsum("kiq,kjq->kij", cleaned, cleaned)  # (K, 4, 4)
+        gradient, normal = np.zeros(params.size), np.zeros((params.size, params.size))
+        for j in range(k):
+            block = [0, 1, 2 + j]
+            gradient[block] += blocks[j, 1:, 0]
+            normal[np.ix_(block, block)] += blocks[j, 1:, 1:]
+        return float(blocks[:, 0, 0].sum()), gradient, normal
 
-    def __call__(self, params: np.ndarray) -> np.ndarray:
-        return self._evaluate(params)[0]
 
-    def jacobian(self, params: np.ndarray) -> np.ndarray:
-        return self._evaluate(params)[1]
+def _levenberg_marquardt(problem, start: np.ndarray, scale: np.ndarray, tolerance: float):
+    """Minimise Σr² from the problem's normal equations; (x, converged).
+
+    Steps are taken in units of `scale` (a pixel of centre, 0.05 rad of axis). The fit has
+    converged once a step would move the first two unknowns (the centre) by less than
+    `tolerance` (taken if it lowers the cost): near the minimum the bilinear samples make the
+    cost bumpy at that scale, and further steps only polish noise. Damping (a multiple of the
+    normal matrix's diagonal) shrinks after a step that lowered the cost and grows after one
+    that did not; a problem with few unknowns needs no more.
+    """
+    x = start.astype(np.float64)
+    cost, gradient, normal = problem.normal_equations(x)
+    if not np.isfinite(cost):
+        return x, False
+    damping = 1e-4
+    for _ in range(MAX_FIT_EVALUATIONS):
+        scaled = normal * np.outer(scale, scale)
+        diagonal = np.maximum(np.diag(scaled), 1e-12)
+        try:
+            step = -np.linalg.solve(scaled + damping * np.diag(diagonal), gradient * scale)
+        except np.linalg.LinAlgError:
+            return x, False
+        short = float(np.linalg.norm(step[:2] * scale[:2])) < tolerance
+        trial = x + step * scale
+        trial_cost, trial_gradient, trial_normal = problem.normal_equations(trial)
+        if np.isfinite(trial_cost) and trial_cost <= cost:
+            x, cost, gradient, normal = trial, trial_cost, trial_gradient, trial_normal
+            damping = max(damping / 10, 1e-7)
+        else:
+            damping *= 10
+        if short:  # the minimum lies within `tolerance` of x (a shorter step cannot help)
+            return x, True
+    return x, False
+
+
+# Evaluations one symmetry fit may spend (scipy's least_squares allowed 100 per unknown).
+MAX_FIT_EVALUATIONS = 100
+# The fit samples the disk every SAMPLE_SPACING_PX pixels (each row still shifted by a fraction):
+# a quarter of the samples, a quarter of the cost. Error against the known centres, every pixel →
+# every 2nd (max / RMS px): the 25 contacts of benchmarks/bench_registration.py 0.202 / 0.106 →
+# 0.225 / 0.110; the 9 of tests/dataset/test_registration.py 0.224 / 0.119 → 0.196 / 0.116; 49
+# Mini contacts at 1, 2 and 3 mm, seeds 2 and 3: 0.395 / 0.137 → 0.443 / 0.144 and 0.238 / 0.114
+# → 0.245 / 0.122. About 4 % more noise per contact, which an affine over many contacts averages.
+SAMPLE_SPACING_PX = 2
+# A fit has converged once a step would move the centre by less than this (px). The axes may
+# still creep then; the centre no longer follows them by more than noise.
+STEP_TOLERANCE_PX = 5e-3
 
 
 def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach: float):
     """(centre x, centre y, axes) that make every unmixed channel mirror-symmetric, or None."""
-    disk = _Disk.around(coarse, reach)
+    disk = _Disk.around(coarse, reach, SAMPLE_SPACING_PX)
     start = np.array([coarse.x_px, coarse.y_px])
     axes0 = _dipole_axes(window, unmixing, start, disk)
-    residuals = _SymmetryResiduals(window.unmixed(unmixing), disk, len(axes0))
-    try:
-        solution = optimize.least_squares(
-            residuals,
-            np.concatenate([start, axes0]),
-            jac=residuals.jacobian,
-            x_scale=np.concatenate([[1.0, 1.0], np.full(len(axes0), 0.05)]),
-            xtol=1e-5,  # last step under ~0.003 px at these centres: far below the noise
-            ftol=1e-5,
-        )
-    except ValueError:  # non-finite residuals: nothing to fit
-        return None
-    cx, cy = solution.x[:2]
-    _, _, w = _mirror_pairs(window, disk, (cx, cy), solution.x[2:])
+    x, converged = _levenberg_marquardt(
+        _SymmetryResiduals(window, unmixing, disk),
+        np.concatenate([start, axes0]),
+        np.concatenate([[1.0, 1.0], np.full(len(axes0), 0.05)]),  # a pixel; 0.05 rad of axis
+        tolerance=STEP_TOLERANCE_PX,
+    )
+    cx, cy = x[:2]
+    _, _, w = _mirror_pairs(window, disk, (cx, cy), x[2:])
     usable = float(w.mean())
     moved = math.hypot(cx - coarse.x_px, cy - coarse.y_px)
-    if not solution.success or usable < 0.1 or moved > 0.5 * coarse.radius_px:
+    if not converged or usable < 0.1 or moved > 0.5 * coarse.radius_px:
         return None
-    return float(cx), float(cy), solution.x[2:]
+    return float(cx), float(cy), x[2:]
 
 
 def _fit_unmixing(windows, fits, contacts, reach: float) -> np.ndarray:
@@ -418,9 +461,9 @@ def _fit_unmixing(windows, fits, contacts, reach: float) -> np.ndarray:
     for k in range(3):
         differences = []
         for window, (cx, cy, axes), contact in zip(windows, fits, contacts, strict=True):
-            disk = _Disk.around(contact, reach)
-            a, b, w = _mirror_pairs(window, disk, (cx, cy), [axes[k]])
-            differences.append(_without_ramps(a - b[0], w[0], axes[k], disk).T)
+            disk = _Disk.around(contact, reach, SAMPLE_SPACING_PX)
+            a, b, w = _mirror_pairs(window, disk, (cx, cy), axes[k : k + 1])
+            differences.append(_without_ramps((a - b[0])[None], w, axes[k : k + 1], disk)[0].T)
         d = np.concatenate(differences)  # (pairs, C)
         others = [c for c in range(3) if c != k]
         solution, *_ = np.linalg.lstsq(d[:, others], -d[:, k], rcond=None)

@@ -63,6 +63,26 @@ def model_inputs(
     return np.concatenate([diff.transpose(2, 0, 1), coordinate_channels(height, width, window)])
 
 
+def samples_table(
+    point, center_px, depth_mm, eval_radius_px, split, min_p, **replicate_columns
+) -> pd.DataFrame:
+    """samples.csv's table (SAMPLE_COLUMNS, then min_p_r1 ...): one row per frame, numbered 0.."""
+    center_px = np.asarray(center_px, dtype=float)
+    return pd.DataFrame(
+        {
+            "frame": np.arange(len(center_px)),
+            "point": point,
+            "center_x_px": center_px[:, 0],
+            "center_y_px": center_px[:, 1],
+            "depth_mm": depth_mm,
+            "eval_radius_px": eval_radius_px,
+            "split": split,
+            "min_p": min_p,
+            **replicate_columns,
+        }
+    )
+
+
 @dataclass
 class TrainingSet:
     frames: np.ndarray  # (N, H, W, 3) uint8
@@ -245,18 +265,14 @@ def from_imported(
         min_p_column(r): table.loc[data.point, min_p_column(r)].to_numpy()
         for r in range(1, replicates)
     }
-    samples = pd.DataFrame(
-        {
-            "frame": np.arange(len(data.names)),
-            "point": data.point,
-            "center_x_px": data.center_px[:, 0],
-            "center_y_px": data.center_px[:, 1],
-            "depth_mm": data.depth_mm,
-            "eval_radius_px": data.eval_radius_px,
-            "split": table.loc[data.point, "split"].to_numpy(),
-            "min_p": table.loc[data.point, "min_p"].to_numpy(),
-            **replicate_columns,
-        }
+    samples = samples_table(
+        data.point,
+        data.center_px,
+        data.depth_mm,
+        data.eval_radius_px,
+        table.loc[data.point, "split"].to_numpy(),
+        table.loc[data.point, "min_p"].to_numpy(),
+        **replicate_columns,
     )
     return TrainingSet(
         frames=data.frames,

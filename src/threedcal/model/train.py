@@ -36,6 +36,7 @@ from threedcal.model.checkpoint import (
     save_checkpoint,
 )
 from threedcal.model.drift import drift_offset, remove_drift
+from threedcal.model.losses import gradient_loss
 from threedcal.model.presets import build_model, is_learned, preset_args
 from threedcal.schema import load_schema, section
 
@@ -61,6 +62,7 @@ class TrainSettings:
     lr: float
     lr_schedule: str  # constant or cosine (epoch_lr)
     weight_decay: float
+    loss: str  # per-pixel loss on the gradient (threedcal.model.losses)
     init: str | None
     patch_px: int
     contact_patches: int
@@ -234,7 +236,7 @@ def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
         for x, y in _batches(ts, windows, settings.batch_size, inputs):
             x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
             pred = model(x) * sign
-            total += float(torch.sum((pred - y.to(device)) ** 2))
+            total += float(gradient_loss(pred, y.to(device), settings.loss)) * y.numel()
             count += y.numel()
     return total / count
 
@@ -382,7 +384,7 @@ def _train_epoch(
         x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
         y = y.to(device)
         optimizer.zero_grad(set_to_none=True)
-        loss = torch.nn.functional.mse_loss(model(x) * sign, y)
+        loss = gradient_loss(model(x) * sign, y, settings.loss)
         loss.backward()
         optimizer.step()
         total += float(loss.detach()) * len(x)

@@ -11,6 +11,10 @@ from typing import Any
 
 import pandas as pd
 
+from threedcal.config import is_imported
+from threedcal.report.stage_times import stage_time_lines, stage_times
+from threedcal.scenes import has_sim2real
+
 
 def _json(path: Path) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
@@ -91,11 +95,35 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
             )
         )
     lines += ["| | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in facts] + [""]
+    sim2real = root / "sim2real" / "errors.csv"
+    if has_sim2real(scene) and sim2real.is_file():
+        lines += sim2real_section(pd.read_csv(sim2real, dtype={"k": str, "fold": str}))
     lines += ablation_section(root / "stats")
     errors = root / "objects" / "errors.csv"
     if errors.is_file():
         lines += object_table(pd.read_csv(errors))
     return lines
+
+
+def sim2real_section(errors: pd.DataFrame) -> list[str]:
+    """Error against k real training images: sim-pretrained, real-only, the scene's own model."""
+    pooled = errors[errors["fold"] == "all"]
+    folds = sorted(set(errors["fold"]) - {"all"}, key=int)
+    lines = [
+        f"Sim-to-real (held-out real images of folds {', '.join(folds)}; 95 % intervals over "
+        "press groups; sim2real/error_vs_k.png):",
+        "",
+        "| k real images | condition | gradient RMSE | cap depth MAE µm |",
+        "|---|---|---|---|",
+    ]
+    for row in pooled.itertuples(index=False):
+        k = row.k if row.k != "all" else f"all ({row.n_train:.0f})"
+        lines.append(
+            f"| {k} | {row.condition} | {row.gradient_rmse:.3f} "
+            f"[{row.gradient_rmse_lo:.3f}, {row.gradient_rmse_hi:.3f}] | "
+            f"{row.cap_depth_mae_um:.0f} [{row.cap_depth_mae_um_lo:.0f}, {row.cap_depth_mae_um_hi:.0f}] |"
+        )
+    return lines + [""]
 
 
 def ablation_section(stats_dir: Path) -> list[str]:
@@ -165,11 +193,29 @@ def object_table(table: pd.DataFrame) -> list[str]:
 def write_summary(config: Mapping, results: str | Path, out: str | Path) -> str:
     results = Path(results)
     lines = ["# threedcal study summary", ""]
-    for name, scene in config["scenes"].items():
-        lines += scene_section(name, scene, results)
+    scenes = config["scenes"]
+    # Real frames first: what a user's sensor will meet outranks what the simulator trains and tests.
+    real = [name for name, scene in scenes.items() if is_imported(scene)]
+    if real:
+        lines += [
+            f"Scenes on real sensor frames first ({', '.join(real)}); every other scene is "
+            "trained and tested in the simulator.",
+            "",
+        ]
+    for name in real + [name for name in scenes if name not in real]:
+        lines += scene_section(name, scenes[name], results)
     reading = results / "integration" / "reading.md"
     if reading.is_file():
         lines += ["## Depth integrators", "", reading.read_text().strip(), ""]
+    lines += [
+        "## Where the time goes",
+        "",
+        "Each stage's jobs summed from their `benchmark:` files (the jobs that had run when this "
+        "page was written; jobs run side by side, so the summed wall time is work, not duration):",
+        "",
+        *stage_time_lines(stage_times(results)),
+        "",
+    ]
     environment = _json(results / "environment.json")
     if environment:
         lines += ["## Run environment", "", "| | |", "|---|---|"]

@@ -104,6 +104,7 @@ class GelSimulator:
         self.blur_sigma = float(optics.get("blur_sigma_px", 0.0))
         self.gain_jitter = float(optics.get("frame_gain_jitter", 0.0))
         self.noise_dn = np.asarray(optics.get("noise_dn", [0, 0, 0]), dtype=np.float32)
+        self.noise_correlation_px = float(optics.get("noise_correlation_px", 0.0))
         dome = gel.get("dome")
         self._dome = None if dome is None else dict(dome)
         self.mechanics = str(gel.get("mechanics", "geometric"))
@@ -239,6 +240,11 @@ class GelSimulator:
             ) ** 2
             g = np.exp(-d2 / (2 * (spot["sigma"] * diag) ** 2)).astype(np.float32)
             bg += g[..., None] * np.asarray(spot["amplitude_dn"], dtype=np.float32)
+        field = optics.get("background_field")
+        if field:
+            bg += background_field(
+                self.width, self.height, int(field["degree"]), field["coefficients_dn"]
+            )
         texture_dn = float(optics.get("texture_dn", 0.0))
         if texture_dn > 0:
             import cv2
@@ -263,9 +269,18 @@ class GelSimulator:
     def _setup_noise(self) -> None:
         rng = _stream(self.noise_seed, 2)
         shape = (_NOISE_BANK, self.height + _NOISE_PAD, self.width + _NOISE_PAD, 3)
-        self._noise = (rng.standard_normal(shape, dtype=np.float32) * self.noise_dn).astype(
-            np.float32
-        )
+        fields = rng.standard_normal(shape, dtype=np.float32)
+        if self.noise_correlation_px > 0:
+            # a real camera's noise is not white (demosaicing, compression): neighbouring pixels
+            # share it. Blurred per field, then rescaled so noise_dn stays the per-pixel std
+            import cv2
+
+            for k in range(_NOISE_BANK):
+                fields[k] = cv2.GaussianBlur(
+                    fields[k], (0, 0), self.noise_correlation_px, borderType=cv2.BORDER_REFLECT
+                )
+                fields[k] /= fields[k].reshape(-1, 3).std(axis=0)
+        self._noise = (fields * self.noise_dn).astype(np.float32)
 
     def _blur(self, img: np.ndarray) -> np.ndarray:
         if self.blur_sigma <= 0:
@@ -716,6 +731,32 @@ def _upsample_axis(v, first: int, origin_px: float, p0: int, p1: int, f: int, ax
     # two nodes, flattened by < s^2 u'' / 8 (in contact the indenter itself restores it)
     left, right = np.take(v, node, axis=axis), np.take(v, node + 1, axis=axis)
     return np.clip(out, np.minimum(left, right), np.maximum(left, right))
+
+
+def field_terms(width: int, height: int, degree: int) -> list[np.ndarray]:
+    """The monomials u^i v^j (i + j <= degree; by total degree, then by the power of v) of the
+    pixel's place u = (x - cx) / cx, v = (y - cy) / cy (-1..1 from edge pixel to edge pixel)."""
+    cx, cy = (width - 1) / 2, (height - 1) / 2
+    u = ((np.arange(width, dtype=np.float32) - cx) / max(cx, 1.0))[None, :]
+    v = ((np.arange(height, dtype=np.float32) - cy) / max(cy, 1.0))[:, None]
+    return [
+        np.broadcast_to(u ** (k - j) * v**j, (height, width)).astype(np.float32)
+        for k in range(degree + 1)
+        for j in range(k + 1)
+    ]
+
+
+def background_field(width: int, height: int, degree: int, coefficients_dn) -> np.ndarray:
+    """(H, W, 3) DN: a smooth colour field the LED model does not explain (housing, gel edges,
+    paint), a polynomial of `degree` per channel (optics.background_field in the profile)."""
+    terms = field_terms(width, height, degree)
+    coef = np.asarray(coefficients_dn, dtype=np.float32)
+    if coef.shape != (3, len(terms)):
+        raise ConfigError(
+            f"optics.background_field: degree {degree} needs 3 rows of {len(terms)} coefficients, "
+            f"got shape {coef.shape}"
+        )
+    return np.einsum("khw,ck->hwc", np.stack(terms), coef)
 
 
 def _normals(gx: np.ndarray, gy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

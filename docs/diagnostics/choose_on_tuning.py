@@ -1,0 +1,96 @@
+"""Train one model of a scene with changed settings and score it on the test objects' tuning
+presses: how docs/labels.md chose `model.loss` and `dataset.max_depth_over_radius`.
+
+Usage (from a study's folder, after its `dataset` and `object_presses` stages):
+    python docs/diagnostics/choose_on_tuning.py SCENE P NAME [--model KEY=VALUE ...]
+        [--max-depth-over-radius X]
+Trains results/SCENE/models-like output into /tmp/choose_on_tuning/SCENE_NAME/P{P}/ (reused when
+there), scores every press under both protocols (what rule `objects` does) and prints tuning.csv
+only: settings are chosen on the tuning presses, never on the reporting ones. Frames pressed
+deeper than X times R are taken out of the built training set, as the dataset stage does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+import yaml
+
+from threedcal.config import load_config
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.evaluate.pressing import evaluate_objects
+from threedcal.model.train import TrainSettings, train
+from threedcal.scenes import stage_config
+
+
+def without_deep_presses(ts: TrainingSet, ratio: float, touch_offset_mm: float) -> TrainingSet:
+    """The set with presses planned deeper than ratio x R moved out of every split (a label's
+    depth is the planned one plus the registered touch offset)."""
+    samples = ts.samples.copy()
+    planned = samples["depth_mm"].to_numpy() - touch_offset_mm
+    deep = planned > ratio * ts.sphere_radius_mm + 1e-9
+    samples.loc[deep, "split"] = "left_out"
+    return TrainingSet(
+        frames=ts.frames,
+        blank=ts.blank,
+        samples=samples,
+        px_per_mm=ts.px_per_mm,
+        sphere_radius_mm=ts.sphere_radius_mm,
+        max_slope_deg=ts.max_slope_deg,
+        meta=ts.meta,
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scene")
+    parser.add_argument("p", type=int)
+    parser.add_argument("name")
+    parser.add_argument("--model", nargs="*", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--max-depth-over-radius", type=float)
+    parser.add_argument("--config", type=Path, default=Path("config.yaml"))
+    args = parser.parse_args()
+    config = load_config(args.config)
+    scene = config["scenes"][args.scene]
+    for item in args.model:
+        key, value = item.split("=", 1)
+        scene["model"][key] = yaml.safe_load(value)
+    results = Path("results") / args.scene
+    out = Path("/tmp/choose_on_tuning") / f"{args.scene}_{args.name}"
+    model = out / f"P{args.p}" / "model.pt"
+    if not model.is_file():
+        ts = TrainingSet.load(results / "dataset/trainset")
+        if args.max_depth_over_radius is not None:
+            registration = json.loads((results / "dataset/registration.json").read_text())
+            offset = registration["touch_offset_mm"]
+            ts = without_deep_presses(ts, args.max_depth_over_radius, offset)
+        print(f"training on {len(ts.indices('train', percent=args.p))} frames", flush=True)
+        began = time.perf_counter()
+        settings = TrainSettings.from_scene(
+            {k: scene[k] for k in ("model", "seed", "torch_threads") if k in scene}
+        )
+        train(ts, model.parent, args.p, settings, progress=False)
+        print(f"trained in {time.perf_counter() - began:.0f} s", flush=True)
+    objects = stage_config(scene, "objects")
+    torch.set_num_threads(objects["torch_threads"])
+    evaluate_objects(
+        objects,
+        {args.p: str(model)},
+        results / "objects/pressing",
+        results / "dataset/registration.json",
+        out / "objects",
+    )
+    tuning = pd.read_csv(out / "objects/tuning.csv").query("protocol == 'printer'")
+    columns = ["object", "protocol", "presses", "overall_um", "type1_um", "type2_um"]
+    print(tuning[columns].round(1).to_string(index=False))
+    print(f"mean Type 2 over objects: {np.mean(tuning['type2_um']):.1f} um (tuning presses)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,44 @@
+"""Per-pixel losses between predicted and labelled surface gradients, shape (N, 2, H, W).
+
+A deep press's vertical wall carries gradient labels of 30 and more (cell-averaged, see
+docs/labels.md), so a squared error on gradients spends most of its weight on a few rim pixels whose
+shading barely differs from a 60-degree slope's. `huber` and `normal` bound what one such pixel
+can pull; all three agree with the squared gradient error for small slopes and small errors, so
+their values read in the same units.
+"""
+
+from __future__ import annotations
+
+import torch
+
+LOSSES = ("mse", "huber", "normal")
+HUBER_DELTA = 1.0  # slope error where the loss turns linear: 1 = 45 degrees
+
+
+def unit_normals(gradient: torch.Tensor) -> torch.Tensor:
+    """(N, 2, H, W) gradients -> (N, 3, H, W) unit normals (-gx, -gy, 1) / sqrt(1 + |g|^2).
+
+    Infinite slopes give the horizontal normal; written with the larger component factored out so
+    that |g| up to float32's maximum stays finite."""
+    big = torch.finfo(gradient.dtype).max
+    gradient = torch.nan_to_num(gradient, nan=torch.nan, posinf=big, neginf=-big)
+    gx, gy = gradient[:, 0], gradient[:, 1]
+    one = torch.ones_like(gx)
+    parts = torch.stack([-gx, -gy, one], dim=1)
+    scale = parts.abs().amax(dim=1, keepdim=True)
+    parts = parts / scale
+    return parts / torch.linalg.vector_norm(parts, dim=1, keepdim=True)
+
+
+def gradient_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "mse") -> torch.Tensor:
+    """Mean per-element loss of kind `mse`, `huber` or `normal` (see the module docstring)."""
+    if kind == "mse":
+        return torch.nn.functional.mse_loss(pred, target)
+    if kind == "huber":
+        # twice the Huber loss: e^2 below the delta, like mse
+        return 2 * torch.nn.functional.huber_loss(pred, target, delta=HUBER_DELTA)
+    if kind == "normal":
+        # summed over the normal's 3 components, averaged over the 2 gradient components' elements
+        squared = (unit_normals(pred) - unit_normals(target)) ** 2
+        return squared.sum(dim=1).mean() / 2
+    raise ValueError(f"unknown loss {kind!r} (allowed: {', '.join(LOSSES)})")

@@ -1,0 +1,471 @@
+"""Sim-to-real: pretrain on simulated probing of the sensor's profile, fine-tune on k real images.
+
+For an imported ball scene (docs/real_data.md, "Sim-to-real"):
+
+1. :func:`simulate_trainset` renders ``frames`` ball presses with the scene's sensor profile
+   (threedcal.sim.optics.GelSimulator) at the real set's image size, px/mm and ball radius, at
+   seeded random centres (the whole contact inside the image) and depths, labelled exactly;
+2. :func:`pretrain` trains the scene's model preset on them;
+3. :func:`train_k` trains, for one cross-validation fold (cv/folds.csv) and one k, the model on a
+   seeded nested subset of k of the fold's training images — fine-tuned from the pretrained
+   network (``sim_real``) or from scratch (``real_only``) with the same settings and the same
+   number of optimiser steps: k images train ``finetune_epochs x n_train / k`` epochs;
+4. :func:`sim2real_eval` scores every model on its fold's held-out real images with ball_eval's
+   figures and the group bootstrap (threedcal.model.crossval), and draws error against k.
+
+The simulator sees no real image here: the profile is used as it is. (The built-in GelSight Mini
+profile's optics were fitted, once, to the background and contacts of data/gelsight_ball_fots —
+all 42 frames — so on that set the simulator is not independent of the test images.)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from threedcal.dataset.labels import check_max_slope, contact_radius_mm
+from threedcal.dataset.trainset import TrainingSet, samples_table
+from threedcal.errors import ConfigError
+from threedcal.schema import section
+
+CONDITIONS = {"sim_real": "sim+real", "real_only": "real-only"}
+# The scene's own cross-validated model (ball_eval's, the scene's full training budget) at k = all.
+SCENE_MODEL = "scene model"
+ERROR_COLUMNS = (
+    "k",
+    "n_train",
+    "condition",
+    "fold",
+    "n_test_images",
+    "gradient_rmse",
+    "gradient_rmse_lo",
+    "gradient_rmse_hi",
+    "cap_depth_mae_um",
+    "cap_depth_mae_um_lo",
+    "cap_depth_mae_um_hi",
+)
+# Evaluation disc of a simulated press: the contact shrunk as the ball importer shrinks it.
+EVAL_SHRINK = 0.9
+
+
+@dataclass(frozen=True)
+class SimToRealSettings:
+    """The scene's `sim_to_real:` section; the config schema fills its defaults."""
+
+    enabled: bool
+    frames: int
+    depth_mm: tuple[float, float]
+    pretrain_epochs: int
+    finetune_epochs: int
+    k: tuple[int | str, ...]
+    folds: tuple[int, ...] | None
+
+    @classmethod
+    def of(cls, **settings) -> SimToRealSettings:
+        values = section("sim_to_real", settings)
+        lo, hi = (float(v) for v in values["depth_mm"])
+        if not lo < hi:
+            raise ConfigError(f"sim_to_real.depth_mm must be [shallow, deep], got {[lo, hi]}")
+        folds = values["folds"]
+        return cls(
+            enabled=bool(values["enabled"]),
+            frames=int(values["frames"]),
+            depth_mm=(lo, hi),
+            pretrain_epochs=int(values["pretrain_epochs"]),
+            finetune_epochs=int(values["finetune_epochs"]),
+            k=tuple(values["k"]),
+            folds=None if folds is None else tuple(int(f) for f in folds),
+        )
+
+    @classmethod
+    def from_scene(cls, scene: Mapping) -> SimToRealSettings:
+        return cls.of(**(scene.get("sim_to_real") or {}))
+
+
+def chosen_folds(settings: SimToRealSettings, n_folds: int) -> list[int]:
+    """The evaluated folds: `sim_to_real.folds`, or all `cv.folds` of them."""
+    if settings.folds is None:
+        return list(range(n_folds))
+    bad = [f for f in settings.folds if not 0 <= f < n_folds]
+    if bad:
+        raise ConfigError(
+            f"sim_to_real.folds: {bad} outside the {n_folds} cross-validation folds (cv.folds)"
+        )
+    return sorted(settings.folds)
+
+
+# ------------------------------------------------------------------------------ the workflow
+SIM2REAL_CONDITIONS = tuple(CONDITIONS)
+# The sim_to_real keys each stage reads: a change reruns only the stages that read it.
+STAGE_KEYS = {
+    "simulate": ("frames", "depth_mm"),
+    "pretrain": ("pretrain_epochs",),
+    "train": ("finetune_epochs",),
+}
+
+
+def sim2real_keys(scene: Mapping, stage: str) -> dict:
+    values = scene.get("sim_to_real") or {}
+    return {key: values[key] for key in STAGE_KEYS[stage] if key in values}
+
+
+def sensor_profile(scene: Mapping) -> dict:
+    """The scene's sensor profile as the simulator reads it (without its machine-specific path)."""
+    from threedcal.profiles import load_profile
+
+    profile = dict(load_profile("sensor", scene["sensor"]))
+    profile.pop("source", None)
+    return profile
+
+
+def sim2real_inputs(name: str, scene: Mapping, results: str = "results") -> dict[str, list[str]]:
+    """The models sim2real_eval scores: "{condition}_k{k}" -> fold models, "scene" -> the scene's
+    cross-validated models (ball_eval's) of the same folds."""
+    settings = SimToRealSettings.from_scene(scene)
+    folds = chosen_folds(settings, int(scene["cv"]["folds"]))
+    root = f"{results}/{name}"
+    out = {
+        f"{condition}_k{k}": [f"{root}/sim2real/{condition}/k{k}/fold{f}/model.pt" for f in folds]
+        for condition in CONDITIONS
+        for k in settings.k
+    }
+    out["scene"] = [f"{root}/cv/model/fold{f}/model.pt" for f in folds]
+    return out
+
+
+# ------------------------------------------------------------------------- simulated probing
+def simulate_trainset(
+    real: TrainingSet, profile: Mapping, settings: SimToRealSettings, seed: int, progress=True
+) -> TrainingSet:
+    """Simulated presses of the real set's ball at its image size and px/mm, labelled exactly.
+
+    Centres are uniform over the positions that keep the whole contact circle inside the image;
+    depths uniform in `depth_mm`. The last tenth of the frames (at least one) is split 'val'.
+    """
+    from tqdm import tqdm
+
+    from threedcal.sim.indenters import Sphere
+    from threedcal.sim.optics import GelSimulator
+
+    height, width = real.image_shape
+    radius = real.sphere_radius_mm
+    lo, hi = settings.depth_mm
+    if hi > radius:
+        raise ConfigError(
+            f"sim_to_real.depth_mm: {hi} mm is deeper than the ball's radius {radius} mm"
+        )
+    reach = contact_radius_mm(radius, hi) * real.px_per_mm + 1.0
+    if 2 * reach >= min(height, width):
+        raise ConfigError(
+            f"sim_to_real.depth_mm: a {hi} mm press of the {radius} mm ball is "
+            f"{2 * reach:.0f} px across, too wide for the {width} x {height} px images"
+        )
+    sim = GelSimulator(profile, seed, image_size=(width, height), px_per_mm=real.px_per_mm)
+    rng = np.random.default_rng([seed, 0x51A2])
+    n = settings.frames
+    centres = rng.uniform([reach, reach], [width - 1 - reach, height - 1 - reach], (n, 2))
+    depths = rng.uniform(lo, hi, n)
+    ball = Sphere(radius)
+    frames = np.empty((n, height, width, 3), dtype=np.uint8)
+    for i in tqdm(range(n), desc="simulate presses", unit="frame", disable=not progress):
+        frames[i] = sim.render(ball, tuple(centres[i]), 0.0, float(depths[i]), frame_index=i + 1)
+    contact = np.array([contact_radius_mm(radius, float(d)) for d in depths]) * real.px_per_mm
+    n_val = max(1, n // 10)
+    split = np.where(np.arange(n) < n - n_val, "train", "val")
+    samples = samples_table(
+        np.arange(n),
+        centres,
+        depths,
+        EVAL_SHRINK * contact,
+        split,
+        np.where(split == "train", 80, 0),
+    )
+    return TrainingSet(
+        frames=frames,
+        blank=sim.blank(0).astype(np.float32),
+        samples=samples,
+        px_per_mm=real.px_per_mm,
+        sphere_radius_mm=radius,
+        max_slope_deg=check_max_slope(real.max_slope_deg),
+        meta={"source": f"simulated {profile.get('name')} presses", "seed": seed},
+    )
+
+
+def write_simulated(
+    real_dir: str | Path,
+    profile: Mapping,
+    sim_to_real: Mapping,
+    seed: int,
+    out_dir: str | Path,
+    progress: bool = True,
+) -> TrainingSet:
+    ts = simulate_trainset(
+        TrainingSet.load(real_dir), profile, SimToRealSettings.of(**sim_to_real), seed, progress
+    )
+    ts.save(out_dir)
+    return ts
+
+
+# ---------------------------------------------------------------------------------- training
+def _train_settings(model: Mapping, seed: int, threads: int, **changes):
+    from threedcal.model.train import TrainSettings
+
+    return TrainSettings.from_scene(
+        {"model": {**dict(model), **changes}, "seed": seed, "torch_threads": threads}
+    )
+
+
+def pretrain(
+    sim_dir: str | Path,
+    model: Mapping,
+    sim_to_real: Mapping,
+    seed: int,
+    threads: int,
+    out_dir: str | Path,
+    progress: bool = True,
+) -> dict:
+    """The scene's model preset trained on the simulated presses for `pretrain_epochs` epochs."""
+    from threedcal.model.train import train
+
+    settings = SimToRealSettings.of(**sim_to_real)
+    if model.get("init"):
+        raise ConfigError("sim_to_real: the scene's model.init is set; pretraining starts fresh")
+    train_settings = _train_settings(model, seed, threads, epochs_base=settings.pretrain_epochs)
+    return train(TrainingSet.load(sim_dir), out_dir, 80, train_settings, progress)
+
+
+def n_train_of(folds: pd.DataFrame, fold: int, k: int | str) -> int:
+    """Real training images of `fold` at `k` (all = every image outside the fold)."""
+    pool = int((folds["fold"] != fold).sum())
+    if k == "all":
+        return pool
+    if not isinstance(k, int) or k < 1:
+        raise ConfigError(f"sim_to_real.k: {k!r} is neither a whole number >= 1 nor 'all'")
+    if k > pool:
+        raise ConfigError(
+            f"sim_to_real.k: fold {fold} has {pool} real training images, fewer than k = {k}; "
+            "lower k or label more images"
+        )
+    return k
+
+
+def parse_k(text: str) -> int | str:
+    return "all" if text == "all" else int(text)
+
+
+def train_k(
+    trainset_dir: str | Path,
+    folds_path: str | Path,
+    fold: int,
+    k: int | str,
+    condition: str,
+    model: Mapping,
+    sim_to_real: Mapping,
+    seed: int,
+    threads: int,
+    out_dir: str | Path,
+    pretrained: str | Path | None = None,
+    progress: bool = True,
+) -> dict:
+    """One fold's model on k real images: fine-tuned from `pretrained` (sim_real) or from scratch
+    (real_only), both for finetune_epochs x n_train / k epochs (the same steps at every k)."""
+    from threedcal.model.crossval import fold_trainset, read_folds
+    from threedcal.model.train import train
+
+    if condition not in CONDITIONS:
+        raise ConfigError(
+            f"sim_to_real condition {condition!r} unknown (allowed: {', '.join(CONDITIONS)})"
+        )
+    if (condition == "sim_real") != (pretrained is not None):
+        raise ConfigError(
+            f"sim_to_real: condition {condition} {'needs' if condition == 'sim_real' else 'takes no'} pretrained model"
+        )
+    settings = SimToRealSettings.of(**sim_to_real)
+    ts = TrainingSet.load(trainset_dir)
+    folds = read_folds(folds_path, ts)
+    n_train = n_train_of(folds, fold, k)
+    pool = int((folds["fold"] != fold).sum())
+    epochs = max(1, round(settings.finetune_epochs * pool / n_train))
+    changes = {"epochs_base": epochs, "init": None if pretrained is None else str(pretrained)}
+    subset = fold_trainset(ts, folds, fold, None if k == "all" else n_train, seed)
+    return train(subset, out_dir, 80, _train_settings(model, seed, threads, **changes), progress)
+
+
+# ------------------------------------------------------------------------------- evaluation
+def score_models(
+    ts: TrainingSet,
+    folds: pd.DataFrame,
+    models: Mapping[tuple[str, str], Mapping[int, str | Path]],
+    threads: int,
+) -> pd.DataFrame:
+    """Per-image errors (crossval.image_errors) of every (condition, k) model on its fold's test
+    images: columns condition, k, fold, frame, group, gradient_mse, cap_depth_mae_um."""
+    from threedcal.model.crossval import Truth, image_errors, predict_held_out
+
+    truth = Truth.of(ts)
+    rows = []
+    for (condition, k), by_fold in models.items():
+        for fold, path in by_fold.items():
+            only = folds[folds["fold"] == fold]
+            # predict_held_out takes models in fold order; give it this fold's alone.
+            renumbered = only.assign(fold=0)
+            frames = predict_held_out(ts, renumbered, [path], threads)
+            for frame in only["frame"]:
+                mse, mae, _, _ = image_errors(*frames[int(frame)], ts, int(frame), truth)
+                rows.append(
+                    {
+                        "condition": condition,
+                        "k": k,
+                        "fold": int(fold),
+                        "frame": int(frame),
+                        "group": int(folds.at[frame, "group"]),
+                        "gradient_mse": mse,
+                        "cap_depth_mae_um": mae,
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def summarise_k(
+    images: pd.DataFrame, folds: pd.DataFrame, resamples: int, seed: int
+) -> pd.DataFrame:
+    """errors.csv: per (k, condition) the figures of each fold and pooled over the folds (fold
+    'all', with a 95 % interval from the group bootstrap, the same resamples for every model)."""
+    from threedcal.model.crossval import group_bootstrap, interval, pooled
+
+    keys = list(dict.fromkeys(zip(images["condition"], images["k"], strict=True)))
+    tables = {
+        key: images[(images["condition"] == key[0]) & (images["k"] == key[1])].reset_index(
+            drop=True
+        )
+        for key in keys
+    }
+    boot = group_bootstrap(tables, resamples, seed)
+    pool_size = {int(f): int((folds["fold"] != f).sum()) for f in folds["fold"].unique()}
+    rows = []
+    for key, table in tables.items():
+        condition, k = key
+        for fold, part in table.groupby("fold"):
+            n_train = pool_size[int(fold)] if k == "all" else int(k)
+            rows.append(
+                {"k": k, "n_train": n_train, "condition": condition, "fold": str(fold)}
+                | {"n_test_images": len(part)}
+                | pooled(part)
+            )
+        n_train = (
+            float(np.mean([pool_size[int(f)] for f in table["fold"].unique()]))
+            if k == "all"
+            else int(k)
+        )
+        row = {"k": k, "n_train": n_train, "condition": condition, "fold": "all"}
+        row |= {"n_test_images": len(table)} | pooled(table)
+        for metric in ("gradient_rmse", "cap_depth_mae_um"):
+            row[f"{metric}_lo"], row[f"{metric}_hi"] = interval(boot[key][metric])
+        rows.append(row)
+    return pd.DataFrame(rows).reindex(columns=list(ERROR_COLUMNS))
+
+
+def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
+    """Error against k (log axis; 'all' at the mean training-set size), both conditions with their
+    95 % intervals, and the scene's own model as a band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pooled_rows = errors[errors["fold"] == "all"]
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
+    for ax, metric, label in (
+        (axes[0], "gradient_rmse", "gradient RMSE"),
+        (axes[1], "cap_depth_mae_um", "cap depth MAE (µm)"),
+    ):
+        for offset, (condition, colour) in zip(
+            (0.97, 1.03),
+            ((CONDITIONS["sim_real"], "C0"), (CONDITIONS["real_only"], "C1")),
+            strict=True,
+        ):
+            part = pooled_rows[pooled_rows["condition"] == condition].sort_values("n_train")
+            if part.empty:
+                continue
+            x = part["n_train"].to_numpy(float) * offset
+            y = part[metric].to_numpy(float)
+            err = [y - part[f"{metric}_lo"].to_numpy(float), part[f"{metric}_hi"] - y]
+            ax.errorbar(x, y, yerr=err, fmt="o-", color=colour, capsize=3, label=condition)
+        scene = pooled_rows[pooled_rows["condition"] == SCENE_MODEL]
+        if not scene.empty:
+            row = scene.iloc[0]
+            ax.axhspan(row[f"{metric}_lo"], row[f"{metric}_hi"], color="grey", alpha=0.2)
+            ax.axhline(row[metric], color="grey", lw=1, label=f"{SCENE_MODEL} (all, full budget)")
+        ax.set_xscale("log")
+        ticks = pooled_rows[pooled_rows["condition"] != SCENE_MODEL].drop_duplicates("k")
+        ax.set_xticks(
+            ticks["n_train"].to_numpy(float),
+            [
+                f"{k}" if k != "all" else f"all\n({n:.0f})"
+                for k, n in zip(ticks["k"], ticks["n_train"], strict=True)
+            ],
+        )
+        ax.minorticks_off()
+        ax.set_xlabel("real training images k")
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=9)
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+
+
+def sim2real_eval(
+    trainset_dir: str | Path,
+    folds_path: str | Path,
+    models: Mapping[str, Sequence[str | Path]],
+    scene_models: Sequence[str | Path],
+    sim_to_real: Mapping,
+    cv: Mapping,
+    seed: int,
+    threads: int,
+    errors_path: str | Path,
+    figure_path: str | Path,
+    images_path: str | Path | None = None,
+) -> pd.DataFrame:
+    """errors.csv and error_vs_k.png of the chosen folds.
+
+    `models["{condition}_k{k}"]` lists that model's fold checkpoints in the order of the chosen
+    folds; `scene_models` the scene's cross-validated models (ball_eval's) of the same folds.
+    """
+    from threedcal.model.crossval import CVSettings, read_folds
+
+    settings = SimToRealSettings.of(**sim_to_real)
+    cv_settings = CVSettings.of(**cv)
+    ts = TrainingSet.load(trainset_dir)
+    folds = read_folds(folds_path, ts)
+    chosen = chosen_folds(settings, cv_settings.folds)
+    by_model: dict[tuple[str, str], dict[int, str | Path]] = {}
+    for condition, name in CONDITIONS.items():
+        for k in settings.k:
+            paths = list(models[f"{condition}_k{k}"])
+            if len(paths) != len(chosen):
+                raise ConfigError(
+                    f"sim2real: {len(paths)} {condition} k={k} models for folds {chosen}"
+                )
+            by_model[(name, str(k))] = dict(zip(chosen, paths, strict=True))
+    if len(scene_models) != len(chosen):
+        raise ConfigError(f"sim2real: {len(scene_models)} scene models for folds {chosen}")
+    by_model[(SCENE_MODEL, "all")] = dict(zip(chosen, scene_models, strict=True))
+    images = score_models(ts, folds, by_model, threads)
+    errors = summarise_k(images, folds, cv_settings.bootstrap, seed)
+    Path(errors_path).parent.mkdir(parents=True, exist_ok=True)
+    errors.to_csv(errors_path, index=False, float_format="%.6g")
+    if images_path is not None:
+        images.to_csv(images_path, index=False, float_format="%.6g")
+    n_test = int(folds["fold"].isin(chosen).sum())
+    error_figure(
+        errors,
+        figure_path,
+        f"sim-pretrained vs real-only, folds {', '.join(map(str, chosen))} "
+        f"({n_test} held-out real images), 95 % group-bootstrap intervals",
+    )
+    return errors

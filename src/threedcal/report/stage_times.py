@@ -1,0 +1,99 @@
+"""Where a study's time went: every job's `benchmark:` file (results/**/benchmarks/*.tsv) summed per
+stage, for the summary's stage-time table and `threedcal report stage-times`.
+
+A job's file is named after its rule and wildcards (train_P20_r0.tsv, cv_model_fold3.tsv,
+sim2real_real_only_k8_fold1.tsv); the stage is the name without the replicate, fraction, k and fold
+parts, so the jobs of one stage add up. Snakemake runs `--cores` jobs at once: the summed wall time
+is the work, not the run's duration (the Makefile prints that).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pandas as pd
+
+# The wildcard tails that tell jobs of one stage apart.
+_JOB_PARTS = re.compile(r"(_P\d+_r\d+|_k[^_]+_fold\d+|_fold\d+)$")
+
+
+def stage_of(benchmark: Path) -> str:
+    return _JOB_PARTS.sub("", benchmark.stem)
+
+
+def stage_times(results: str | Path) -> pd.DataFrame:
+    """One row per (stage, scene): jobs, summed wall and CPU seconds, the longest job, peak memory.
+
+    Sorted by wall time, longest first; `scene` is empty for study-wide stages."""
+    results = Path(results)
+    rows = []
+    for path in sorted(results.glob("**/benchmarks/*.tsv")):
+        table = pd.read_csv(path, sep="\t")
+        if table.empty:
+            continue
+        last = table.iloc[-1]  # a rerun appends its own line
+        scope = path.parent.parent
+        rows.append(
+            {
+                "stage": stage_of(path),
+                "scene": "" if scope == results else scope.relative_to(results).as_posix(),
+                "wall_s": float(last["s"]),
+                "cpu_s": float(last["cpu_time"]),
+                "max_rss_mb": float(last["max_rss"]),
+            }
+        )
+    columns = ["stage", "scene", "jobs", "wall_s", "cpu_s", "longest_job_s", "max_rss_mb"]
+    if not rows:
+        return pd.DataFrame(columns=columns)
+    jobs = pd.DataFrame(rows)
+    grouped = jobs.groupby(["stage", "scene"], sort=False)
+    table = grouped.agg(
+        jobs=("wall_s", "size"),
+        wall_s=("wall_s", "sum"),
+        cpu_s=("cpu_s", "sum"),
+        longest_job_s=("wall_s", "max"),
+        max_rss_mb=("max_rss_mb", "max"),
+    ).reset_index()
+    return table.sort_values("wall_s", ascending=False, kind="stable").reset_index(drop=True)[
+        columns
+    ]
+
+
+def stage_time_lines(table: pd.DataFrame, limit: int = 15) -> list[str]:
+    """Markdown: the `limit` longest stages, then the rest in one line, then the total."""
+    if table.empty:
+        return ["No benchmark files yet."]
+    total_wall, total_cpu = table["wall_s"].sum(), table["cpu_s"].sum()
+    lines = [
+        "| stage | scene | jobs | wall min | share | CPU min | longest job min | peak RSS MB |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+
+    def row(stage, scene, jobs, wall, cpu, longest, rss) -> str:
+        share = 100 * wall / total_wall if total_wall > 0 else 0.0
+        return (
+            f"| {stage} | {scene or '(study)'} | {jobs} | {wall / 60:.1f} | {share:.0f} % | "
+            f"{cpu / 60:.1f} | {longest / 60:.1f} | {rss:.0f} |"
+        )
+
+    for item in table.head(limit).itertuples(index=False):
+        lines.append(row(*item))
+    rest = table.iloc[limit:]
+    if len(rest):
+        lines.append(
+            row(
+                f"{len(rest)} other stages",
+                "",
+                int(rest["jobs"].sum()),
+                rest["wall_s"].sum(),
+                rest["cpu_s"].sum(),
+                rest["longest_job_s"].max(),
+                rest["max_rss_mb"].max(),
+            )
+        )
+    lines.append(
+        f"| **all** | | {int(table['jobs'].sum())} | {total_wall / 60:.1f} | 100 % | "
+        f"{total_cpu / 60:.1f} | | |"
+    )
+    return lines

@@ -1,0 +1,176 @@
+"""Sim-to-real stage (threedcal.model.sim2real): simulated presses, nested k subsets, same budget,
+errors against k, and clear errors for folders and settings that cannot support it."""
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from test_crossval import BALL_MM, PX_PER_MM, TINY, make_ball_folder, trainset_of
+
+from threedcal.dataset.labels import contact_radius_mm
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.errors import ConfigError
+from threedcal.model import crossval, sim2real
+from threedcal.model.checkpoint import read_checkpoint
+
+S2R = {"frames": 6, "depth_mm": [0.4, 0.9], "pretrain_epochs": 1, "finetune_epochs": 1}
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory):
+    """A user's ball folder (12 simulated 'real' presses), its model-ready set and 3 folds."""
+    root = tmp_path_factory.mktemp("s2r")
+    make_ball_folder(root / "balls", n=12)
+    trainset = trainset_of(root / "balls", root)
+    crossval.write_folds(trainset, {"folds": 3}, 0, root / "folds.csv")
+    return root, trainset
+
+
+def test_simulated_presses_match_the_real_set_and_are_labelled_exactly(real):
+    root, trainset = real
+    profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
+    sim = sim2real.write_simulated(trainset, profile, S2R, 3, root / "sim", progress=False)
+    again = sim2real.simulate_trainset(
+        TrainingSet.load(trainset), profile, sim2real.SimToRealSettings.of(**S2R), 3, False
+    )
+    ts = TrainingSet.load(root / "sim")
+    real_ts = TrainingSet.load(trainset)
+    assert ts.image_shape == real_ts.image_shape and ts.px_per_mm == PX_PER_MM
+    assert ts.sphere_radius_mm == BALL_MM and len(ts.frames) == 6
+    assert np.array_equal(ts.frames, again.frames)  # seeded: same config, same bytes
+    assert list(ts.split).count("val") == 1
+    assert ((ts.depth_mm >= 0.4) & (ts.depth_mm <= 0.9)).all()
+    # the whole contact inside the image
+    reach = np.array([contact_radius_mm(BALL_MM, d) for d in ts.depth_mm]) * PX_PER_MM
+    height, width = ts.image_shape
+    assert (ts.center_px - reach[:, None] >= 0).all()
+    assert (ts.center_px[:, 0] + reach <= width - 1).all()
+    assert (ts.center_px[:, 1] + reach <= height - 1).all()
+    # the press is where its label says: the colour change peaks inside the contact
+    for i in range(len(ts.frames)):
+        change = np.abs(ts.frames[i].astype(float) - ts.blank).sum(axis=2)
+        rows, cols = np.indices(change.shape)
+        inside = np.hypot(cols - ts.center_px[i, 0], rows - ts.center_px[i, 1]) <= reach[i]
+        assert change[inside].mean() > 3 * change[~inside].mean()
+    assert sim.meta["source"] == "simulated gelsight_mini presses"
+
+
+def test_k_subsets_of_a_fold_are_nested_and_k_cannot_exceed_the_pool(real):
+    root, trainset = real
+    ts = TrainingSet.load(trainset)
+    folds = crossval.read_folds(root / "folds.csv", ts)
+    pool = int((folds["fold"] != 0).sum())
+    picked = {
+        k: set(np.flatnonzero(crossval.fold_trainset(ts, folds, 0, k, 5).split == "train"))
+        for k in (2, 4, pool)
+    }
+    assert len(picked[2]) == 2 and picked[2] < picked[4] < picked[pool]
+    assert sim2real.n_train_of(folds, 0, "all") == pool
+    with pytest.raises(
+        ConfigError, match=f"fold 0 has {pool} real training images, fewer than k = 99"
+    ):
+        sim2real.n_train_of(folds, 0, 99)
+
+
+def test_fine_tuning_starts_from_the_pretrained_model_with_the_same_steps(real, tmp_path):
+    root, trainset = real
+    sim_dir = tmp_path / "sim"
+    sim2real.write_simulated(
+        trainset, sim2real.sensor_profile({"sensor": "gelsight_mini"}), S2R, 0, sim_dir, False
+    )
+    sim2real.pretrain(sim_dir, TINY, S2R, 0, 1, tmp_path / "pre", progress=False)
+    pre = tmp_path / "pre" / "model.pt"
+    runs = {}
+    still = {**TINY, "lr": 1e-12}  # fine-tuning that cannot move the weights: where did it start?
+    for condition, init, k in (
+        ("sim_real", pre, 2),
+        ("real_only", None, 2),
+        ("real_only", None, "all"),
+    ):
+        out = tmp_path / condition / str(k)
+        runs[condition, k] = sim2real.train_k(
+            trainset, root / "folds.csv", 0, k, condition, still, S2R, 0, 1, out, init, False
+        )
+    pool = 8  # 12 images, 3 folds of 4
+    # k images train pool / k times the epochs of all of them: the same optimiser steps
+    assert runs["sim_real", 2]["training"]["epochs"] == pool // 2
+    assert runs["real_only", 2]["training"]["epochs"] == pool // 2
+    assert runs["real_only", "all"]["training"]["epochs"] == 1
+    assert runs["sim_real", 2]["training"]["settings"]["init"] == str(pre)
+    assert "init" not in runs["real_only", 2]["training"]["settings"]
+    # fine-tuning started from the pretrained weights, not from a fresh initialisation
+    start = read_checkpoint(pre)["state_dict"]
+    tuned = read_checkpoint(tmp_path / "sim_real" / "2" / "model.pt")["state_dict"]
+    scratch = read_checkpoint(tmp_path / "real_only" / "2" / "model.pt")["state_dict"]
+    weights = [k for k, v in start.items() if v.dtype.is_floating_point and v.numel() > 100]
+    assert all(torch.allclose(tuned[k], start[k], atol=1e-6) for k in weights)
+    assert not all(torch.allclose(scratch[k], start[k], atol=1e-6) for k in weights)
+    with pytest.raises(ConfigError, match="sim_real needs"):
+        sim2real.train_k(
+            trainset, root / "folds.csv", 0, 2, "sim_real", TINY, S2R, 0, 1, tmp_path / "x"
+        )
+
+
+def test_errors_against_k_pool_folds_with_intervals_and_a_perfect_model_scores_zero(real, tmp_path):
+    root, trainset = real
+    ts = TrainingSet.load(trainset)
+    folds = crossval.read_folds(root / "folds.csv", ts)
+    rows = []
+    for condition, offset in (("sim+real", 0.0), ("real-only", 0.1)):
+        for k in ("2", "all"):
+            for frame, fold, group in folds[["frame", "fold", "group"]].itertuples(index=False):
+                rows.append(
+                    {
+                        "condition": condition,
+                        "k": k,
+                        "fold": fold,
+                        "frame": frame,
+                        "group": group,
+                        "gradient_mse": offset**2,
+                        "cap_depth_mae_um": 1000 * offset,
+                    }
+                )
+    errors = sim2real.summarise_k(pd.DataFrame(rows), folds, 200, 0)
+    pooled = errors[errors["fold"] == "all"].set_index(["condition", "k"])
+    assert pooled.loc[("sim+real", "2"), "gradient_rmse"] == 0
+    assert pooled.loc[("real-only", "all"), "cap_depth_mae_um"] == pytest.approx(100)
+    assert pooled.loc[("real-only", "all"), "n_train"] == 8
+    assert pooled.loc[("real-only", "2"), "cap_depth_mae_um_lo"] == pytest.approx(100)
+    assert len(errors) == 4 * (3 + 1)  # per fold and pooled, per (condition, k)
+    sim2real.error_figure(errors, tmp_path / "e.png", "test")
+    assert (tmp_path / "e.png").stat().st_size > 0
+
+
+def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
+    root, trainset = real
+    with pytest.raises(ConfigError, match="deeper than the ball's radius"):
+        sim2real.write_simulated(
+            trainset,
+            sim2real.sensor_profile({"sensor": "gelsight_mini"}),
+            {"depth_mm": [0.5, 2.5]},
+            0,
+            tmp_path / "a",
+            False,
+        )
+    small = TrainingSet.load(trainset)
+    small = dataclasses.replace(
+        small, frames=small.frames[:, :30, :30], blank=small.blank[:30, :30], samples=small.samples
+    )
+    with pytest.raises(ConfigError, match="too wide for the 30 x 30 px images"):
+        sim2real.simulate_trainset(
+            small,
+            sim2real.sensor_profile({"sensor": "gelsight_mini"}),
+            sim2real.SimToRealSettings.of(depth_mm=[0.5, 1.9]),
+            0,
+            False,
+        )
+    with pytest.raises(ConfigError, match="sim_to_real.folds: \\[7\\] outside the 3"):
+        sim2real.chosen_folds(sim2real.SimToRealSettings.of(folds=[0, 7]), 3)
+    with pytest.raises(ConfigError, match="sim_to_real"):
+        sim2real.SimToRealSettings.of(k=[0])
+    # a folder without a blank frame is refused by the import, before any simulation
+    make_ball_folder(tmp_path / "nobg", n=4, background=False)
+    with pytest.raises(ConfigError, match=r"background.png: missing \(blank frame\)"):
+        trainset_of(tmp_path / "nobg", tmp_path / "y")
