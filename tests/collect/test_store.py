@@ -73,6 +73,33 @@ def test_resume_continues_at_first_uncaptured_point(tmp_path):
         resumed.finalize()
 
 
+def _files(root):
+    return sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file())
+
+
+def test_a_resumed_store_drops_the_temporary_files_of_an_interrupted_write(tmp_path):
+    """A kill between zarr's write of `captured/zarr.<hex>.partial` and its rename (the run record
+    is rewritten after every point) must not leave that file in the finished store."""
+    whole = RawStore.create(tmp_path / "whole.zarr", PLAN, SHAPE, 1, {})
+    killed = RawStore.create(tmp_path / "killed.zarr", PLAN, SHAPE, 1, {})
+    for store in (whole, killed):
+        store.write_blank(np.full((1, *SHAPE), 7, np.uint8))
+        store.write_point(0, record(0, 2))
+    leftover = tmp_path / "killed.zarr/captured/zarr.5a9a89e6217943449ad1e57db67f99b5.partial"
+    leftover.write_bytes(b'{"zarr_format": 3, "node_ty')  # torn: the kill came mid-write
+    ours = tmp_path / "killed.zarr/notes.partial"  # not zarr's pattern: not ours to remove
+    ours.write_text("kept")
+    resumed = RawStore.open_for_resume(tmp_path / "killed.zarr", PLAN)
+    assert not leftover.exists() and ours.read_text() == "kept"
+    for store in (whole, resumed):
+        store.write_point(1, record(1, 1))
+        store.write_point(2, record(2, 3))
+        store.finalize()
+    ours.unlink()
+    assert _files(tmp_path / "killed.zarr") == _files(tmp_path / "whole.zarr")
+    assert open_checked(tmp_path / "killed.zarr").frames.shape[0] == 6
+
+
 def test_resume_with_another_plan_is_refused(tmp_path):
     RawStore.create(tmp_path / "raw.zarr", PLAN, SHAPE, 1, {})
     other = PLAN.assign(depth_mm=[1.0, 1.2, 1.5])

@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import re
 import shutil
 import warnings
 from collections.abc import Mapping
@@ -47,6 +49,9 @@ from threedcal.schema import canonical_json, plain
 
 # 2: every chunk written (write_empty_chunks), frame settings recorded. 1 (no attribute): older stores.
 STORE_FORMAT = 2
+# Zarr writes every file to `<name>.<32 hex>.partial` and renames it into place; a process killed in
+# between leaves that temporary file, never a torn `<name>`.
+INTERRUPTED_WRITE = re.compile(r"\.[0-9a-f]{32}\.partial$")
 WRITE_EVERY_CHUNK = {"array.write_empty_chunks": True}
 
 PLAN_COORDS = {
@@ -295,6 +300,7 @@ class RawStore:
         except (OSError, ValueError, json.JSONDecodeError) as exc:
             raise ConfigError(f"{path}: not a readable collection store ({exc})") from exc
         store = cls(path, group, plan)
+        discard_interrupted_writes(path)
         if settings is not None:
             check_settings(path, group.attrs, settings, store.progress())
         stored = group.attrs.get("plan_digest")
@@ -396,6 +402,23 @@ class RawStore:
         ):  # "consolidated metadata is not in the v3 spec" — xarray reads it
             warnings.simplefilter("ignore", category=UserWarning)
             zarr.consolidate_metadata(str(self.path))
+
+
+def discard_interrupted_writes(path: Path) -> list[Path]:
+    """Remove the temporary files of writes a kill interrupted, so that a resumed store finishes
+    with the same files as one never interrupted. Their targets are intact (the rename never
+    happened), so nothing is lost: the point being written is redone, being not yet `captured`."""
+    leftovers = sorted(p for p in Path(path).rglob("*.partial") if INTERRUPTED_WRITE.search(p.name))
+    for leftover in leftovers:
+        leftover.unlink()
+    if leftovers:
+        logging.getLogger("threedcal").info(
+            "%s: removed %d temporary file(s) of a write the last run's end interrupted (%s)",
+            path,
+            len(leftovers),
+            ", ".join(str(p.relative_to(path)) for p in leftovers[:3]),
+        )
+    return leftovers
 
 
 def check_settings(
