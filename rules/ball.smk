@@ -93,20 +93,25 @@ rule ball_eval:
 rule sim2real_simulate:
     input:
         trainset="results/{scene}/dataset/trainset",
+        folds="results/{scene}/cv/folds.csv",
     output:
-        directory("results/{scene}/sim2real/simset"),
+        directory("results/{scene}/sim2real/fold{fold}/simset"),
     log:
-        "results/{scene}/logs/sim2real_simulate.log",
+        "results/{scene}/logs/sim2real_simulate_fold{fold}.log",
     benchmark:
-        "results/{scene}/benchmarks/sim2real_simulate.tsv"
+        "results/{scene}/benchmarks/sim2real_simulate_fold{fold}.tsv"
     wildcard_constraints:
         scene=one_of(IMPORTED_SCENES),
+        fold=r"\d+",
     conda:
         CONDA_ENV
     params:
         profile=lambda wildcards: sensor_profile(config["scenes"][wildcards.scene]),
         sim_to_real=lambda wildcards: sim2real_keys(
             config["scenes"][wildcards.scene], "simulate"
+        ),
+        real_path=lambda wildcards: config["scenes"][wildcards.scene]["import"].get(
+            "path"
         ),
         seed=scene_seed,
         code=code_digest("sim2real_simulate.py"),
@@ -116,16 +121,17 @@ rule sim2real_simulate:
 
 rule sim2real_pretrain:
     input:
-        simset="results/{scene}/sim2real/simset",
+        simset="results/{scene}/sim2real/fold{fold}/simset",
     output:
-        model="results/{scene}/sim2real/pretrained/model.pt",
-        losses="results/{scene}/sim2real/pretrained/losses.csv",
+        model="results/{scene}/sim2real/fold{fold}/pretrained/model.pt",
+        losses="results/{scene}/sim2real/fold{fold}/pretrained/losses.csv",
     log:
-        "results/{scene}/logs/sim2real_pretrain.log",
+        "results/{scene}/logs/sim2real_pretrain_fold{fold}.log",
     benchmark:
-        "results/{scene}/benchmarks/sim2real_pretrain.tsv"
+        "results/{scene}/benchmarks/sim2real_pretrain_fold{fold}.tsv"
     wildcard_constraints:
         scene=one_of(IMPORTED_SCENES),
+        fold=r"\d+",
     conda:
         CONDA_ENV
     threads: scene_threads

@@ -63,9 +63,11 @@ def cv_models(wildcards):
 
 
 def sim2real_init(wildcards):
-    """{"pretrained": the scene's sim-pretrained model} for a fine-tuned model, {} for real-only."""
+    """{"pretrained": the fold's sim-pretrained model} for a fine-tuned model, {} for real-only."""
     if wildcards.condition == "sim_real":
-        return {"pretrained": f"results/{wildcards.scene}/sim2real/pretrained/model.pt"}
+        return {
+            "pretrained": f"results/{wildcards.scene}/sim2real/fold{wildcards.fold}/pretrained/model.pt"
+        }
     return {}
 
 

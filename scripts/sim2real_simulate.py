@@ -1,5 +1,6 @@
-"""Rule `sim2real_simulate`: simulated ball presses of the scene's sensor profile at the real set's
-image size, px/mm and ball radius, labelled exactly (a model-ready set)."""
+"""Rule `sim2real_simulate`: one fold's simulated ball presses at the real set's image size, px/mm
+and ball radius, labelled exactly (a model-ready set), with the sensor profile's optics fitted to
+the fold's training images (`sim_to_real.profile: fitted`) or as they are (`as_is`)."""
 
 from threedcal.logs import stage_log
 from threedcal.model.sim2real import write_simulated
@@ -11,4 +12,7 @@ with stage_log(snakemake.log[0]):
         snakemake.params.sim_to_real,
         snakemake.params.seed,
         snakemake.output[0],
+        folds_path=snakemake.input.folds,
+        fold=int(snakemake.wildcards.fold),
+        real_path=snakemake.params.real_path,
     )

@@ -222,8 +222,10 @@ def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path)
     assert trains == [
         (c, k, f) for c in ("real_only", "sim_real") for k in ("4", "all") for f in ("1", "3")
     ]
-    for rule in ("sim2real_simulate", "sim2real_pretrain", "sim2real_eval"):
-        assert (rule, {"scene": "balls"}) in jobs
+    # One simulated set and one pretraining per chosen fold (the optics fitted to its training images).
+    for rule in ("sim2real_simulate", "sim2real_pretrain"):
+        assert sorted(wc["fold"] for r, wc in jobs if r == rule) == ["1", "3"]
+    assert ("sim2real_eval", {"scene": "balls"}) in jobs
     # Off (the default): no sim-to-real job.
     del balls["sim_to_real"]
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))

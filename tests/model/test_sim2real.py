@@ -15,7 +15,13 @@ from threedcal.errors import ConfigError
 from threedcal.model import crossval, sim2real
 from threedcal.model.checkpoint import read_checkpoint
 
-S2R = {"frames": 6, "depth_mm": [0.4, 0.9], "pretrain_epochs": 1, "finetune_epochs": 1}
+S2R = {
+    "frames": 6,
+    "depth_mm": [0.4, 0.9],
+    "profile": "as_is",
+    "pretrain_epochs": 1,
+    "finetune_epochs": 1,
+}
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +61,40 @@ def test_simulated_presses_match_the_real_set_and_are_labelled_exactly(real):
         inside = np.hypot(cols - ts.center_px[i, 0], rows - ts.center_px[i, 1]) <= reach[i]
         assert change[inside].mean() > 3 * change[~inside].mean()
     assert sim.meta["source"] == "simulated gelsight_mini presses"
+
+
+def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
+    """profile: fitted (the default) fits the optics per fold to its training images and
+    background.png: the fitted profile names them, and no test image of the fold."""
+    root, trainset = real
+    folds = pd.read_csv(root / "folds.csv")
+    profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
+    fitted = {**S2R, "profile": "fitted"}
+    with pytest.raises(ConfigError, match="needs the scene's ball_folder images and its folds"):
+        sim2real.write_simulated(trainset, profile, fitted, 3, tmp_path / "none", False)
+    sims = {}
+    for fold in (0, 1):
+        out = tmp_path / f"fold{fold}"
+        sims[fold] = sim2real.write_simulated(
+            trainset,
+            profile,
+            fitted,
+            3,
+            out,
+            False,
+            folds_path=root / "folds.csv",
+            fold=fold,
+            real_path=root / "balls",
+        )
+        head = (out / "profile.yaml").read_text().splitlines()[0]
+        named = set(head.split("(")[1].split(")")[0].split(", "))
+        assert named == set(folds.loc[folds["fold"] != fold, "image"])
+        assert not named & set(folds.loc[folds["fold"] == fold, "image"])
+    as_is = sim2real.write_simulated(trainset, profile, S2R, 3, tmp_path / "as_is", False)
+    # Same seed, same presses; only the optics differ, per fold and from the built-in profile.
+    assert np.array_equal(sims[0].center_px, as_is.center_px)
+    assert not np.array_equal(sims[0].frames, as_is.frames)
+    assert not np.array_equal(sims[0].frames, sims[1].frames)
 
 
 def test_k_subsets_of_a_fold_are_nested_and_k_cannot_exceed_the_pool(real):
@@ -149,7 +189,7 @@ def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
         sim2real.write_simulated(
             trainset,
             sim2real.sensor_profile({"sensor": "gelsight_mini"}),
-            {"depth_mm": [0.5, 2.5]},
+            {"depth_mm": [0.5, 2.5], "profile": "as_is"},
             0,
             tmp_path / "a",
             False,

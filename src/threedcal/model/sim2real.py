@@ -2,10 +2,12 @@
 
 For an imported ball scene (docs/real_data.md, "Sim-to-real"):
 
-1. :func:`simulate_trainset` renders ``frames`` ball presses with the scene's sensor profile
+1. per chosen fold, :func:`fold_profile` fits the sensor profile's optics to the fold's training
+   images and background.png (``profile: fitted``, the default; never a test image of the fold),
+   and :func:`simulate_trainset` renders ``frames`` ball presses with it
    (threedcal.sim.optics.GelSimulator) at the real set's image size, px/mm and ball radius, at
    seeded random centres (the whole contact inside the image) and depths, labelled exactly;
-2. :func:`pretrain` trains the scene's model preset on them;
+2. :func:`pretrain` trains the scene's model preset on them, one model per fold;
 3. :func:`train_k` trains, for one cross-validation fold (cv/folds.csv) and one k, the model on a
    seeded nested subset of k of the fold's training images — fine-tuned from the pretrained
    network (``sim_real``) or from scratch (``real_only``) with the same settings and the same
@@ -13,9 +15,10 @@ For an imported ball scene (docs/real_data.md, "Sim-to-real"):
 4. :func:`sim2real_eval` scores every model on its fold's held-out real images with ball_eval's
    figures and the group bootstrap (threedcal.model.crossval), and draws error against k.
 
-The simulator sees no real image here: the profile is used as it is. (The built-in GelSight Mini
-profile's optics were fitted, once, to the background and contacts of data/gelsight_ball_fots —
-all 42 frames — so on that set the simulator is not independent of the test images.)
+With ``profile: as_is`` the simulator sees no real image: the profile is used as it is. (The
+built-in GelSight Mini profile's optics were fitted, once, to the background and contacts of
+data/gelsight_ball_fots — all 42 frames — so on that set it is not independent of the test images:
+that is why the default fits per fold.)
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ class SimToRealSettings:
     enabled: bool
     frames: int
     depth_mm: tuple[float, float]
+    profile: str
     pretrain_epochs: int
     finetune_epochs: int
     k: tuple[int | str, ...]
@@ -75,6 +79,7 @@ class SimToRealSettings:
             enabled=bool(values["enabled"]),
             frames=int(values["frames"]),
             depth_mm=(lo, hi),
+            profile=str(values["profile"]),
             pretrain_epochs=int(values["pretrain_epochs"]),
             finetune_epochs=int(values["finetune_epochs"]),
             k=tuple(values["k"]),
@@ -102,7 +107,7 @@ def chosen_folds(settings: SimToRealSettings, n_folds: int) -> list[int]:
 SIM2REAL_CONDITIONS = tuple(CONDITIONS)
 # The sim_to_real keys each stage reads: a change reruns only the stages that read it.
 STAGE_KEYS = {
-    "simulate": ("frames", "depth_mm"),
+    "simulate": ("frames", "depth_mm", "profile"),
     "pretrain": ("pretrain_epochs",),
     "train": ("finetune_epochs",),
 }
@@ -195,6 +200,22 @@ def simulate_trainset(
     )
 
 
+def fold_profile(profile: Mapping, real_path: str | Path, folds: pd.DataFrame, fold: int):
+    """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to the fold's training
+    images and the folder's background.png: the simulator then never sees a test image of the fold."""
+    from threedcal.sim.fit import fit_optics
+    from threedcal.sim.realism import load_ball_dataset
+
+    data = load_ball_dataset(real_path)
+    training = set(folds.loc[folds["fold"] != fold, "image"].astype(str))
+    labels = [label for label in data.labels if label.image in training]
+    if not labels:
+        raise ConfigError(
+            f"sim_to_real.profile: fitted: none of fold {fold}'s training images is in {real_path}"
+        )
+    return fit_optics(profile, data, labels)
+
+
 def write_simulated(
     real_dir: str | Path,
     profile: Mapping,
@@ -202,11 +223,30 @@ def write_simulated(
     seed: int,
     out_dir: str | Path,
     progress: bool = True,
+    *,
+    folds_path: str | Path | None = None,
+    fold: int | None = None,
+    real_path: str | Path | None = None,
 ) -> TrainingSet:
-    ts = simulate_trainset(
-        TrainingSet.load(real_dir), profile, SimToRealSettings.of(**sim_to_real), seed, progress
-    )
+    """The simulated set of one fold in `out_dir`; with `profile: fitted` also the fitted profile
+    (profile.yaml, headed by the images it was fitted on)."""
+    from threedcal.model.crossval import read_folds
+
+    settings = SimToRealSettings.of(**sim_to_real)
+    real = TrainingSet.load(real_dir)
+    fit = None
+    if settings.profile == "fitted":
+        if real_path is None or folds_path is None or fold is None:
+            raise ConfigError(
+                "sim_to_real.profile: fitted needs the scene's ball_folder images and its folds; "
+                "set profile: as_is for an import of another format"
+            )
+        fit = fold_profile(profile, real_path, read_folds(folds_path, real), fold)
+        profile = fit.profile
+    ts = simulate_trainset(real, profile, settings, seed, progress)
     ts.save(out_dir)
+    if fit is not None:
+        fit.write_profile(Path(out_dir) / "profile.yaml")
     return ts
 
 
