@@ -1,5 +1,5 @@
 """Sim-to-real with the simulator's optics fitted, per fold, to the k real images that fine-tune:
-how much of the pretraining gain in docs/real_data.md owes to a profile fitted to all 42 frames.
+is a fit on the k labelled images alone enough (the stage fits on all of a fold's training images)?
 
 Usage (from the repository, after Snakemake made the scene's dataset, cv/folds.csv and the
 sim2real models of these folds at this k: `snakemake
@@ -10,7 +10,7 @@ Per fold: the k training images the sim2real stage fine-tunes on (the same seede
 background.png fit the sensor profile's optics (threedcal.sim.fit.fit_optics; no test image and
 no label of a test image is seen), the scene's `sim_to_real.frames` presses are rendered with the
 fitted profile, the preset is pretrained on them and fine-tuned on the same k images with the
-stage's budget. All three conditions (profile as built in, profile fitted per fold, real-only) are
+stage's budget. All three conditions (the stage's sim+real, the k-image fit, real-only) are
 then scored on the fold's held-out images with the stage's scoring and group bootstrap, and printed
 as one table. Work lands in /tmp/sim2real_fit_per_fold/ (reused when there).
 """
@@ -108,7 +108,7 @@ def main() -> None:
         print(f"fold {fold}: {(work / 'fit.json').read_text()}")
         models.setdefault(("sim+real, profile fitted to the k images", k), {})[fold] = fine_tuned
         for condition, name in (
-            ("sim_real", "sim+real, built-in profile"),
+            ("sim_real", "sim+real, the stage's profile"),
             ("real_only", "real-only"),
         ):
             path = root / f"sim2real/{condition}/k{k}/fold{fold}/model.pt"
