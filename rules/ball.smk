@@ -110,9 +110,6 @@ rule sim2real_simulate:
         sim_to_real=lambda wildcards: sim2real_keys(
             config["scenes"][wildcards.scene], "simulate"
         ),
-        real_path=lambda wildcards: config["scenes"][wildcards.scene]["import"].get(
-            "path"
-        ),
         seed=scene_seed,
         code=code_digest("sim2real_simulate.py"),
     script:

@@ -14,5 +14,4 @@ with stage_log(snakemake.log[0]):
         snakemake.output[0],
         folds_path=snakemake.input.folds,
         fold=int(snakemake.wildcards.fold),
-        real_path=snakemake.params.real_path,
     )

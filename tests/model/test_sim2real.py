@@ -7,7 +7,14 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from test_crossval import BALL_MM, PX_PER_MM, TINY, make_ball_folder, trainset_of
+from test_crossval import (
+    BALL_MM,
+    PX_PER_MM,
+    TINY,
+    make_ball_folder,
+    make_py3dcal_folder,
+    trainset_of,
+)
 
 from threedcal.dataset.labels import contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet
@@ -63,38 +70,63 @@ def test_simulated_presses_match_the_real_set_and_are_labelled_exactly(real):
     assert sim.meta["source"] == "simulated gelsight_mini presses"
 
 
+def _fitted_frames(profile_yaml):
+    head = profile_yaml.read_text().splitlines()[0]
+    return {int(name[len("frame") :]) for name in head.split("(")[1].split(")")[0].split(", ")}
+
+
 def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
-    """profile: fitted (the default) fits the optics per fold to its training images and
-    background.png: the fitted profile names them, and no test image of the fold."""
+    """profile: fitted (the default) fits the optics per fold to its training frames and the
+    blank: the fitted profile names them, and no test frame of the fold."""
     root, trainset = real
     folds = pd.read_csv(root / "folds.csv")
     profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
     fitted = {**S2R, "profile": "fitted"}
-    with pytest.raises(ConfigError, match="needs the scene's ball_folder images and its folds"):
+    with pytest.raises(ConfigError, match="needs the scene's folds"):
         sim2real.write_simulated(trainset, profile, fitted, 3, tmp_path / "none", False)
     sims = {}
     for fold in (0, 1):
         out = tmp_path / f"fold{fold}"
         sims[fold] = sim2real.write_simulated(
-            trainset,
-            profile,
-            fitted,
-            3,
-            out,
-            False,
-            folds_path=root / "folds.csv",
-            fold=fold,
-            real_path=root / "balls",
+            trainset, profile, fitted, 3, out, False, folds_path=root / "folds.csv", fold=fold
         )
-        head = (out / "profile.yaml").read_text().splitlines()[0]
-        named = set(head.split("(")[1].split(")")[0].split(", "))
-        assert named == set(folds.loc[folds["fold"] != fold, "image"])
-        assert not named & set(folds.loc[folds["fold"] == fold, "image"])
+        named = _fitted_frames(out / "profile.yaml")
+        assert named == set(folds.loc[folds["fold"] != fold, "frame"])
+        assert not named & set(folds.loc[folds["fold"] == fold, "frame"])
     as_is = sim2real.write_simulated(trainset, profile, S2R, 3, tmp_path / "as_is", False)
     # Same seed, same presses; only the optics differ, per fold and from the built-in profile.
     assert np.array_equal(sims[0].center_px, as_is.center_px)
     assert not np.array_equal(sims[0].frames, as_is.frames)
     assert not np.array_equal(sims[0].frames, sims[1].frames)
+
+
+def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_why(tmp_path):
+    make_py3dcal_folder(tmp_path / "py3dcal")
+    trainset = trainset_of(tmp_path / "py3dcal", tmp_path, fmt="py3dcal")
+    folds = crossval.write_folds(
+        trainset, {"folds": 3, "group_fraction": 0.0}, 0, tmp_path / "folds.csv"
+    )
+    profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
+    fitted = {**S2R, "profile": "fitted"}
+    out = tmp_path / "sim"
+    sim2real.write_simulated(
+        trainset, profile, fitted, 0, out, False, folds_path=tmp_path / "folds.csv", fold=2
+    )
+    assert _fitted_frames(out / "profile.yaml") == set(folds.loc[folds["fold"] != 2, "frame"])
+    # Two training images cannot pin the optics down: the error says which key to change.
+    two = folds.assign(fold=np.where(folds["frame"] < 2, 1, 0))
+    two.to_csv(tmp_path / "two.csv", index=False)
+    with pytest.raises(ConfigError, match="fold 0 has 2 training images.*profile: as_is"):
+        sim2real.write_simulated(
+            trainset,
+            profile,
+            fitted,
+            0,
+            tmp_path / "x",
+            False,
+            folds_path=tmp_path / "two.csv",
+            fold=0,
+        )
 
 
 def test_k_subsets_of_a_fold_are_nested_and_k_cannot_exceed_the_pool(real):

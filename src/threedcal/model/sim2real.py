@@ -200,20 +200,66 @@ def simulate_trainset(
     )
 
 
-def fold_profile(profile: Mapping, real_path: str | Path, folds: pd.DataFrame, fold: int):
-    """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to the fold's training
-    images and the folder's background.png: the simulator then never sees a test image of the fold."""
-    from threedcal.sim.fit import fit_optics
-    from threedcal.sim.realism import load_ball_dataset
+# Fewest training images a fold's optics are fitted to: below it the fit's levels are barely
+# determined (docs/real_data.md: 8 images already lose the pretraining's gain).
+MIN_FIT_IMAGES = 3
 
-    data = load_ball_dataset(real_path)
-    training = set(folds.loc[folds["fold"] != fold, "image"].astype(str))
-    labels = [label for label in data.labels if label.image in training]
-    if not labels:
+
+@dataclass(frozen=True)
+class _SetImages:
+    """A model-ready set seen as the ball folder threedcal.sim.fit reads: frames by name, its
+    blank as background.png. Works for every import format, and takes the set's own (possibly
+    refined) contact circles."""
+
+    ts: TrainingSet
+    root: str
+    names: tuple[str, ...]
+
+    @property
+    def px_per_mm(self) -> float:
+        return self.ts.px_per_mm
+
+    @property
+    def ball_radius_mm(self) -> float:
+        return self.ts.sphere_radius_mm
+
+    @property
+    def height_px(self) -> int:
+        return self.ts.image_shape[0]
+
+    @property
+    def width_px(self) -> int:
+        return self.ts.image_shape[1]
+
+    def read(self, name: str) -> np.ndarray:
+        if name == "background.png":
+            return self.ts.blank
+        return self.ts.frames[self.names.index(name)]
+
+
+def fold_profile(profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, fold: int, where: str):
+    """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to the fold's training
+    frames and the set's blank: the simulator then never sees a test image of the fold."""
+    from threedcal.model.crossval import contact_radius_px
+    from threedcal.sim.fit import fit_optics
+    from threedcal.sim.realism import BallLabel
+
+    frames = folds.loc[folds["fold"] != fold, "frame"].to_numpy()
+    if len(frames) < MIN_FIT_IMAGES:
         raise ConfigError(
-            f"sim_to_real.profile: fitted: none of fold {fold}'s training images is in {real_path}"
+            f"{where}: fold {fold} has {len(frames)} training images; fitting the optics "
+            f"(sim_to_real.profile: fitted) needs at least {MIN_FIT_IMAGES} — add images, "
+            "lower cv.folds, or set profile: as_is"
         )
-    return fit_optics(profile, data, labels)
+    names = tuple(f"frame{i:05d}" for i in range(len(ts.frames)))
+    radius = contact_radius_px(ts)
+    labels = [
+        BallLabel(
+            names[i], (float(ts.center_px[i, 0]), float(ts.center_px[i, 1])), float(radius[i])
+        )
+        for i in frames
+    ]
+    return fit_optics(profile, _SetImages(ts, where, names), labels)
 
 
 def write_simulated(
@@ -226,22 +272,19 @@ def write_simulated(
     *,
     folds_path: str | Path | None = None,
     fold: int | None = None,
-    real_path: str | Path | None = None,
 ) -> TrainingSet:
     """The simulated set of one fold in `out_dir`; with `profile: fitted` also the fitted profile
-    (profile.yaml, headed by the images it was fitted on)."""
+    (profile.yaml, headed by the frames it was fitted on: frameNNNNN, the set's frame numbers)."""
     from threedcal.model.crossval import read_folds
 
     settings = SimToRealSettings.of(**sim_to_real)
     real = TrainingSet.load(real_dir)
     fit = None
     if settings.profile == "fitted":
-        if real_path is None or folds_path is None or fold is None:
-            raise ConfigError(
-                "sim_to_real.profile: fitted needs the scene's ball_folder images and its folds; "
-                "set profile: as_is for an import of another format"
-            )
-        fit = fold_profile(profile, real_path, read_folds(folds_path, real), fold)
+        if folds_path is None or fold is None:
+            raise ConfigError("sim_to_real.profile: fitted needs the scene's folds and a fold")
+        folds = read_folds(folds_path, real)
+        fit = fold_profile(profile, real, folds, fold, str(real_dir))
         profile = fit.profile
     ts = simulate_trainset(real, profile, settings, seed, progress)
     ts.save(out_dir)
