@@ -1,9 +1,10 @@
 """Sim-to-real: pretrain on simulated probing of the sensor's profile, fine-tune on k real images.
 
-For an imported ball scene (docs/real_data.md, "Sim-to-real"):
+For an imported scene (docs/real_data.md, "Sim-to-real"):
 
 1. per chosen fold, :func:`fold_profile` fits the sensor profile's optics to the fold's training
-   images and background.png (``profile: fitted``, the default; never a test image of the fold),
+   frames and blank frame of the model-ready set (``profile: fitted``, the default; any import
+   format; never a test image of the fold),
    and :func:`simulate_trainset` renders ``frames`` ball presses with it
    (threedcal.sim.optics.GelSimulator) at the real set's image size, px/mm and ball radius, at
    seeded random centres (the whole contact inside the image) and depths, labelled exactly;
