@@ -6,9 +6,9 @@ sim2real models of these folds at this k: `snakemake
 results/fots_ball/sim2real/{sim_real,real_only}/k8/fold{0,1,2}/model.pt`):
     python docs/diagnostics/sim2real_fit_per_fold.py [--scene fots_ball] [--k 8] [--folds 0 1 2]
 
-Per fold: the k training images the sim2real stage fine-tunes on (the same seeded draw) and
-background.png fit the sensor profile's optics (threedcal.sim.fit.fit_optics; no test image and
-no label of a test image is seen), the scene's `sim_to_real.frames` presses are rendered with the
+Per fold: the k training images the sim2real stage fine-tunes on (the same seeded draw) and the
+set's blank fit the sensor profile's optics, as the stage fits them to all of the fold's training
+images (sim2real.fitted_to_frames; no test image and no label of a test image is seen), the scene's `sim_to_real.frames` presses are rendered with the
 fitted profile, the preset is pretrained on them and fine-tuned on the same k images with the
 stage's budget. All three conditions (the stage's sim+real, the k-image fit, real-only) are
 then scored on the fold's held-out images with the stage's scoring and group bootstrap, and printed
@@ -30,6 +30,7 @@ from threedcal.dataset.trainset import TrainingSet
 from threedcal.model.crossval import read_folds, training_images
 from threedcal.model.sim2real import (
     SimToRealSettings,
+    fitted_to_frames,
     pretrain,
     score_models,
     sensor_profile,
@@ -37,8 +38,6 @@ from threedcal.model.sim2real import (
     summarise_k,
     train_k,
 )
-from threedcal.sim.fit import fit_optics
-from threedcal.sim.realism import load_ball_dataset
 
 
 def main() -> None:
@@ -51,13 +50,11 @@ def main() -> None:
     args = parser.parse_args()
     config = load_config(args.config)
     scene = config["scenes"][args.scene]
-    seed, threads = int(scene.get("seed", config["seed"])), int(scene["torch_threads"])
+    seed, threads = int(scene["seed"]), int(scene["torch_threads"])
     torch.set_num_threads(threads)
     root = Path("results") / args.scene
     ts = TrainingSet.load(root / "dataset/trainset")
     folds = read_folds(root / "cv/folds.csv", ts)
-    data = load_ball_dataset(scene["import"]["path"])
-    by_image = {label.image: label for label in data.labels}
     settings = SimToRealSettings.from_scene(scene)
     models: dict[tuple[str, str], dict[int, Path]] = {}
     k = str(args.k)
@@ -68,7 +65,7 @@ def main() -> None:
             frames = training_images(folds, fold, args.k, seed)
             images = [str(folds.at[int(f), "image"]) for f in frames]
             began = time.process_time()
-            fit = fit_optics(sensor_profile(scene), data, [by_image[name] for name in images])
+            fit = fitted_to_frames(sensor_profile(scene), ts, frames, str(root))
             fitted_s = time.process_time() - began
             work.mkdir(parents=True, exist_ok=True)
             fit.write_profile(work / "profile.yaml")

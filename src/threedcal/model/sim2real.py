@@ -12,7 +12,8 @@ For an imported scene (docs/real_data.md, "Sim-to-real"):
 3. :func:`train_k` trains, for one cross-validation fold (cv/folds.csv) and one k, the model on a
    seeded nested subset of k of the fold's training images — fine-tuned from the pretrained
    network (``sim_real``) or from scratch (``real_only``) with the same settings and the same
-   number of optimiser steps: k images train ``finetune_epochs x n_train / k`` epochs;
+   number of optimiser steps: k images train ``finetune_epochs x pool / k`` epochs (pool: the
+   fold's training images);
 4. :func:`sim2real_eval` scores every model on its fold's held-out real images with ball_eval's
    figures and the group bootstrap (threedcal.model.crossval), and draws error against k.
 
@@ -201,8 +202,8 @@ def simulate_trainset(
     )
 
 
-# Fewest training images a fold's optics are fitted to: below it the fit's levels are barely
-# determined (docs/real_data.md: 8 images already lose the pretraining's gain).
+# Fewest training images a fold's optics are fitted to: with fewer, the LED levels and the shading
+# shape are not determined. (Enough for a gain is more: docs/real_data.md, 8 images give none.)
 MIN_FIT_IMAGES = 3
 
 
@@ -239,12 +240,8 @@ class _SetImages:
 
 
 def fold_profile(profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, fold: int, where: str):
-    """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to the fold's training
-    frames and the set's blank: the simulator then never sees a test image of the fold."""
-    from threedcal.model.crossval import contact_radius_px
-    from threedcal.sim.fit import fit_optics
-    from threedcal.sim.realism import BallLabel
-
+    """`profile` with its optics fitted to the fold's training frames and the set's blank: the
+    simulator then never sees a test image of the fold."""
     frames = folds.loc[folds["fold"] != fold, "frame"].to_numpy()
     if len(frames) < MIN_FIT_IMAGES:
         raise ConfigError(
@@ -252,6 +249,16 @@ def fold_profile(profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, fold: i
             f"(sim_to_real.profile: fitted) needs at least {MIN_FIT_IMAGES} — add images, "
             "lower cv.folds, or set profile: as_is"
         )
+    return fitted_to_frames(profile, ts, frames, where)
+
+
+def fitted_to_frames(profile: Mapping, ts: TrainingSet, frames: Sequence[int], where: str):
+    """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to these frames of the
+    model-ready set, with their contact circles, and its blank."""
+    from threedcal.model.crossval import contact_radius_px
+    from threedcal.sim.fit import fit_optics
+    from threedcal.sim.realism import BallLabel
+
     names = tuple(f"frame{i:05d}" for i in range(len(ts.frames)))
     radius = contact_radius_px(ts)
     labels = [
@@ -356,7 +363,8 @@ def train_k(
     progress: bool = True,
 ) -> dict:
     """One fold's model on k real images: fine-tuned from `pretrained` (sim_real) or from scratch
-    (real_only), both for finetune_epochs x n_train / k epochs (the same steps at every k)."""
+    (real_only), both for finetune_epochs x pool / k epochs, pool the fold's training images (the
+    same steps at every k)."""
     from threedcal.model.crossval import fold_trainset, read_folds
     from threedcal.model.train import train
 

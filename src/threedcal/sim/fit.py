@@ -331,8 +331,6 @@ def _light_azimuths(profile, frames, bg, labels, ball_px) -> list[float]:
     """Each light's azimuth (deg, image frame) from the contacts: per channel, the direction in
     which the change (frame - background - drift) grows with the sphere's normal (least squares on
     nx, ny, nz, 1 inside the contact), for the light whose colour that channel is."""
-    h, w = bg.shape[:2]
-    yy, xx = np.mgrid[:h, :w]
     design, values = [], []
     for f, label in zip(frames, labels, strict=True):
         change = _real_change(f, bg, label, ball_px)
