@@ -27,7 +27,8 @@ import torch
 from threedcal.model import DEFAULT_PRESET, PRESET_NAMES
 from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.presets import build_model, preset_args
+from threedcal.model.losses import gradient_loss
+from threedcal.model.presets import build_model, preferred_memory_format, preset_args
 
 HEIGHT, WIDTH = 240, 320
 # The settings the accuracy table trains with: those of an imported ball scene's `model:` section
@@ -70,22 +71,32 @@ def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float) -> floa
     return 1000.0 * float(np.median(times))
 
 
-def training_samples_per_s(preset: str, seconds: float, batch: int = 16, patch: int = 48) -> float:
-    """Training samples/s: Adam steps (forward, MSE loss, backward) on random (batch, 5, patch,
-    patch) inputs, the patch size the scene presets train on; median step time."""
+def training_samples_per_s(
+    preset: str,
+    seconds: float,
+    batch: int = 32,
+    patch: int = 64,
+    loss: str = "normal",
+    layout: torch.memory_format | None = None,
+) -> float:
+    """Training samples/s: AdamW steps (forward, loss, backward) on random (batch, 5, patch, patch)
+    inputs, the batch, patch and loss the default sim scenes train with; median step time. The
+    layout is the trainer's own (NHWC for convolutional presets) unless one is given."""
     torch.manual_seed(0)
     model = build_model(preset)
     parameters = [p for p in model.parameters() if p.requires_grad]
     if not parameters:
         return float("nan")
-    optimizer = torch.optim.Adam(parameters, lr=1e-3)
-    x = torch.randn(batch, 5, patch, patch)
+    layout = preferred_memory_format(model) if layout is None else layout
+    model = model.to(memory_format=layout)
+    optimizer = torch.optim.AdamW(parameters, lr=1e-3)
+    x = torch.randn(batch, 5, patch, patch).contiguous(memory_format=layout)
     with torch.no_grad():
         y = torch.randn_like(model(x))
 
     def step():
         optimizer.zero_grad(set_to_none=True)
-        torch.nn.functional.mse_loss(model(x), y).backward()
+        gradient_loss(model(x), y, loss).backward()
         optimizer.step()
 
     step()  # warm-up
@@ -156,13 +167,23 @@ def main() -> None:
             f"{preset:14s} {1000 / value:10.2f} {value:10.1f} {base / value:10.0f}x {layout}{mark}"
         )
     rates = {p: training_samples_per_s(p, args.seconds) for p in PRESET_NAMES}
+    nchw_rates = {
+        p: training_samples_per_s(p, args.seconds, layout=torch.contiguous_format)
+        for p in PRESET_NAMES
+    }
     base = rates["touchnet"]
-    print(f"\ntraining, batch of 16 patches 48x48: {'samples/s':>10s} {'x touchnet':>11s}")
+    print(
+        f"\ntraining, batch of 32 patches 64x64, normal loss: {'samples/s':>10s} {'x touchnet':>11s}"
+        f" {'NCHW':>8s} {'x NCHW':>7s}"
+    )
     for preset, rate in rates.items():
         if np.isfinite(rate):
-            print(f"{preset:14s} {'':22s} {rate:10.1f} {rate / base:10.1f}x")
+            print(
+                f"{preset:14s} {'':35s} {rate:10.1f} {rate / base:10.1f}x"
+                f" {nchw_rates[preset]:8.1f} {rate / nchw_rates[preset]:6.2f}x"
+            )
         else:
-            print(f"{preset:14s} {'':22s} {'(no gradient training)':>22s}")
+            print(f"{preset:14s} {'':35s} {'(no gradient training)':>22s}")
     if args.accuracy is None:
         return
     cpu = [p for p in PRESET_NAMES if p != "touchnet"]

@@ -276,6 +276,25 @@ def test_channels_last_inference_gives_the_contiguous_layouts_gradients(preset):
     np.testing.assert_allclose(fast.gradients(frames), plain.gradients(frames), atol=1e-5)
 
 
+@pytest.mark.parametrize("preset", ["compact_tiny", "context"])
+def test_training_in_nhwc_follows_the_contiguous_layouts_losses(tmp_path, monkeypatch, preset):
+    import threedcal.model.train as trainer
+
+    ts = synthetic_set()
+    settings = TrainSettings.of(preset=preset, seed=2, loss="normal", **TINY)
+    fast = train(ts, tmp_path / "nhwc", 20, settings, progress=False)
+    assert fast["state_dict"][
+        "stem.weight" if preset == "context" else "body.0.weight"
+    ].is_contiguous(memory_format=torch.channels_last)
+    monkeypatch.setattr(trainer, "preferred_memory_format", lambda model: torch.contiguous_format)
+    plain = train(ts, tmp_path / "nchw", 20, settings, progress=False)
+    losses = [pd.read_csv(tmp_path / name / "losses.csv") for name in ("nhwc", "nchw")]
+    assert len(losses[0]) == settings.epochs(20) > 1
+    np.testing.assert_allclose(losses[0]["train_loss"], losses[1]["train_loss"], rtol=1e-4)
+    for key, value in plain["state_dict"].items():
+        np.testing.assert_allclose(fast["state_dict"][key], value, rtol=1e-3, atol=1e-5)
+
+
 def test_fine_tuning_starts_from_the_given_checkpoint(tmp_path):
     ts = synthetic_set()
     base = train(

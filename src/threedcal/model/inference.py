@@ -13,6 +13,7 @@ from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
 from threedcal.model.drift import remove_drift
+from threedcal.model.presets import preferred_memory_format
 
 
 class DepthEstimator:
@@ -46,12 +47,8 @@ class DepthEstimator:
             )
         self.batch_size = batch_size
         self.model = model_from_checkpoint(checkpoint).to(self.device).eval()
-        # NHWC lets oneDNN run the 3×3 / 7×7 convolutions without reordering every layer's input
-        # (1.2–1.7× on the convolutional presets on CPU, the same arithmetic up to float rounding);
-        # a model without convolutions (the lookup table) has nothing to gain and keeps NCHW.
-        convolutional = any(isinstance(m, torch.nn.Conv2d) for m in self.model.modules())
         self.memory_format = (
-            torch.channels_last if channels_last and convolutional else torch.contiguous_format
+            preferred_memory_format(self.model) if channels_last else torch.contiguous_format
         )
         self.model = self.model.to(memory_format=self.memory_format)
         height, width = self.image_shape

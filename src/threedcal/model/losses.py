@@ -15,19 +15,26 @@ LOSSES = ("mse", "huber", "normal")
 HUBER_DELTA = 1.0  # slope error where the loss turns linear: 1 = 45 degrees
 
 
-def unit_normals(gradient: torch.Tensor) -> torch.Tensor:
-    """(N, 2, H, W) gradients -> (N, 3, H, W) unit normals (-gx, -gy, 1) / sqrt(1 + |g|^2).
+def _normal_components(gradient: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The three (N, H, W) components of unit_normals, computed element by element.
 
-    Infinite slopes give the horizontal normal; written with the larger component factored out so
-    that |g| up to float32's maximum stays finite."""
+    Elementwise arithmetic only: a stack, a max over the channel axis and a norm over it cost
+    training a fifth of its time on 64 px patches. The larger of |gx|, |gy|, 1 is factored out so
+    that |g| up to float32's maximum stays finite; an infinite slope gives the horizontal normal."""
     big = torch.finfo(gradient.dtype).max
     gradient = torch.nan_to_num(gradient, nan=torch.nan, posinf=big, neginf=-big)
     gx, gy = gradient[:, 0], gradient[:, 1]
-    one = torch.ones_like(gx)
-    parts = torch.stack([-gx, -gy, one], dim=1)
-    scale = parts.abs().amax(dim=1, keepdim=True)
-    parts = parts / scale
-    return parts / torch.linalg.vector_norm(parts, dim=1, keepdim=True)
+    scale = torch.maximum(torch.maximum(gx.abs(), gy.abs()), torch.ones_like(gx))
+    a, b, c = gx / scale, gy / scale, scale.reciprocal()
+    norm = torch.sqrt(a * a + b * b + c * c)
+    return -a / norm, -b / norm, c / norm
+
+
+def unit_normals(gradient: torch.Tensor) -> torch.Tensor:
+    """(N, 2, H, W) gradients -> (N, 3, H, W) unit normals (-gx, -gy, 1) / sqrt(1 + |g|^2).
+
+    Infinite slopes give the horizontal normal; |g| up to float32's maximum stays finite."""
+    return torch.stack(_normal_components(gradient), dim=1)
 
 
 def gradient_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "mse") -> torch.Tensor:
@@ -39,6 +46,9 @@ def gradient_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "mse") -
         return 2 * torch.nn.functional.huber_loss(pred, target, delta=HUBER_DELTA)
     if kind == "normal":
         # summed over the normal's 3 components, averaged over the 2 gradient components' elements
-        squared = (unit_normals(pred) - unit_normals(target)) ** 2
-        return squared.sum(dim=1).mean() / 2
+        squared = sum(
+            (p - t) ** 2
+            for p, t in zip(_normal_components(pred), _normal_components(target), strict=True)
+        )
+        return squared.mean() / 2
     raise ValueError(f"unknown loss {kind!r} (allowed: {', '.join(LOSSES)})")

@@ -37,7 +37,12 @@ from threedcal.model.checkpoint import (
 )
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.losses import gradient_loss
-from threedcal.model.presets import build_model, is_learned, preset_args
+from threedcal.model.presets import (
+    build_model,
+    is_learned,
+    preferred_memory_format,
+    preset_args,
+)
 from threedcal.schema import load_schema, section
 
 RESUME_NAME = "checkpoint.pt"
@@ -232,9 +237,11 @@ def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
     model.eval()
     total, count = 0.0, 0
     sign = normalisation["gradient_sign"]
+    layout = preferred_memory_format(model)
     with torch.no_grad():
         for x, y in _batches(ts, windows, settings.batch_size, inputs):
             x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
+            x = x.contiguous(memory_format=layout)
             pred = model(x) * sign
             total += float(gradient_loss(pred, y.to(device), settings.loss)) * y.numel()
             count += y.numel()
@@ -276,7 +283,7 @@ def train(
         keep = np.sort(val_rng.choice(len(val_windows), VALIDATION_WINDOWS, replace=False))
         val_windows = [val_windows[k] for k in keep]
     model, normalisation = _initial_model(settings, ts)
-    model.to(device)
+    model.to(device=device, memory_format=preferred_memory_format(model))
     inputs = _Inputs(ts, normalisation["drift"])
     epochs = settings.epochs(percent) if is_learned(settings.preset) else 1
     checked = validation_epochs(epochs)
@@ -380,8 +387,10 @@ def _train_epoch(
     model.train()
     total, count = 0.0, 0
     sign = normalisation["gradient_sign"]
+    layout = preferred_memory_format(model)
     for x, y in _batches(ts, windows, settings.batch_size, inputs):
         x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
+        x = x.contiguous(memory_format=layout)
         y = y.to(device)
         optimizer.zero_grad(set_to_none=True)
         loss = gradient_loss(model(x) * sign, y, settings.loss)
