@@ -171,7 +171,7 @@ def preferred_memory_format(model: nn.Module) -> torch.memory_format:
     """NHWC for a network with convolutions, NCHW otherwise.
 
     NHWC lets oneDNN run the 3×3 / 7×7 convolutions without reordering every layer's input: on CPU
-    1.2–2× in inference and about 1.7× per training step of `context`, the same arithmetic up to
+    1.2–2× in inference and about 2× per training step of `context`, the same arithmetic up to
     float rounding. A model without convolutions (the lookup table) has nothing to gain."""
     convolutional = any(isinstance(m, nn.Conv2d) for m in model.modules())
     return torch.channels_last if convolutional else torch.contiguous_format
