@@ -185,6 +185,25 @@ def tiny_study_dry_run(tmp_path_factory) -> tuple[dict, str]:
     return shared_across_workers(tmp_path_factory, "tiny_study_dry_run", dry_run)[1]
 
 
+def lens_free(sensor: str) -> str:
+    """A built-in sensor profile without its lens, as a YAML path: for plans too coarse to fit the
+    lens (registration then keeps the affine alone, which the lens bends by up to a pixel at the
+    frame's edge; tests/dataset/test_lens_registration.py checks the lens)."""
+    import tempfile
+
+    from threedcal.profiles import load_profile
+
+    profile = {k: v for k, v in load_profile("sensor", sensor).items() if k != "source"}
+    profile["lens"] = None
+    folder = Path(tempfile.gettempdir()) / "threedcal-tests"
+    folder.mkdir(exist_ok=True)
+    path = folder / f"{sensor}-lens-free.yaml"
+    staging = path.with_suffix(f".{os.getpid()}.tmp")
+    staging.write_text(yaml.safe_dump(profile, sort_keys=False))
+    os.replace(staging, path)  # every worker writes the same text: whichever lands is right
+    return str(path)
+
+
 def bench_scene(sensor, plan, seed, bench=None, dataset=None):
     """A validated scene on the simulated bench (hidden touch height up to ±0.1 mm by default)."""
     from threedcal.config import validate_config
@@ -227,9 +246,9 @@ def paper_digit_calibration(tmp_path_factory):
     folder, record = shared_across_workers(
         tmp_path_factory,
         "paper_digit",
-        lambda folder: collect_and_register(folder, "digit", plan, 3, PAPER_DATASET),
+        lambda folder: collect_and_register(folder, lens_free("digit"), plan, 3, PAPER_DATASET),
     )
-    return bench_scene("digit", plan, 3, dataset=PAPER_DATASET), folder, record
+    return bench_scene(lens_free("digit"), plan, 3, dataset=PAPER_DATASET), folder, record
 
 
 def load_file_module(relative: str, name: str):

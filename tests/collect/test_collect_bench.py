@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO, collect_and_register, collect_on_bench, snapshot
+from conftest import REPO, collect_and_register, collect_on_bench, lens_free, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -275,7 +275,7 @@ def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path
         "frames": 1,
         "arm_width_mm": 2.0,
     }
-    scene = collect_on_bench(tmp_path, "digit", plan, 5)
+    scene = collect_on_bench(tmp_path, lens_free("digit"), plan, 5)
     paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
     record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
     assert_search_found_the_touch(record, tmp_path)

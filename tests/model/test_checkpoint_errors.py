@@ -72,3 +72,24 @@ def test_unsafe_checkpoint_refusal_does_not_advise_unsafe_loading(tmp_path):
         pickle.dump({"payload": _Payload()}, handle)
     with pytest.raises(CheckpointError, match="refused to load"):
         read_checkpoint(tmp_path / "plain.pt")
+
+
+def test_checkpoint_with_a_malformed_lens_is_named(tmp_path):
+    """A checkpoint whose camera lens record lacks κ₁ is refused on reading, naming the key."""
+    path = tmp_path / "model.pt"
+    torch.save(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "preset": "compact_tiny",
+            "state_dict": {},
+            "normalisation": {"gradient_sign": 1},
+            "camera": {"lens": {"centre_px": [1.0, 2.0]}},
+        },
+        path,
+    )
+    with pytest.raises(
+        CheckpointError,
+        match=r"model.pt: 'camera': lens record .* is malformed \('kappa1_per_px2'\)",
+    ):
+        read_checkpoint(path)

@@ -92,6 +92,31 @@ def test_touchnet_has_the_papers_layers_and_the_authors_parameter_names():
     assert drops == [0.2, 0.2, 0.2, 0.3, 0.3, 0.2, 0.2, 0.2]
 
 
+def test_depth_estimator_rectifies_camera_frames_through_the_checkpoints_lens(tmp_path):
+    from threedcal.dataset.trainset import pool_to
+    from threedcal.lens import RadialLens
+
+    torch.manual_seed(1)
+    path = tmp_path / "weights.pth"
+    torch.save(TouchNet().eval().state_dict(), path)
+    checkpoint = read_checkpoint(path)
+    blank = np.full((12, 10, 3), 90, np.uint8)
+    plain = DepthEstimator(checkpoint, device="cpu", blank=blank, px_per_mm=10.0)
+    frame = np.random.default_rng(0).integers(0, 255, (12, 10, 3), dtype=np.uint8)
+    assert plain.rectify(frame) is frame  # no lens, the model's size: unchanged
+    # a camera streaming 24 x 20 frames through a barrel lens, the model trained on them pooled 2x
+    lens = RadialLens(centre_px=(9.7, 11.2), kappa1=-2e-4, shape=(24, 20))
+    checkpoint["camera"] = {"lens": lens.record(), "downscale": 2}
+    est = DepthEstimator(checkpoint, device="cpu", blank=blank, px_per_mm=10.0)
+    camera = np.random.default_rng(1).integers(0, 255, (2, 24, 20, 3), dtype=np.uint8)
+    expected = np.stack([pool_to(lens.rectify(f), (12, 10)) for f in camera])
+    np.testing.assert_array_equal(est.rectify(camera), expected)
+    np.testing.assert_array_equal(est.rectify(camera[0]), expected[0])
+    assert not np.array_equal(expected[0], pool_to(camera[0], (12, 10)))  # the lens did something
+    with pytest.raises(ConfigError, match=r"lens was fitted on \(24, 20\)"):
+        est.rectify(frame)
+
+
 def test_authors_bare_state_dict_loads_with_their_normalisation(tmp_path):
     torch.manual_seed(1)
     authors = TouchNet().eval()

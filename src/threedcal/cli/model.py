@@ -49,7 +49,7 @@ def _predict(args: argparse.Namespace) -> int:
     from threedcal.dataset.importers import read_rgb
 
     estimator = _estimator(args)
-    depth = estimator.depth(read_rgb(Path(args.image)))
+    depth = estimator.depth(estimator.rectify(read_rgb(Path(args.image))))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, depth)
@@ -75,7 +75,7 @@ def _live(args: argparse.Namespace) -> int:
         if args.frames and count >= args.frames:
             break
         began = time.perf_counter()
-        depth = estimator.depth(frame)
+        depth = estimator.depth(estimator.rectify(frame))
         times.append(time.perf_counter() - began)
         fps = len(times) / sum(times)
         view = np.concatenate([frame, colour_map(depth, args.max_depth_mm)], axis=1)

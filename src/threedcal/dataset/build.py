@@ -13,6 +13,7 @@ from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 from threedcal.errors import ConfigError
+from threedcal.lens import rectify_if
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -145,8 +146,10 @@ def register_store(
         accept=whole,
         flat_gel=sensor["gel"].get("dome") is None,
         progress=progress,
+        lens=bool(sensor.get("lens")),
     )
-    centres = registration.fit.apply(cmd_xy)
+    # where each press lies in the ideal frame: what the trainset's rectified frames show
+    centres = registration.fit.ideal(cmd_xy)
     # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
     # registration says, and the sag there is what the press's depth is measured from.
     depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
@@ -237,14 +240,19 @@ def build_collected(
             },
         }
     )
+    # frames rectified through the fitted lens: one mm is one px_per_mm everywhere, as the labels are
     trainset = TrainingSet(
-        frames=frames.values[keep],
-        blank=raw["blank_frames"].values.astype(np.float32).mean(axis=0),
+        frames=rectify_if(fit.lens, frames.values[keep]),
+        blank=rectify_if(fit.lens, raw["blank_frames"].values.astype(np.float32).mean(axis=0)),
         samples=samples.assign(frame=np.arange(len(keep))),
         px_per_mm=px_per_mm,
         sphere_radius_mm=radius_mm,
         max_slope_deg=check_max_slope(scene["dataset"]["max_slope_deg"]),
-        meta={"source": "collected", "store_frames": keep.tolist()},
+        meta={
+            "source": "collected",
+            "store_frames": keep.tolist(),
+            "lens": None if fit.lens is None else fit.lens.record(),
+        },
     )
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
@@ -254,6 +262,7 @@ def build_collected(
     linear = fit.matrix[:, :2]
     record = {
         "affine_px_per_mm": fit.matrix.round(9).tolist(),
+        "lens": None if fit.lens is None else fit.lens.record(),
         "residual_px": round(fit.residual_px, 4),
         "px_per_mm": [round(v, 5) for v in fit.px_per_mm],
         "rotation_deg": round(float(np.degrees(np.arctan2(linear[1, 0], linear[0, 0]))), 4),
@@ -274,11 +283,13 @@ def build_collected(
         "probe_points_labelled": int(len(unique)),
     }
     if truth_path is not None and Path(truth_path).is_file():
+        from threedcal.sim.bench import BenchTruth
+
         truth = json.loads(Path(truth_path).read_text())
         if "affine_px_per_mm" in truth:
-            true_affine = np.asarray(truth["affine_px_per_mm"])
+            # where the camera truly images each probe point (through the bench's lens, if any)
             probe = np.unique(cmd_xy[inside], axis=0)
-            true_px = probe @ true_affine[:, :2].T + true_affine[:, 2]
+            true_px = BenchTruth.read(truth_path).camera_px(probe)
             error = np.linalg.norm(fit.apply(probe) - true_px, axis=1)
             record["error_px"] = round(float(np.sqrt(np.mean(error**2))), 4)
             record["error_px_max"] = round(float(error.max()), 4)

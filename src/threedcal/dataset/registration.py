@@ -16,6 +16,7 @@ two or more LEDs at different azimuths fix it in 2D. Saturated pixels take no pa
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -24,6 +25,7 @@ from scipy import ndimage, optimize
 from tqdm import tqdm
 
 from threedcal.errors import ThreedcalError
+from threedcal.lens import RadialLens
 
 
 class RegistrationError(ThreedcalError):
@@ -534,13 +536,22 @@ def refine_by_symmetry(
 
 @dataclass(frozen=True)
 class AffineFit:
-    matrix: np.ndarray  # (2, 3): [col, row]ᵀ = M[:, :2] @ [x_mm, y_mm]ᵀ + M[:, 2]
-    residual_px: float  # RMS residual over the inliers
-    inliers: np.ndarray  # bool per input point
+    """Printer mm → pixels: an affine onto the ideal frame, then the camera's lens (None: none)."""
 
-    def apply(self, xy_mm: np.ndarray) -> np.ndarray:
+    matrix: np.ndarray  # (2, 3): ideal [col, row]ᵀ = M[:, :2] @ [x_mm, y_mm]ᵀ + M[:, 2]
+    residual_px: float  # RMS residual over the inliers, camera pixels
+    inliers: np.ndarray  # bool per input point
+    lens: RadialLens | None = None
+
+    def ideal(self, xy_mm: np.ndarray) -> np.ndarray:
+        """Where the points lie in the ideal (rectified) frame: the affine alone."""
         xy = np.atleast_2d(np.asarray(xy_mm, dtype=float))
         return xy @ self.matrix[:, :2].T + self.matrix[:, 2]
+
+    def apply(self, xy_mm: np.ndarray) -> np.ndarray:
+        """Where the camera images the points."""
+        ideal = self.ideal(xy_mm)
+        return ideal if self.lens is None else self.lens.distort(ideal)
 
     @property
     def px_per_mm(self) -> tuple[float, float]:
@@ -549,36 +560,106 @@ class AffineFit:
         return float(np.linalg.norm(linear[:, 0])), float(np.linalg.norm(linear[:, 1]))
 
 
-def fit_affine(
-    xy_mm: np.ndarray, xy_px: np.ndarray, reject_sigma: float = 4.0, max_rounds: int = 10
-) -> AffineFit:
-    """Least-squares affine mm → px, refitted after rejecting points beyond `reject_sigma` robust sigmas."""
+def _robust(src, dst, solve, reject_sigma: float, max_rounds: int):
+    """Fit `solve(inliers) → model` (with `.apply`), refitting after rejecting points beyond
+    `reject_sigma` robust sigmas; the model, its per-point residuals and the inliers."""
+    finite = np.isfinite(src).all(axis=1) & np.isfinite(dst).all(axis=1)
+    inliers = finite.copy()
+    for _ in range(max_rounds):
+        model = solve(inliers)
+        residuals = np.full(len(src), np.inf)
+        residuals[finite] = np.linalg.norm(model.apply(src[finite]) - dst[finite], axis=1)
+        sigma = max(1.4826 * float(np.median(residuals[inliers])), 0.05)
+        updated = finite & (residuals <= reject_sigma * sigma)
+        if np.array_equal(updated, inliers):
+            break
+        inliers = updated
+    return model, residuals, inliers
+
+
+def _point_arrays(xy_mm, xy_px) -> tuple[np.ndarray, np.ndarray]:
     src = np.asarray(xy_mm, dtype=float)
     dst = np.asarray(xy_px, dtype=float)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 2:
         raise RegistrationError(
             f"need matching (N, 2) point arrays, got {src.shape} and {dst.shape}"
         )
-    finite = np.isfinite(src).all(axis=1) & np.isfinite(dst).all(axis=1)
-    inliers = finite.copy()
+    return src, dst
+
+
+def fit_affine(
+    xy_mm: np.ndarray, xy_px: np.ndarray, reject_sigma: float = 4.0, max_rounds: int = 10
+) -> AffineFit:
+    """Least-squares affine mm → px, refitted after rejecting points beyond `reject_sigma` robust sigmas."""
+    src, dst = _point_arrays(xy_mm, xy_px)
     design = np.column_stack([src, np.ones(len(src))])
-    for _ in range(max_rounds):
+
+    def solve(inliers):
         if inliers.sum() < 3 or np.linalg.matrix_rank(design[inliers]) < 3:
             raise RegistrationError(
                 f"registration needs >= 3 contacts not on one line; {int(inliers.sum())} usable"
             )
         solution, *_ = np.linalg.lstsq(design[inliers], dst[inliers], rcond=None)
-        residuals = np.full(len(src), np.inf)
-        residuals[finite] = np.linalg.norm(design[finite] @ solution - dst[finite], axis=1)
-        inlier_res = residuals[inliers]
-        sigma = max(1.4826 * float(np.median(inlier_res)), 0.05)
-        updated = finite & (residuals <= reject_sigma * sigma)
-        if np.array_equal(updated, inliers):
-            break
-        inliers = updated
-    matrix = solution.T  # (2, 3)
+        return AffineFit(matrix=solution.T, residual_px=math.nan, inliers=inliers)
+
+    fit, residuals, inliers = _robust(src, dst, solve, reject_sigma, max_rounds)
     rms = float(np.sqrt(np.mean(residuals[inliers] ** 2)))
-    return AffineFit(matrix=matrix, residual_px=rms, inliers=inliers)
+    return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers)
+
+
+# Fewest contacts to fit the lens's three extra unknowns (principal point, κ₁) next to the affine;
+# `register` falls back to the affine alone below it (a small trial plan), with a warning.
+MIN_LENS_CONTACTS = 30
+
+
+def fit_lensed(
+    xy_mm: np.ndarray,
+    xy_px: np.ndarray,
+    shape: tuple[int, int],
+    reject_sigma: float = 4.0,
+    max_rounds: int = 10,
+) -> AffineFit:
+    """Affine mm → ideal px and the lens's radial distortion (principal point, κ₁) together, by
+    Levenberg–Marquardt from the plain affine, with the same outlier rejection.
+
+    κ₂ is not fitted: contacts lie whole inside the frame, so none is found in its outer band
+    (a contact radius plus a margin wide), and a free κ₂ fits the inner frame only to bend the
+    band: on the simulated DIGIT it tripled the error there (docs/registration.md). `shape` (H, W)
+    of the frames: the principal point starts at their centre, κ₁ is solved in units of the
+    half-diagonal (well scaled); the returned lens is in pixels."""
+    src, dst = _point_arrays(xy_mm, xy_px)
+    height, width = shape
+    centre0 = np.array([(width - 1) / 2, (height - 1) / 2])
+    r0 = float(np.hypot(*centre0)) or 1.0
+    start = fit_affine(src, dst, reject_sigma, max_rounds)
+
+    def model(params) -> AffineFit:
+        lens = RadialLens(
+            centre_px=(float(params[6]), float(params[7])),
+            kappa1=float(params[8]) / r0**2,
+            shape=(int(height), int(width)),
+        )
+        return AffineFit(params[:6].reshape(2, 3), math.nan, np.zeros(0, bool), lens)
+
+    params = np.concatenate([start.matrix.ravel(), centre0, [0.0]])
+
+    def solve(inliers):
+        nonlocal params
+        if inliers.sum() < MIN_LENS_CONTACTS:
+            raise RegistrationError(
+                f"fitting the lens needs >= {MIN_LENS_CONTACTS} contacts; {int(inliers.sum())} usable"
+            )
+        a, b = src[inliers], dst[inliers]
+
+        def residual(p):
+            return (model(p).apply(a) - b).ravel()
+
+        params = optimize.least_squares(residual, params, method="lm", x_scale="jac").x
+        return model(params)
+
+    fit, residuals, inliers = _robust(src, dst, solve, reject_sigma, max_rounds)
+    rms = float(np.sqrt(np.mean(residuals[inliers] ** 2)))
+    return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers, lens=fit.lens)
 
 
 @dataclass(frozen=True)
@@ -599,8 +680,10 @@ def register(
     accept=lambda contact: True,
     flat_gel: bool = True,
     progress: bool = False,
+    lens: bool = False,
 ) -> Registration:
-    """Locate the contact in every frame by rim and, on a flat gel, by symmetry; fit the affine.
+    """Locate the contact in every frame by rim and, on a flat gel, by symmetry; fit the affine
+    (and with `lens`, the camera lens's radial distortion with it: `fit_lensed`).
 
     The rim locator's bias drifts across the frame and the affine absorbs it as a scale. The
     symmetry locator has no such drift on a flat gel; on a domed gel (`flat_gel=False`) the
@@ -609,20 +692,64 @@ def register(
     locator whose centres an affine maps with the smaller RMS residual is kept (a failing
     unmixing or a clipped sensor shows there). `accept(contact)` drops contacts (e.g. too near
     the image edge) before fitting.
+
+    A lens bends each contact, so its located centre is not where the lens images the press's
+    axis (on the DIGIT's lens a contact 70 px across is off by up to 0.2 px at the frame's edge).
+    With `lens`, the contacts are located again on the frames rectified through the first fit,
+    where they are round, mapped back through it, and the lens refitted to them.
     """
+    shape = np.shape(blank)[:2] if lens else None
+    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape)
+    if not lens:
+        return located
+    first = located.fit.lens
+    if first is None:  # too few contacts for the lens
+        return located
+    again = _locate_and_fit(
+        xy_mm,
+        [first.rectify(np.asarray(f)) for f in frames],
+        first.rectify(np.asarray(blank, dtype=np.float32)),
+        accept,
+        flat_gel,
+        progress,
+        shape,
+        back=first,
+    )
+    return again
+
+
+def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None):
+    """One pass of `register`. `back`: the frames were rectified through this lens; the contacts
+    are mapped back through it to camera pixels before the fit."""
+
+    def unbent(contacts):
+        if back is None:
+            return contacts
+        out = []
+        for c in contacts:
+            if c is not None:
+                x, y = back.distort(np.array([c.x_px, c.y_px]))
+                c = Contact(float(x), float(y), c.radius_px, c.strength)
+            out.append(c)
+        return out
+
     rim = [
         locate_contact(np.asarray(f), blank)
         for f in tqdm(frames, desc="rim centres", unit="frame", disable=not progress)
     ]
     rim = [c if c is not None and accept(c) else None for c in rim]
-    candidates: dict[str, tuple[list, AffineFit]] = {"rim": (rim, _fit_contacts(xy_mm, rim))}
+    found = {"rim": rim}
     unmixing = None
     if flat_gel and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
         refined = refine_by_symmetry(frames, blank, rim, progress=progress)
         unmixing = refined.unmixing
         symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]
         if sum(c is not None for c in symmetric) >= 3:
-            candidates["symmetry"] = (symmetric, _fit_contacts(xy_mm, symmetric))
+            found["symmetry"] = symmetric
+    candidates: dict[str, tuple[list, AffineFit]] = {}
+    for name, contacts in found.items():
+        contacts = unbent(contacts)
+        candidates[name] = (contacts, _fit_contacts(xy_mm, contacts, shape))
     locator = min(candidates, key=lambda name: candidates[name][1].residual_px)
     contacts, fit = candidates[locator]
     return Registration(
@@ -634,9 +761,20 @@ def register(
     )
 
 
-def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None]) -> AffineFit:
-    """fit_affine over all frames; a frame without a contact is a non-finite point, never an inlier."""
+def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None) -> AffineFit:
+    """fit_affine (or, given the frames' `lens_shape`, fit_lensed) over all frames; a frame without
+    a contact is a non-finite point, never an inlier."""
     xy_px = np.array([(c.x_px, c.y_px) if c is not None else (np.nan, np.nan) for c in contacts])
+    found = sum(c is not None for c in contacts)
+    if lens_shape is not None and found >= MIN_LENS_CONTACTS:
+        return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape)
+    if lens_shape is not None:
+        logging.getLogger(__name__).warning(
+            "registration: %d contacts, fewer than the %d a lens fit needs: the affine alone "
+            "(the lens's distortion stays in the frames; probe a denser plan to remove it)",
+            found,
+            MIN_LENS_CONTACTS,
+        )
     return fit_affine(xy_mm, xy_px.reshape(-1, 2))
 
 

@@ -199,6 +199,18 @@ class TrainingSet:
         )
 
 
+def pool_to(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """`image` average-pooled to a model's frame `shape` (H, W), as `downscale` pools a trainset."""
+    if image.shape[:2] == tuple(shape):
+        return image
+    import cv2
+
+    height, width = shape
+    factor = image.shape[0] // height
+    cropped = np.ascontiguousarray(image[: height * factor, : width * factor])
+    return cv2.resize(cropped, (width, height), interpolation=cv2.INTER_AREA)
+
+
 def downscale(trainset: TrainingSet, factor: int) -> TrainingSet:
     """Average-pool frames by an integer factor; centres and px/mm follow (pixel-centre convention)."""
     if factor == 1:

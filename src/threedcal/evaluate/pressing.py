@@ -32,10 +32,12 @@ import numpy as np
 import pandas as pd
 
 from threedcal.config import mount_problem
+from threedcal.dataset.trainset import pool_to
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import HeightMap, surface_height
 from threedcal.evaluate.objects import load_object as _load_object
 from threedcal.evaluate.objects import object_label
+from threedcal.lens import RadialLens, rectify_if
 
 SETS = ("tuning", "reporting")  # settings may be chosen on the first, never on the second
 # The simulated bench's default mount: the object's origin exactly where the ball's tip was.
@@ -554,25 +556,13 @@ def _press_on_rig(scene, sensor, printer, frame, presses, settings, progress):
 
 
 # ------------------------------------------------------------------------------------ scoring
-def _pooled(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """`image` average-pooled to a model's frame `shape`, as the dataset stage downscales."""
-    if image.shape[:2] == tuple(shape):
-        return image
-    import cv2
-
-    height, width = shape
-    factor = image.shape[0] // height
-    cropped = np.ascontiguousarray(image[: height * factor, : width * factor])
-    return cv2.resize(cropped, (width, height), interpolation=cv2.INTER_AREA)
-
-
 def _checkpoint_estimator(model: str | Path, blank: np.ndarray):
     from threedcal.model.checkpoint import read_checkpoint
     from threedcal.model.inference import DepthEstimator
 
     checkpoint = read_checkpoint(model)
     shape = tuple(checkpoint.get("image_shape") or np.asarray(checkpoint["blank"]).shape[:2])
-    return DepthEstimator(checkpoint, device="cpu", blank=_pooled(blank, shape))
+    return DepthEstimator(checkpoint, device="cpu", blank=pool_to(blank, shape))
 
 
 def read_presses(pressing_dir: str | Path) -> tuple[pd.DataFrame, np.ndarray, dict, dict]:
@@ -622,6 +612,10 @@ def evaluate_objects(
         sensor, read_registration(registration_path), scene_mount(scene, "scene")
     )
     plan, frames, blanks, truth = read_presses(pressing_dir)
+    # into the ideal frame the models were trained in, through the lens the registration fitted
+    lens = RadialLens.from_record(read_registration(registration_path).get("lens"))
+    frames = rectify_if(lens, frames)
+    blanks = {name: rectify_if(lens, blank) for name, blank in blanks.items()}
     true_presses = truth.get("presses") if truth.get("simulated") else None
     integrators = list(scene["integrators"])
     fractions = sorted(models)
@@ -646,7 +640,7 @@ def evaluate_objects(
         for p in fractions:
             est = estimators[(p, press.set)]
             factor = image_full.shape[0] / est.image_shape[0]
-            image = _pooled(image_full, est.image_shape)
+            image = pool_to(image_full, est.image_shape)
             pose = placed.at_scale(factor)
             key = (press.frame, tuple(est.image_shape))
             if key not in truths:

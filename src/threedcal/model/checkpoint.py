@@ -17,6 +17,7 @@ from typing import Any
 import torch
 
 from threedcal.errors import ConfigError, ThreedcalError
+from threedcal.lens import RadialLens
 from threedcal.model.presets import build_model
 
 FORMAT = "threedcal-model"
@@ -154,6 +155,14 @@ def _inference_problem(data: dict) -> str | None:
         and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape)
     ):
         return f"'image_shape' must be [height, width] in pixels, got {shape!r}"
+    camera = data.get("camera")
+    if camera is not None:
+        if not isinstance(camera, dict):
+            return f"'camera' must be a dict, got {type(camera).__name__}"
+        try:
+            RadialLens.from_record(camera.get("lens"))
+        except ConfigError as exc:
+            return f"'camera': {exc}"
     return None
 
 

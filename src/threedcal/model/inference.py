@@ -1,4 +1,8 @@
-"""DepthEstimator: a checkpoint → gradients and depth (mm) of raw sensor frames, batched, CPU or GPU."""
+"""DepthEstimator: a checkpoint → gradients and depth (mm) of sensor frames, batched, CPU or GPU.
+
+`gradients` and `depth` read frames as the model was trained on them: rectified through the
+camera's lens when the dataset stage fitted one. A camera's own frames go through `rectify` first
+(`threedcal model predict` and `live` do that)."""
 
 from __future__ import annotations
 
@@ -9,8 +13,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from threedcal.dataset.trainset import pool_to
 from threedcal.depth import integrate
 from threedcal.errors import ConfigError
+from threedcal.lens import RadialLens, rectify_if
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
 from threedcal.model.drift import remove_drift
 from threedcal.model.presets import preferred_memory_format
@@ -57,6 +63,20 @@ class DepthEstimator:
         grid_y, grid_x = torch.meshgrid(ys, xs, indexing="ij")
         self._coords = torch.stack([grid_x, grid_y]).to(self.device)
         self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
+        camera = checkpoint.get("camera") or {}
+        self.lens = RadialLens.from_record(camera.get("lens"))
+
+    def rectify(self, frames: np.ndarray) -> np.ndarray:
+        """Camera frames (H, W, 3) or (N, H, W, 3), as the sensor streams them → this model's input:
+        resampled through the lens the dataset stage fitted (threedcal.lens) and pooled to the
+        model's frame. Without a lens and at the model's size, the frames come back unchanged."""
+        frames = np.asarray(frames)
+        rectified = rectify_if(self.lens, frames)
+        if rectified.shape[-3:-1] == self.image_shape:
+            return rectified
+        if rectified.ndim == 3:
+            return pool_to(rectified, self.image_shape)
+        return np.stack([pool_to(f, self.image_shape) for f in rectified])
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, **kwargs) -> DepthEstimator:

@@ -425,6 +425,11 @@ def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -
         "blank": torch.from_numpy(np.ascontiguousarray(ts.blank, dtype=np.float32)),
         "px_per_mm": float(ts.px_per_mm),
         "image_shape": list(ts.image_shape),
+        # how camera frames become this model's input (DepthEstimator.rectify)
+        "camera": {
+            "lens": (ts.meta or {}).get("lens"),
+            "downscale": int((ts.meta or {}).get("downscale", 1)),
+        },
         "training": {
             "percent": int(percent),
             "replicate": int(replicate),

@@ -38,7 +38,17 @@ class BenchTruth:
     seating_offset_mm: tuple[float, float]
     seating_rotation_deg: float
     touch_offset_mm: float  # true first-touch Z minus the profile's nominal z_touch_mm
-    affine_px_per_mm: list[list[float]]  # true printer (X, Y) mm → image (column, row) px
+    affine_px_per_mm: list[list[float]]  # true printer (X, Y) mm → ideal image (column, row) px
+    lens: dict | None = None  # the lens as built (threedcal.lens.RadialLens.record); None: none
+
+    def camera_px(self, xy_mm) -> np.ndarray:
+        """Printer (X, Y) mm (N, 2) → where the camera truly images them (column, row) px."""
+        from threedcal.lens import RadialLens
+
+        affine = np.asarray(self.affine_px_per_mm)
+        ideal = np.atleast_2d(np.asarray(xy_mm, dtype=float)) @ affine[:, :2].T + affine[:, 2]
+        lens = RadialLens.from_record(self.lens)
+        return ideal if lens is None else lens.distort(ideal)
 
     def write(self, path: str | Path) -> None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -52,6 +62,7 @@ class BenchTruth:
             seating_rotation_deg=data["seating_rotation_deg"],
             touch_offset_mm=data["touch_offset_mm"],
             affine_px_per_mm=data["affine_px_per_mm"],
+            lens=data.get("lens"),
         )
 
 
@@ -70,8 +81,32 @@ def nominal_affine(sensor: Mapping) -> np.ndarray:
     return np.array([[s, 0.0, cx - s * px], [0.0, -s, cy + s * py]])
 
 
+# A lens as built is not the profile's nominal one: its principal point sits up to this far from the
+# frame's centre, and its distortion coefficients differ by up to this fraction.
+LENS_CENTRE_JITTER_PX = 3.0
+LENS_K_JITTER = 0.2
+
+
+def draw_lens(sensor: Mapping, seed: int):
+    """The bench camera's lens (threedcal.lens.RadialLens), drawn around the profile's; None: none."""
+    from threedcal.lens import RadialLens
+
+    nominal = RadialLens.from_profile(sensor)
+    if nominal is None:
+        return None
+    rng = np.random.default_rng([seed, 0x1E45])
+    shift = rng.uniform(-1, 1, 2) * LENS_CENTRE_JITTER_PX
+    scale = 1 + rng.uniform(-1, 1, 2) * LENS_K_JITTER
+    return RadialLens(
+        centre_px=(nominal.centre_px[0] + shift[0], nominal.centre_px[1] + shift[1]),
+        kappa1=nominal.kappa1 * scale[0],
+        kappa2=nominal.kappa2 * scale[1],
+        shape=nominal.shape,
+    )
+
+
 def draw_truth(sensor: Mapping, settings: Mapping, seed: int) -> BenchTruth:
-    """Seating and touch errors drawn uniformly within the configured magnitudes."""
+    """Seating and touch errors drawn uniformly within the configured magnitudes, and the lens."""
     rng = np.random.default_rng([seed, 0xBE7C])
     offset = rng.uniform(-1, 1, 2) * float(settings["seating_offset_mm"])
     rotation = float(rng.uniform(-1, 1) * float(settings["seating_rotation_deg"]))
@@ -90,6 +125,7 @@ def draw_truth(sensor: Mapping, settings: Mapping, seed: int) -> BenchTruth:
         seating_rotation_deg=rotation,
         touch_offset_mm=touch,
         affine_px_per_mm=affine.round(12).tolist(),
+        lens=None if (lens := draw_lens(sensor, seed)) is None else lens.record(),
     )
 
 
@@ -151,15 +187,17 @@ class SimBench(FirmwareBench):
         fault_rate: float = 0.0,
         speedup: float = math.inf,
     ):
+        from threedcal.lens import RadialLens
+        from threedcal.sim.camera import make_gel
         from threedcal.sim.indenters import Sphere
-        from threedcal.sim.optics import GelSimulator
 
         self.sensor = sensor
         self.seed = int(seed)
         self.truth = draw_truth(sensor, settings, seed)
         self._affine = np.asarray(self.truth.affine_px_per_mm)
         self._z_touch = float(sensor["mount"]["z_touch_mm"]) + self.truth.touch_offset_mm
-        self.gel = GelSimulator(sensor, seed=seed)
+        self.lens = RadialLens.from_record(self.truth.lens)
+        self.gel = make_gel(sensor, seed=seed, lens=self.lens)
         self.ball = Sphere(probe_radius_mm)
         self.tool: MountedObject | None = None
         self.last_render: dict | None = None
@@ -174,8 +212,7 @@ class SimBench(FirmwareBench):
 
     def penetration_mm(self, center_px: tuple[float, float], z_mm: float) -> float:
         """How far the ball's bottom at printer Z sits below the undeformed gel surface under it."""
-        u = (center_px[0] - self.gel._cx) / self.gel.px_per_mm
-        v = (center_px[1] - self.gel._cy) / self.gel.px_per_mm
+        u, v = self.gel.axis_mm(center_px)
         return self._z_touch - float(self.gel.sag_mm(u, v)) - z_mm
 
     def mount(self, tool: MountedObject | None) -> None:
@@ -185,10 +222,10 @@ class SimBench(FirmwareBench):
     def start_session(self, noise_seed: int, gain_rgb) -> None:
         """A later session on the same sensor, not reseated: same gel, paint and seating; fresh
         camera noise (`noise_seed`) and the LEDs' brightness scaled by `gain_rgb` per channel."""
-        from threedcal.sim.optics import GelSimulator
+        from threedcal.sim.camera import make_gel
 
-        self.gel = GelSimulator(
-            self.sensor, seed=self.seed, noise_seed=noise_seed, gain_rgb=gain_rgb
+        self.gel = make_gel(
+            self.sensor, seed=self.seed, lens=self.lens, noise_seed=noise_seed, gain_rgb=gain_rgb
         )
 
     @property

@@ -302,7 +302,7 @@ class GelSimulator:
 
     def blank(self, frame_index: int = 0) -> np.ndarray:
         """A no-contact frame: background, flicker, noise, quantisation."""
-        return self._finish(self._bg.copy(), frame_index)
+        return self._finish(self.ideal(), frame_index)
 
     def render(
         self,
@@ -315,21 +315,38 @@ class GelSimulator:
         hold_frame: int = 0,
     ) -> np.ndarray:
         """A frame with `indenter` pressed `depth_mm` into the gel, its axis at `center_px` (x, y)."""
-        self.check_depth(depth_mm)
-        cx, cy = (float(v) for v in center_px)
-        if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(rotation_deg)):
-            raise ConfigError(
-                f"pose must be finite, got center_px={center_px}, rotation_deg={rotation_deg}"
-            )
-        frame = self._bg.copy()
-        if depth_mm > 0:
-            delta = self.contact_change(
-                indenter, (cx, cy), rotation_deg, self.effective_depth_mm(depth_mm, hold_frame)
-            )
-            if delta is not None:
-                (y0, y1, x0, x1), d = delta
-                frame[y0:y1, x0:x1] += d
+        frame = self.ideal(indenter, center_px, rotation_deg, depth_mm, hold_frame=hold_frame)
         return self._finish(frame, frame_index)
+
+    def ideal(
+        self,
+        indenter: Indenter | None = None,
+        center_px: tuple[float, float] = (0.0, 0.0),
+        rotation_deg: float = 0.0,
+        depth_mm: float = 0.0,
+        *,
+        hold_frame: int = 0,
+    ) -> np.ndarray:
+        """The noiseless frame in float32 DN (the background alone without an indenter): what the
+        camera's lens (threedcal.sim.camera) sees before its sensor adds noise."""
+        frame = self._bg.copy()
+        if indenter is not None:
+            self.check_depth(depth_mm)
+            cx, cy = (float(v) for v in center_px)
+            if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(rotation_deg)):
+                raise ConfigError(
+                    f"pose must be finite, got center_px={center_px}, rotation_deg={rotation_deg}"
+                )
+            if depth_mm > 0:
+                delta = self.contact_change(
+                    indenter, (cx, cy), rotation_deg, self.effective_depth_mm(depth_mm, hold_frame)
+                )
+                if delta is not None:
+                    (y0, y1, x0, x1), d = delta
+                    frame[y0:y1, x0:x1] += d
+        if self._marker_mask is not None:
+            frame *= self._marker_mask  # the gel's printed markers hide what lies under them
+        return frame
 
     def check_depth(self, depth_mm: float) -> None:
         if not math.isfinite(depth_mm) or depth_mm < 0:
@@ -431,7 +448,7 @@ class GelSimulator:
         if self._press_memo is not None and self._press_memo[0] == (pose, float(depth_mm)):
             return self._press_memo[1]
         interference = self.interference(indenter, center_px, rotation_deg, depth_mm)
-        ax, ay = self._axis_mm(center_px)
+        ax, ay = self.axis_mm(center_px)
         reach = indenter.reach_mm
         press = self._elastic.press(
             interference, (ax - reach, ax + reach, ay - reach, ay + reach), (ax, ay)
@@ -439,7 +456,7 @@ class GelSimulator:
         self._press_memo = ((pose, float(depth_mm)), press)
         return press
 
-    def _axis_mm(self, center_px) -> tuple[float, float]:
+    def axis_mm(self, center_px) -> tuple[float, float]:
         s = self.px_per_mm
         return (center_px[0] - self._cx) / s, (center_px[1] - self._cy) / s
 
@@ -447,7 +464,7 @@ class GelSimulator:
         """w(X, Y): how far the indenter's surface lies below the undeformed (domed) gel surface (mm;
         -inf where it has no surface), at points (X, Y) mm from the image centre. Its lowest point
         sits `depth_mm` below the undeformed surface under its axis."""
-        ax, ay = self._axis_mm(center_px)
+        ax, ay = self.axis_mm(center_px)
         sag_c = float(self.sag_mm(ax, ay))
         c, sn = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
 
@@ -698,9 +715,8 @@ class GelSimulator:
             frame *= np.float32(gain)
         if self.gain_rgb is not None:
             frame *= self.gain_rgb
-        if self._marker_mask is not None:
-            frame *= self._marker_mask
-        frame += self._noise[k, oy : oy + self.height, ox : ox + self.width]
+        height, width = frame.shape[:2]
+        frame += self._noise[k, oy : oy + height, ox : ox + width]
         frame += 0.5  # round half up on the cast below
         np.clip(frame, 0.0, 255.0, out=frame)
         return frame.astype(np.uint8)

@@ -1,0 +1,116 @@
+"""Registration with the camera's lens: the fit itself, the simulated camera, and the dataset stage
+that rectifies frames through the fitted lens."""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import collect_and_register
+
+from threedcal.collect.store import open_checked
+from threedcal.dataset.registration import fit_affine, fit_lensed, locate_contact
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.lens import RadialLens
+from threedcal.profiles import load_profile
+from threedcal.sim.bench import BenchTruth, draw_lens
+from threedcal.sim.camera import LensedGel
+from threedcal.sim.indenters import Sphere
+
+SHAPE = (240, 320)
+
+
+def test_fit_lensed_recovers_an_exact_lens_and_affine_that_an_affine_cannot():
+    lens = RadialLens(centre_px=(161.7, 118.2), kappa1=-8e-7, shape=SHAPE)
+    affine = np.array([[15.6, 0.4, -1700.0], [0.5, -15.7, 1990.0]])
+    gx, gy = np.meshgrid(np.linspace(100, 117, 18), np.linspace(114, 126, 13))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    camera = lens.distort(xy @ affine[:, :2].T + affine[:, 2])
+    fit = fit_lensed(xy, camera, SHAPE)
+    np.testing.assert_allclose(fit.matrix, affine, rtol=1e-7, atol=1e-5)
+    np.testing.assert_allclose(fit.lens.centre_px, lens.centre_px, atol=1e-4)
+    assert fit.lens.kappa1 == pytest.approx(lens.kappa1, rel=1e-6)
+    assert fit.residual_px < 1e-6
+    assert fit_affine(xy, camera).residual_px > 0.5  # the lens is not an affine
+
+
+def test_lensed_gel_images_a_press_where_the_lens_puts_it_and_darkens_the_corners():
+    digit = load_profile("sensor", "digit")
+    lens = RadialLens(centre_px=(121.0, 157.5), kappa1=-1.2e-6, shape=(320, 240))
+    gel = LensedGel(digit, seed=2, lens=lens)
+    ball, ideal = Sphere(2.0), np.array([50.0, 70.0])  # 113 px from the centre: 1.7 px of bend
+    frame = gel.render(ball, tuple(ideal), 0.0, 0.5, frame_index=1)
+    found = locate_contact(frame, gel.background)
+    # the same press without the lens, located by the same rim locator (its own shading bias)
+    canvas = gel.inner.render(ball, tuple(ideal + gel.pad), 0.0, 0.5, frame_index=1)
+    plain = locate_contact(canvas, gel.inner.background)
+    plain_xy = np.array([plain.x_px, plain.y_px]) - gel.pad
+    assert np.hypot(*(lens.distort(ideal) - ideal)) > 1.5
+    # within what the lens's bend of the contact itself moves its rim (about κ r a², 0.4 px here)
+    assert np.hypot(*(lens.distort(plain_xy) - [found.x_px, found.y_px])) < 0.5
+    # vignetting: the whole image loses `vignetting` of its light at the corners, none at the centre
+    inner = gel.inner.background
+    centre = gel._camera(np.ones_like(inner))
+    v = digit["lens"]["vignetting"]
+    assert centre[159, 119, 0] == pytest.approx(1.0, abs=2e-4)
+    assert centre[0, 0, 0] == pytest.approx(1.0 - v, abs=2e-3)
+
+
+def test_bench_draws_a_lens_apart_from_the_profiles_and_reports_where_it_images():
+    digit = load_profile("sensor", "digit")
+    nominal = RadialLens.from_profile(digit)
+    drawn = [draw_lens(digit, seed) for seed in range(20)]
+    assert all(abs(d.kappa1 / nominal.kappa1 - 1) <= 0.2 for d in drawn)
+    assert max(abs(d.kappa1 / nominal.kappa1 - 1) for d in drawn) > 0.1
+    assert all(np.hypot(*np.subtract(d.centre_px, nominal.centre_px)) <= 3 * 2**0.5 for d in drawn)
+    truth = BenchTruth(
+        (0.0, 0.0), 0.0, 0.0, [[19.5, 0, -2000], [0, -19.5, 2400]], drawn[0].record()
+    )
+    xy = np.array([[106.0, 121.0]])
+    ideal = xy @ np.array([[19.5, 0], [0, -19.5]]).T + np.array([-2000, 2400])
+    np.testing.assert_allclose(truth.camera_px(xy), drawn[0].distort(ideal))
+
+
+@pytest.fixture(scope="module")
+def mini_with_lens(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("mini_lens")
+    plan = {"spacing_mm": 1.0, "depth_mm": 1.0, "frames": 1}
+    return folder, collect_and_register(folder, "gelsight_mini", plan, 4)
+
+
+def test_registration_fits_the_lens_within_0_3_px_of_the_benchs_over_the_view(mini_with_lens):
+    folder, record = mini_with_lens
+    truth = json.loads((folder / "truth.json").read_text())["lens"]
+    fitted = record["lens"]
+    assert fitted is not None and record["contacts_used"] >= 30
+    assert record["error_px"] <= 0.3, record
+    assert np.hypot(*np.subtract(fitted["centre_px"], truth["centre_px"])) < 2.0
+    assert fitted["kappa1_per_px2"] == pytest.approx(truth["kappa1_per_px2"], rel=0.15)
+
+
+def test_dataset_frames_are_rectified_so_contacts_sit_at_their_labels(mini_with_lens):
+    folder, record = mini_with_lens
+    ts = TrainingSet.load(folder / "ts")
+    lens = RadialLens.from_record(ts.meta["lens"])
+    assert ts.meta["lens"] == record["lens"]
+    # the press farthest from the centre whose contact lies whole in the frame (50 px margin):
+    # rectified, its contact is where its label says
+    height, width = ts.image_shape
+    x, y = ts.center_px.T
+    whole = (x > 50) & (x < width - 51) & (y > 50) & (y < height - 51)
+    reach = np.where(whole, np.hypot(*(ts.center_px - np.array(lens.centre_px)).T), -1)
+    far = int(np.argmax(reach))
+    label = ts.center_px[far]
+    rectified = locate_contact(np.asarray(ts.frames[far]), ts.blank)
+    raw = open_checked(folder / "raw.zarr")
+    camera = locate_contact(
+        raw["frames"].values[ts.meta["store_frames"][far]],
+        raw["blank_frames"].values.astype(np.float32).mean(axis=0),
+    )
+    camera_xy, rectified_xy = [np.array([c.x_px, c.y_px]) for c in (camera, rectified)]
+    # the rectified contact is the camera's one taken back through the lens (up to the lens's bend
+    # of the contact itself, which rectifying removes), and so lies about the bend nearer its label
+    assert np.hypot(*(lens.undistort(camera_xy) - rectified_xy)) < 0.35
+    bend = np.hypot(*(lens.distort(label) - label))
+    assert bend > 1.0
+    # (the rim locator's own bias, about 0.5 px this near the edge, stays in both)
+    assert np.hypot(*(camera_xy - label)) - np.hypot(*(rectified_xy - label)) > 0.5 * bend
