@@ -607,7 +607,7 @@ def fit_affine(
     return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers)
 
 
-# Fewest contacts to fit the lens's three extra unknowns (principal point, κ₁) next to the affine;
+# Fewest contacts to fit the lens's four extra unknowns (principal point, κ₁, κ₂) next to the affine;
 # `register` falls back to the affine alone below it (a small trial plan), with a warning.
 MIN_LENS_CONTACTS = 30
 
@@ -618,15 +618,17 @@ def fit_lensed(
     shape: tuple[int, int],
     reject_sigma: float = 4.0,
     max_rounds: int = 10,
+    kappa2: bool = True,
 ) -> AffineFit:
-    """Affine mm → ideal px and the lens's radial distortion (principal point, κ₁) together, by
-    Levenberg–Marquardt from the plain affine, with the same outlier rejection.
+    """Affine mm → ideal px and the lens's radial distortion (principal point, κ₁ and with
+    `kappa2` κ₂) together, by Levenberg–Marquardt from the plain affine, with the same outlier
+    rejection.
 
-    κ₂ is not fitted: contacts lie whole inside the frame, so none is found in its outer band
-    (a contact radius plus a margin wide), and a free κ₂ fits the inner frame only to bend the
-    band: on the simulated DIGIT it tripled the error there (docs/registration.md). `shape` (H, W)
-    of the frames: the principal point starts at their centre, κ₁ is solved in units of the
-    half-diagonal (well scaled); the returned lens is in pixels."""
+    `shape` (H, W) of the frames: the principal point starts at their centre, κ is solved in
+    units of the half-diagonal (well scaled); the returned lens is in pixels. Contacts lie whole
+    inside the frame, so none is found in its outer band (a contact radius and a margin wide):
+    the fit extrapolates there, and κ₂ makes it extrapolate wildly from contacts that the lens
+    itself bent (`register` fits κ₁ alone on its first pass for that reason)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     height, width = shape
     centre0 = np.array([(width - 1) / 2, (height - 1) / 2])
@@ -637,11 +639,12 @@ def fit_lensed(
         lens = RadialLens(
             centre_px=(float(params[6]), float(params[7])),
             kappa1=float(params[8]) / r0**2,
+            kappa2=float(params[9]) / r0**4 if kappa2 else 0.0,
             shape=(int(height), int(width)),
         )
         return AffineFit(params[:6].reshape(2, 3), math.nan, np.zeros(0, bool), lens)
 
-    params = np.concatenate([start.matrix.ravel(), centre0, [0.0]])
+    params = np.concatenate([start.matrix.ravel(), centre0, [0.0, 0.0][: 1 + kappa2]])
 
     def solve(inliers):
         nonlocal params
@@ -694,12 +697,13 @@ def register(
     the image edge) before fitting.
 
     A lens bends each contact, so its located centre is not where the lens images the press's
-    axis (on the DIGIT's lens a contact 70 px across is off by up to 0.2 px at the frame's edge).
-    With `lens`, the contacts are located again on the frames rectified through the first fit,
-    where they are round, mapped back through it, and the lens refitted to them.
+    axis (on the DIGIT's lens a contact 70 px across is off by up to 0.4 px near the frame's edge).
+    With `lens`, a first fit (principal point and κ₁) rectifies the frames; the contacts are
+    located again there, where they are round, mapped back through it, and the lens (now with κ₂)
+    refitted to them (docs/registration.md, The lens).
     """
     shape = np.shape(blank)[:2] if lens else None
-    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape)
+    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, kappa2=False)
     if not lens:
         return located
     first = located.fit.lens
@@ -718,7 +722,9 @@ def register(
     return again
 
 
-def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None):
+def _locate_and_fit(
+    xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None, kappa2=True
+):
     """One pass of `register`. `back`: the frames were rectified through this lens; the contacts
     are mapped back through it to camera pixels before the fit."""
 
@@ -749,7 +755,7 @@ def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, bac
     candidates: dict[str, tuple[list, AffineFit]] = {}
     for name, contacts in found.items():
         contacts = unbent(contacts)
-        candidates[name] = (contacts, _fit_contacts(xy_mm, contacts, shape))
+        candidates[name] = (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))
     locator = min(candidates, key=lambda name: candidates[name][1].residual_px)
     contacts, fit = candidates[locator]
     return Registration(
@@ -761,13 +767,15 @@ def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, bac
     )
 
 
-def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None) -> AffineFit:
+def _fit_contacts(
+    xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None, kappa2: bool = True
+) -> AffineFit:
     """fit_affine (or, given the frames' `lens_shape`, fit_lensed) over all frames; a frame without
     a contact is a non-finite point, never an inlier."""
     xy_px = np.array([(c.x_px, c.y_px) if c is not None else (np.nan, np.nan) for c in contacts])
     found = sum(c is not None for c in contacts)
     if lens_shape is not None and found >= MIN_LENS_CONTACTS:
-        return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape)
+        return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape, kappa2=kappa2)
     if lens_shape is not None:
         logging.getLogger(__name__).warning(
             "registration: %d contacts, fewer than the %d a lens fit needs: the affine alone "
