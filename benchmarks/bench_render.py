@@ -73,13 +73,16 @@ def main() -> None:
         finally:
             del sim.window
 
-    def elastic(i):  # a new pose and depth every frame
-        x, y, d = poses[i]
-        return gel.render(ball, (x, y), 0.0, d, frame_index=i)
+    def through(simulator):  # a new pose and depth every frame
+        def render(i):
+            x, y, d = poses[i]
+            return simulator.render(ball, (x, y), 0.0, d, frame_index=i)
+
+        return render
 
     fast = rate(windowed, 400)
     base = rate(full_frame, 40)
-    soft = rate(elastic, 400)
+    soft = rate(through(gel), 400)
     print("sphere renders 240x320 (digit, R = 2 mm, depth 0.3-1.5 mm):")
     show("  geometric gel, windowed", fast)
     show("  geometric gel, full-frame baseline", base)
@@ -96,13 +99,6 @@ def main() -> None:
 
     lensed = LensedGel(digit, seed=0)
     lensed_elastic = LensedGel(elastic_profile, seed=0)
-
-    def through(simulator):
-        def render(i):
-            x, y, d = poses[i]
-            return simulator.render(ball, (x, y), 0.0, d, frame_index=i)
-
-        return render
 
     geo_lens = rate(through(lensed), 400)
     soft_lens = rate(through(lensed_elastic), 400)
