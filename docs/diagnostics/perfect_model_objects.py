@@ -22,7 +22,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.evaluate.pressing import TruthGradients, evaluate_objects, press_objects
+from threedcal.evaluate.pressing import (
+    TruthGradients,
+    evaluate_objects,
+    press_objects,
+    read_registration,
+)
+from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 
 
@@ -41,7 +47,8 @@ def main() -> None:
             scene["pressing"]["bench"] = {k: 0.0 for k in scene["pressing"]["bench"]}
             pressing = Path(out) / "pressing"
             press_objects(scene, registration, pressing, progress=False)
-        perfect = TruthGradients(pressing, px_per_mm)
+        lens = RadialLens.from_record(read_registration(registration).get("lens"))
+        perfect = TruthGradients(pressing, px_per_mm, lens=lens)
         errors = evaluate_objects(
             scene,
             {80: "perfect"},

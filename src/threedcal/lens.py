@@ -72,14 +72,17 @@ class RadialLens:
             return None
         try:
             shape = record.get("shape")
+            centre = tuple(float(v) for v in record["centre_px"])
+            if len(centre) != 2 or (shape is not None and len(shape) != 2):
+                raise ValueError("centre_px and shape take two numbers each")
             return cls(
-                centre_px=tuple(float(v) for v in record["centre_px"]),
+                centre_px=centre,
                 kappa1=float(record["kappa1_per_px2"]),
                 kappa2=float(record.get("kappa2_per_px4", 0.0)),
                 shape=None if shape is None else tuple(int(v) for v in shape),
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ConfigError(f"lens record {dict(record)!r} is malformed ({exc})") from exc
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"lens record {record!r} is malformed ({exc})") from exc
 
     def record(self) -> dict:
         """JSON-ready parameters (registration.json, the trainset's meta, a checkpoint)."""
@@ -153,6 +156,10 @@ class RadialLens:
         import cv2
 
         images = np.asarray(images)
+        if images.ndim not in (2, 3, 4) or images.size == 0:
+            raise ConfigError(
+                f"rectify takes a frame (H, W) or (H, W, C), or frames (N, H, W, C); got {images.shape}"
+            )
         batched = images.ndim == 4
         stack = images if batched else images[None]
         shape = stack.shape[1:3]
@@ -174,7 +181,10 @@ class RadialLens:
                 )
                 for image in work
             ]
-        ).astype(dtype, copy=False)
+        )
+        if out.dtype != dtype:  # other integer types: rounded back, not truncated
+            out = np.rint(out) if np.issubdtype(dtype, np.integer) else out
+            out = out.astype(dtype)
         if out.ndim < stack.ndim:  # cv2 drops a trailing channel axis of length 1
             out = out[..., None]
         return out if batched else out[0]

@@ -114,3 +114,29 @@ def test_dataset_frames_are_rectified_so_contacts_sit_at_their_labels(mini_with_
     assert bend > 1.0
     # (the rim locator's own bias, about 0.5 px this near the edge, stays in both)
     assert np.hypot(*(camera_xy - label)) - np.hypot(*(rectified_xy - label)) > 0.5 * bend
+
+
+def test_a_distortion_free_lens_keeps_the_frames_constants_hot_spots_field_markers_vignetting():
+    """With k1 = k2 = 0 the lens only crops the canvas: the background must equal the plain
+    simulator's, so hot spots, the fitted colour field, the LEDs' vignetting and the markers stay
+    where the frame has them, not where the wider canvas would put them."""
+    import copy
+
+    from threedcal.sim.optics import GelSimulator
+
+    profile = copy.deepcopy(load_profile("sensor", "digit_fots"))  # a fitted colour field
+    profile["optics"].update(
+        texture_dn=0.0,  # drawn per canvas pixel: not comparable
+        vignetting=0.3,
+        hot_spots=[{"x": 0.2, "y": 0.9, "sigma": 0.05, "amplitude_dn": [20, 5, 5]}],
+        markers={"spacing_mm": 1.5, "radius_mm": 0.3, "darkness": 0.5},
+    )
+    profile["lens"] = {"fov_deg": 60.0, "k1": 0.0, "k2": 0.0, "vignetting": 0.0}
+    lensed = LensedGel(profile, seed=1)
+    plain = GelSimulator(profile, seed=1)
+    assert lensed.pad > 0 and lensed.inner.width == 240 + 2 * lensed.pad
+    # the camera blur reaches past the frame's edge on the canvas and replicates the edge without
+    # it: compare where it does not reach
+    edge = int(np.ceil(4 * plain.blur_sigma)) + 2
+    inner = np.s_[edge:-edge, edge:-edge]
+    np.testing.assert_allclose(lensed.background[inner], plain.ideal()[inner], atol=2e-3)

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import lens_free
 from scipy import ndimage
 
 from threedcal.config import validate_config
@@ -23,10 +24,12 @@ from threedcal.evaluate.pressing import (
     press_objects,
     pressing_seed,
     read_presses,
+    read_registration,
     relief_indenter,
     session_draws,
     true_mount,
 )
+from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
@@ -46,7 +49,11 @@ def perfect_registration(scene, path):
     sensor = load_profile("sensor", scene["sensor"])
     with SimBench(sensor, 2.0, scene["bench"], scene["seed"]) as bench:
         truth = bench.truth
-    record = {"affine_px_per_mm": truth.affine_px_per_mm, "touch_offset_mm": truth.touch_offset_mm}
+    record = {
+        "affine_px_per_mm": truth.affine_px_per_mm,
+        "lens": truth.lens,
+        "touch_offset_mm": truth.touch_offset_mm,
+    }
     path.write_text(json.dumps(record))
     return path
 
@@ -137,7 +144,9 @@ def score_exact_gradients(scene, registration, folder):
     press_objects(scene, registration, folder / "pressing", progress=False)
     plan, frames, blanks, truth = read_presses(folder / "pressing")
     assert len(frames) == len(plan) == 2 and set(blanks) == set(SETS)
-    perfect = TruthGradients(folder / "pressing", load_profile("sensor", "digit")["px_per_mm"])
+    lens = RadialLens.from_record(read_registration(registration).get("lens"))
+    px_per_mm = load_profile("sensor", scene["sensor"])["px_per_mm"]
+    perfect = TruthGradients(folder / "pressing", px_per_mm, lens=lens)
     errors = evaluate_objects(
         scene,
         {80: "exact"},
@@ -162,7 +171,12 @@ def test_printer_protocol_scores_exact_gradients_within_5um(tmp_path, paper_digi
     hidden = {"mount_offset_mm": 0.0, "mount_z_mm": 0.0, "mount_rotation_deg": 0.0}
     # near the centre: a contact across the frame's edge is the integrator's failure, not ours
     scene = scene_config(
-        mount=mount, bench=hidden, presses=1, tuning_presses=0, offset_fraction=0.03
+        lens_free("digit"),
+        mount=mount,
+        bench=hidden,
+        presses=1,
+        tuning_presses=0,
+        offset_fraction=0.03,
     )
     # the calibration's bench: the same hidden seating and touch height
     scene.update(seed=calibration["seed"], bench=calibration["bench"])
@@ -191,6 +205,22 @@ def test_printer_protocol_scores_exact_gradients_within_5um(tmp_path, paper_digi
         presses["registered_y_px"] - presses["true_y_px"],
     )
     assert centre_error.max() < 0.5
+
+
+def test_object_frames_through_the_lens_are_scored_in_the_registrations_ideal_frame(tmp_path):
+    """The DIGIT with its lens: the presses are imaged through the bench's lens and rectified
+    through the registration's (here the truth's) before scoring. The printer protocol places them
+    where the bench rendered them (ideal-frame pixels), and a perfect model, looked up by its
+    rectified frame, scores as it does without a lens (objects near the centre)."""
+    hidden = {"mount_offset_mm": 0.0, "mount_z_mm": 0.0, "mount_rotation_deg": 0.0}
+    scene = scene_config(bench=hidden, presses=1, tuning_presses=0, offset_fraction=0.03)
+    registration = perfect_registration(scene, tmp_path / "registration.json")
+    assert read_registration(registration)["lens"] is not None
+    errors, presses = score_exact_gradients(scene, registration, tmp_path / "lensed")
+    printer = errors[errors["protocol"] == "printer"].set_index("object")
+    assert printer.loc["hemispheres", "type2_um"] <= 5 and printer.loc["pill", "type2_um"] <= 5
+    for axis in ("x", "y"):
+        assert np.abs(presses[f"registered_{axis}_px"] - presses[f"true_{axis}_px"]).max() < 1e-6
 
 
 def test_paper_protocol_absorbs_a_depth_error_the_printer_protocol_reports():

@@ -115,6 +115,15 @@ def test_depth_estimator_rectifies_camera_frames_through_the_checkpoints_lens(tm
     assert not np.array_equal(expected[0], pool_to(camera[0], (12, 10)))  # the lens did something
     with pytest.raises(ConfigError, match=r"lens was fitted on \(24, 20\)"):
         est.rectify(frame)
+    # a blank from the camera (threedcal predict --blank) is rectified and pooled like the frames
+    camera_blank = np.random.default_rng(2).integers(80, 100, (24, 20, 3)).astype(np.uint8)
+    from_camera = DepthEstimator(
+        checkpoint, device="cpu", blank=camera_blank, px_per_mm=10.0, camera_blank=True
+    )
+    expected_blank = pool_to(lens.rectify(camera_blank.astype(np.float32)), (12, 10))
+    np.testing.assert_allclose(
+        from_camera._blank.permute(1, 2, 0).numpy(), expected_blank, rtol=0, atol=1e-4
+    )
 
 
 def test_authors_bare_state_dict_loads_with_their_normalisation(tmp_path):

@@ -28,7 +28,11 @@ def _estimator(args: argparse.Namespace):
         torch.set_num_threads(args.threads)
     blank = read_rgb(Path(args.blank)) if args.blank else None
     return DepthEstimator.from_checkpoint(
-        args.checkpoint, device=args.device, blank=blank, px_per_mm=args.px_per_mm
+        args.checkpoint,
+        device=args.device,
+        blank=blank,
+        px_per_mm=args.px_per_mm,
+        camera_blank=True,  # the user's blank comes from the camera, like the frames
     )
 
 
@@ -75,10 +79,11 @@ def _live(args: argparse.Namespace) -> int:
         if args.frames and count >= args.frames:
             break
         began = time.perf_counter()
-        depth = estimator.depth(estimator.rectify(frame))
+        model_frame = estimator.rectify(frame)
+        depth = estimator.depth(model_frame)
         times.append(time.perf_counter() - began)
         fps = len(times) / sum(times)
-        view = np.concatenate([frame, colour_map(depth, args.max_depth_mm)], axis=1)
+        view = np.concatenate([model_frame, colour_map(depth, args.max_depth_mm)], axis=1)
         cv2.putText(
             view, f"{fps:5.1f} fps", (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1
         )

@@ -322,9 +322,10 @@ def touch_height(
         rows = store.first[touch]
         xy = np.column_stack([store.raw["x_mm"].values[rows], store.raw["y_mm"].values[rows]])
         places, place = np.unique(xy, axis=0, return_inverse=True)
+        # in the ideal frame, where the registration put the search's places (store.centres)
         result = measure_touch_search(
-            [store.mean_frame(p) for p in touch],
-            store.raw["blank_frames"].values,
+            [rectify_if(fit.lens, store.mean_frame(p)) for p in touch],
+            rectify_if(fit.lens, store.raw["blank_frames"].values),
             store.nominal_depth[rows],
             place.ravel(),
             store.centres[rows],

@@ -774,12 +774,15 @@ def _fit_contacts(
     a contact is a non-finite point, never an inlier."""
     xy_px = np.array([(c.x_px, c.y_px) if c is not None else (np.nan, np.nan) for c in contacts])
     found = sum(c is not None for c in contacts)
-    if lens_shape is not None and found >= MIN_LENS_CONTACTS:
-        return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape, kappa2=kappa2)
     if lens_shape is not None:
+        try:
+            if found >= MIN_LENS_CONTACTS:
+                return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape, kappa2=kappa2)
+        except RegistrationError:  # outliers left too few: as too few found
+            pass
         logging.getLogger(__name__).warning(
-            "registration: %d contacts, fewer than the %d a lens fit needs: the affine alone "
-            "(the lens's distortion stays in the frames; probe a denser plan to remove it)",
+            "registration: %d contacts, fewer than the %d inliers a lens fit needs: the affine "
+            "alone (the lens's distortion stays in the frames; probe a denser plan to remove it)",
             found,
             MIN_LENS_CONTACTS,
         )

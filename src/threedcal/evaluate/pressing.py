@@ -793,8 +793,17 @@ class TruthGradients:
     it put it, differentiated at the pixel centres — integrated as a model's would be. It reads
     the simulator's hidden truth, so it can only diagnose, never be reported as a model."""
 
-    def __init__(self, pressing_dir: str | Path, px_per_mm: float, step_px: float = 0.05):
+    def __init__(
+        self,
+        pressing_dir: str | Path,
+        px_per_mm: float,
+        step_px: float = 0.05,
+        lens: RadialLens | None = None,
+    ):
+        """`lens`: the registration's (registration.json), through which `evaluate_objects`
+        rectifies each frame before it asks for its depth."""
         plan, frames, _, truth = read_presses(pressing_dir)
+        frames = rectify_if(lens, frames)
         if not truth.get("simulated"):
             raise ConfigError(f"{pressing_dir}: no bench truth (a real rig's presses)")
         self.px_per_mm = float(px_per_mm)

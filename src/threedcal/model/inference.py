@@ -33,7 +33,10 @@ class DepthEstimator:
         px_per_mm: float | None = None,
         batch_size: int = 8,
         channels_last: bool = True,
+        camera_blank: bool = False,
     ) -> None:
+        """`camera_blank`: `blank` is a frame as the camera streams it, to be rectified and pooled
+        like the frames (`rectify`); by default it is already the model's input."""
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.preset = checkpoint["preset"]
         self.normalisation = dict(checkpoint["normalisation"])
@@ -42,6 +45,17 @@ class DepthEstimator:
             raise ConfigError(
                 "this checkpoint carries no blank frame (the authors' weights): pass blank="
             )
+        camera = checkpoint.get("camera") or {}
+        self.lens = RadialLens.from_record(camera.get("lens"))
+        if blank is not None and camera_blank:
+            blank = rectify_if(self.lens, np.asarray(blank, np.float32))
+            shape = checkpoint.get("image_shape")
+            if not shape and checkpoint.get("blank") is not None:
+                shape = np.shape(checkpoint["blank"])[:2]
+            if not shape:  # the model's frame: the camera's, pooled by the dataset's downscale
+                factor = int(camera.get("downscale", 1))
+                shape = (blank.shape[0] // factor, blank.shape[1] // factor)
+            blank = pool_to(blank, tuple(shape))
         blank = np.asarray(checkpoint["blank"] if blank is None else blank, dtype=np.float32)
         self.px_per_mm = float(px_per_mm or checkpoint.get("px_per_mm") or 0)
         if self.px_per_mm <= 0:
@@ -63,8 +77,6 @@ class DepthEstimator:
         grid_y, grid_x = torch.meshgrid(ys, xs, indexing="ij")
         self._coords = torch.stack([grid_x, grid_y]).to(self.device)
         self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
-        camera = checkpoint.get("camera") or {}
-        self.lens = RadialLens.from_record(camera.get("lens"))
 
     def rectify(self, frames: np.ndarray) -> np.ndarray:
         """Camera frames (H, W, 3) or (N, H, W, 3), as the sensor streams them → this model's input:

@@ -79,16 +79,12 @@ class LensedGel:
         )
         self.pad = int(math.ceil(reach)) + 2
         self.inner = GelSimulator(
-            profile,
-            seed,
-            image_size=(self.width + 2 * self.pad, self.height + 2 * self.pad),
-            noise_seed=noise_seed,
-            gain_rgb=gain_rgb,
+            profile, seed, margin_px=self.pad, noise_seed=noise_seed, gain_rgb=gain_rgb
         )
         self._map_x = (ideal[..., 0] + self.pad).astype(np.float32)
         self._map_y = (ideal[..., 1] + self.pad).astype(np.float32)
         self._light = relative_illumination((self.height, self.width), vignetting)
-        self._background = self._camera(self.inner.background)
+        self._background = self._camera(self.inner.ideal())  # with the gel's markers, if any
 
     # what the bench reads from the gel, unchanged by the lens
     @property

@@ -75,7 +75,11 @@ class GelSimulator:
         px_per_mm: float | None = None,
         noise_seed: int | None = None,
         gain_rgb=None,
+        margin_px: int = 0,
     ):
+        """`margin_px`: render this many pixels beyond the frame on every side (what a lens's
+        camera sees past the ideal frame: threedcal.sim.camera); the profile's frame-relative
+        constants (hot spots, the colour field, vignetting) stay those of the frame."""
         if profile.get("type") != "vision":
             raise ConfigError(f"sensor profile {profile.get('name')!r} is not a vision sensor")
         self.profile = profile
@@ -88,7 +92,11 @@ class GelSimulator:
         ):
             raise ConfigError(f"gain_rgb must be three positive numbers, got {gain_rgb!r}")
         w, h = image_size or (profile["image"]["width_px"], profile["image"]["height_px"])
-        self.width, self.height = int(w), int(h)
+        self.margin = int(margin_px)
+        if self.margin < 0:
+            raise ConfigError(f"margin_px must be >= 0, got {margin_px!r}")
+        self.frame_width, self.frame_height = int(w), int(h)
+        self.width, self.height = int(w) + 2 * self.margin, int(h) + 2 * self.margin
         self.px_per_mm = float(px_per_mm or profile["px_per_mm"])
         gel, optics = profile["gel"], profile["optics"]
         self.max_penetration_mm = float(gel["max_penetration_mm"])
@@ -149,8 +157,8 @@ class GelSimulator:
         self.Z0 = self.sag_mm(self.X, self.Y).astype(np.float32)
         gx0, gy0 = self._sag_gradient(self.X, self.Y)
         self._n0 = _normals(gx0, gy0)
-        half_diag = math.hypot(self._cx, self._cy) / s
-        self._rho2 = (self.X**2 + self.Y**2) / half_diag**2  # 1 at the corners
+        half_diag = math.hypot(self.frame_width - 1, self.frame_height - 1) / 2 / s
+        self._rho2 = (self.X**2 + self.Y**2) / half_diag**2  # 1 at the frame's corners
 
     @property
     def domed(self) -> bool:
@@ -232,18 +240,24 @@ class GelSimulator:
             self._resp0.append(resp.astype(np.float32))
             self._irr0_full.append(irr.astype(np.float32))
             bg += irr[..., None] * li["scatter"] + (irr * li["gain"] * resp)[..., None] * col
+        # frame pixels (a margin's pixels lie outside 0 .. width - 1)
         xx, yy = np.meshgrid(np.arange(self.width), np.arange(self.height))
-        diag = math.hypot(self.width, self.height)
+        xx, yy = xx - self.margin, yy - self.margin
+        diag = math.hypot(self.frame_width, self.frame_height)
         for spot in optics.get("hot_spots", []):
-            d2 = (xx - spot["x"] * (self.width - 1)) ** 2 + (
-                yy - spot["y"] * (self.height - 1)
+            d2 = (xx - spot["x"] * (self.frame_width - 1)) ** 2 + (
+                yy - spot["y"] * (self.frame_height - 1)
             ) ** 2
             g = np.exp(-d2 / (2 * (spot["sigma"] * diag) ** 2)).astype(np.float32)
             bg += g[..., None] * np.asarray(spot["amplitude_dn"], dtype=np.float32)
         field = optics.get("background_field")
         if field:
             bg += background_field(
-                self.width, self.height, int(field["degree"]), field["coefficients_dn"]
+                self.frame_width,
+                self.frame_height,
+                int(field["degree"]),
+                field["coefficients_dn"],
+                margin=self.margin,
             )
         texture_dn = float(optics.get("texture_dn", 0.0))
         if texture_dn > 0:
@@ -259,8 +273,8 @@ class GelSimulator:
         if markers:
             s = self.px_per_mm
             pitch, rad = markers["spacing_mm"] * s, markers["radius_mm"] * s
-            fx = (xx - self._cx) / pitch
-            fy = (yy - self._cy) / pitch
+            fx = (xx + self.margin - self._cx) / pitch
+            fy = (yy + self.margin - self._cy) / pitch
             dist = np.hypot(fx - np.rint(fx), fy - np.rint(fy)) * pitch
             cover = np.clip(rad + 0.5 - dist, 0.0, 1.0)
             self._marker_mask = (1.0 - markers["darkness"] * cover).astype(np.float32)[..., None]
@@ -749,23 +763,29 @@ def _upsample_axis(v, first: int, origin_px: float, p0: int, p1: int, f: int, ax
     return np.clip(out, np.minimum(left, right), np.maximum(left, right))
 
 
-def field_terms(width: int, height: int, degree: int) -> list[np.ndarray]:
+def field_terms(width: int, height: int, degree: int, margin: int = 0) -> list[np.ndarray]:
     """The monomials u^i v^j (i + j <= degree; by total degree, then by the power of v) of the
-    pixel's place u = (x - cx) / cx, v = (y - cy) / cy (-1..1 from edge pixel to edge pixel)."""
+    pixel's place u = (x - cx) / cx, v = (y - cy) / cy (-1..1 from edge pixel to edge pixel of
+    the frame; `margin` more pixels on every side reach beyond)."""
     cx, cy = (width - 1) / 2, (height - 1) / 2
-    u = ((np.arange(width, dtype=np.float32) - cx) / max(cx, 1.0))[None, :]
-    v = ((np.arange(height, dtype=np.float32) - cy) / max(cy, 1.0))[:, None]
+    cols = np.arange(-margin, width + margin, dtype=np.float32)
+    rows = np.arange(-margin, height + margin, dtype=np.float32)
+    u = ((cols - cx) / max(cx, 1.0))[None, :]
+    v = ((rows - cy) / max(cy, 1.0))[:, None]
+    shape = (height + 2 * margin, width + 2 * margin)
     return [
-        np.broadcast_to(u ** (k - j) * v**j, (height, width)).astype(np.float32)
+        np.broadcast_to(u ** (k - j) * v**j, shape).astype(np.float32)
         for k in range(degree + 1)
         for j in range(k + 1)
     ]
 
 
-def background_field(width: int, height: int, degree: int, coefficients_dn) -> np.ndarray:
+def background_field(
+    width: int, height: int, degree: int, coefficients_dn, margin: int = 0
+) -> np.ndarray:
     """(H, W, 3) DN: a smooth colour field the LED model does not explain (housing, gel edges,
     paint), a polynomial of `degree` per channel (optics.background_field in the profile)."""
-    terms = field_terms(width, height, degree)
+    terms = field_terms(width, height, degree, margin)
     coef = np.asarray(coefficients_dn, dtype=np.float32)
     if coef.shape != (3, len(terms)):
         raise ConfigError(
