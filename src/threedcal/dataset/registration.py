@@ -627,8 +627,8 @@ def fit_lensed(
     `shape` (H, W) of the frames: the principal point starts at their centre, κ is solved in
     units of the half-diagonal (well scaled); the returned lens is in pixels. Contacts lie whole
     inside the frame, so none is found in its outer band (a contact radius and a margin wide):
-    the fit extrapolates there, and κ₂ makes it extrapolate wildly from contacts that the lens
-    itself bent (`register` fits κ₁ alone on its first pass for that reason)."""
+    the fit extrapolates there, and a free κ₂ can extrapolate wildly (`register` fits κ₁ alone
+    on its first pass, which only rectifies the inner frame; docs/registration.md, The lens)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     height, width = shape
     centre0 = np.array([(width - 1) / 2, (height - 1) / 2])
