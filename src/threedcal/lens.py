@@ -170,23 +170,19 @@ class RadialLens:
         map_x, map_y = self.rectify_maps(shape)
         dtype = stack.dtype
         work = stack if dtype in (np.uint8, np.float32) else stack.astype(np.float32)
-        out = np.stack(
-            [
-                cv2.remap(
-                    np.ascontiguousarray(image),
-                    map_x,
-                    map_y,
-                    interpolation=cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE,
-                )
-                for image in work
-            ]
-        )
+        out = np.empty(work.shape, work.dtype)  # filled frame by frame: one copy of the batch
+        for image, target in zip(work, out, strict=True):
+            remapped = cv2.remap(
+                np.ascontiguousarray(image),
+                map_x,
+                map_y,
+                interpolation=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+            target[...] = remapped.reshape(target.shape)  # cv2 drops a channel axis of length 1
         if out.dtype != dtype:  # other integer types: rounded back, not truncated
             out = np.rint(out) if np.issubdtype(dtype, np.integer) else out
             out = out.astype(dtype)
-        if out.ndim < stack.ndim:  # cv2 drops a trailing channel axis of length 1
-            out = out[..., None]
         return out if batched else out[0]
 
 
