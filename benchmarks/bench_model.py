@@ -2,7 +2,8 @@
 and training samples/s per preset.
 
 The baseline is the paper's TouchNet on the same frame (and the same training batch) in the same run; the goal for the
-presets the default scenes train is ≥ 30 frames/s and ≥ 100× TouchNet. Each preset is also timed with the network's
+presets the default scenes train is ≥ 30 frames/s and ≥ 100× TouchNet. Training is timed in float32 and in
+`precision: bfloat16` (mixed precision, what the simulated scenes train with), the float32 step as baseline. Each preset is also timed with the network's
 tensors in PyTorch's default (contiguous NCHW) layout, the baseline of the channels-last layout DepthEstimator uses. Weights are freshly initialised (speed does not depend
 on their values). Each figure is the median time of single-frame calls, which a busy shared machine
 disturbs less than a mean.
@@ -29,6 +30,7 @@ from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
+from threedcal.model.train import training_autocast
 
 HEIGHT, WIDTH = 240, 320
 # The settings the accuracy table trains with: those of an imported ball scene's `model:` section
@@ -78,6 +80,7 @@ def training_samples_per_s(
     patch: int = 64,
     loss: str = "normal",
     layout: torch.memory_format | None = None,
+    precision: str = "float32",
 ) -> float:
     """Training samples/s: AdamW steps (forward, loss, backward) on random (batch, 5, patch, patch)
     inputs, the batch, patch and loss the default sim scenes train with; median step time. The
@@ -96,7 +99,9 @@ def training_samples_per_s(
 
     def step():
         optimizer.zero_grad(set_to_none=True)
-        gradient_loss(model(x), y, loss).backward()
+        with training_autocast(precision, x.device):
+            prediction = model(x)
+        gradient_loss(prediction.float(), y, loss).backward()
         optimizer.step()
 
     step()  # warm-up
@@ -171,16 +176,20 @@ def main() -> None:
         p: training_samples_per_s(p, args.seconds, layout=torch.contiguous_format)
         for p in PRESET_NAMES
     }
+    bf16_rates = {
+        p: training_samples_per_s(p, args.seconds, precision="bfloat16") for p in PRESET_NAMES
+    }
     base = rates["touchnet"]
     print(
         f"\ntraining, batch of 32 patches 64x64, normal loss: {'samples/s':>10s} {'x touchnet':>11s}"
-        f" {'NCHW':>8s} {'x NCHW':>7s}"
+        f" {'NCHW':>8s} {'x NCHW':>7s} {'bfloat16':>9s} {'x fp32':>7s}"
     )
     for preset, rate in rates.items():
         if np.isfinite(rate):
             print(
                 f"{preset:14s} {'':35s} {rate:10.1f} {rate / base:10.1f}x"
                 f" {nchw_rates[preset]:8.1f} {rate / nchw_rates[preset]:6.2f}x"
+                f" {bf16_rates[preset]:9.1f} {bf16_rates[preset] / rate:6.2f}x"
             )
         else:
             print(f"{preset:14s} {'':35s} {'(no gradient training)':>22s}")

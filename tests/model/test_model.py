@@ -2,6 +2,7 @@
 
 import os
 import pickle
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -20,7 +21,7 @@ from threedcal.model.checkpoint import (
 )
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.lookup import LookupTable
-from threedcal.model.presets import TouchNet, build_model
+from threedcal.model.presets import TouchNet, build_model, reach_px
 from threedcal.model.train import TrainSettings, train
 
 SHAPE = (40, 48)
@@ -212,6 +213,49 @@ def test_training_is_deterministic_to_the_byte_and_writes_losses(tmp_path):
     assert (tmp_path / "c/model.pt").read_bytes() != (tmp_path / "a/model.pt").read_bytes()
 
 
+def test_bfloat16_training_runs_the_network_in_bfloat16_and_keeps_float32_weights(tmp_path):
+    ts = synthetic_set()
+    settings = TrainSettings.of(preset="compact_tiny", seed=3, precision="bfloat16", **TINY)
+    seen = []
+    real_build = build_model
+
+    def spying_build(preset, **overrides):
+        model = real_build(preset, **overrides)
+        model.body[0].register_forward_hook(lambda m, i, out: seen.append((m.training, out.dtype)))
+        return model
+
+    import threedcal.model.train as module
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(module, "build_model", spying_build)
+        half = train(ts, tmp_path / "bf16", 80, settings, progress=False)
+        train(ts, tmp_path / "again", 80, settings, progress=False)
+    assert {dtype for training, dtype in seen if training} == {torch.bfloat16}
+    assert {dtype for training, dtype in seen if not training} == {torch.float32}  # validation
+    assert all(v.dtype == torch.float32 for v in half["state_dict"].values())
+    assert (tmp_path / "bf16/model.pt").read_bytes() == (tmp_path / "again/model.pt").read_bytes()
+    full = train(ts, tmp_path / "fp32", 80, replace(settings, precision="float32"), progress=False)
+    assert not torch.equal(half["state_dict"]["body.0.weight"], full["state_dict"]["body.0.weight"])
+
+
+def test_a_resume_checkpoint_is_written_only_when_its_interval_has_passed(tmp_path, monkeypatch):
+    import threedcal.model.train as module
+
+    ts = synthetic_set()
+    settings = TrainSettings.of(preset="compact_tiny", seed=5, **{**TINY, "epochs_base": 3})
+    saved = []
+    real_save = module.save_checkpoint
+    monkeypatch.setattr(module, "save_checkpoint", lambda p, c: saved.append(p) or real_save(p, c))
+    monkeypatch.setattr(module, "RESUME_EVERY_S", 3600.0)
+    train(ts, tmp_path / "slow", 80, settings, progress=False)
+    assert [p.name for p in saved] == ["model.pt"]  # three epochs, no resume checkpoint
+    saved.clear()
+    monkeypatch.setattr(module, "RESUME_EVERY_S", 0.0)
+    train(ts, tmp_path / "every", 80, settings, progress=False)
+    assert [p.name for p in saved] == ["checkpoint.pt", "checkpoint.pt", "model.pt"]
+    assert (tmp_path / "slow/model.pt").read_bytes() == (tmp_path / "every/model.pt").read_bytes()
+
+
 def test_a_replicate_trains_on_its_own_subset_with_its_own_seed(tmp_path, monkeypatch):
     import threedcal.model.train as module
     from threedcal.dataset.splits import replicate_seed
@@ -251,6 +295,7 @@ def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch
         return real(*args, **kwargs)
 
     monkeypatch.setattr(module, "_train_epoch", crash_on_third)
+    monkeypatch.setattr(module, "RESUME_EVERY_S", 0.0)  # a checkpoint after every epoch
     with pytest.raises(KeyboardInterrupt):
         train(ts, tmp_path / "resumed", 80, settings, progress=False)
     assert read_checkpoint(tmp_path / "resumed/checkpoint.pt")["epoch"] == 2
@@ -362,12 +407,56 @@ def reached_offsets(preset: str, size: int) -> tuple[torch.Tensor, torch.Tensor]
     return (rows - size // 2).abs(), (cols - size // 2).abs()
 
 
-@pytest.mark.parametrize(("preset", "reach_px"), [("compact", 3), ("context", 33)])
-def test_a_preset_sees_exactly_its_receptive_field(preset, reach_px):
+@pytest.mark.parametrize(
+    ("preset", "reach"), [("compact", 3), ("compact_tiny", 1), ("context", 33), ("touchnet", None)]
+)
+def test_a_preset_sees_exactly_its_receptive_field(preset, reach):
     # `context` exists to see where in the contact a pixel lies: ±33 px (7x7 stem, dilations 2..16).
-    rows, cols = reached_offsets(preset, 81)
-    assert int(rows.max()) == reach_px
-    assert int(cols.max()) == reach_px
+    torch.manual_seed(0)
+    computed = reach_px(build_model(preset))
+    reach = computed if reach is None else reach
+    rows, cols = reached_offsets(preset, 2 * reach + 11)
+    assert int(rows.max()) == reach == computed
+    assert int(cols.max()) == reach
+
+
+def test_a_pooled_preset_has_no_window_reach_and_lookup_is_per_pixel():
+    assert reach_px(build_model("multiscale")) is None
+    assert reach_px(build_model("lookup")) == 0
+
+
+@pytest.mark.parametrize("preset", [p for p in PRESET_NAMES if p != "touchnet"])
+@pytest.mark.parametrize(
+    "window",
+    [
+        (slice(12, 30), slice(9, 40)),  # inside
+        (slice(0, 7), slice(41, 48)),  # a corner: the crop meets the frame's edge
+        (slice(20, 21), slice(0, 48)),  # one row
+        (slice(0, 40), slice(0, 48)),  # the whole frame
+    ],
+)
+def test_a_window_is_scored_as_the_whole_frame_would_score_it(preset, window):
+    ts = synthetic_set()
+    torch.manual_seed(1)
+    checkpoint = {
+        "preset": preset,
+        "preset_args": {},
+        "state_dict": build_model(preset).state_dict(),
+        "normalisation": dict(OUR_NORMALISATION),
+        "blank": ts.blank,
+        "px_per_mm": 8.0,
+        "image_shape": list(SHAPE),
+    }
+    est = DepthEstimator(checkpoint, device="cpu")
+    frame = np.asarray(ts.frames[3])
+    frame = np.clip(frame.astype(int) + 9, 0, 255).astype(
+        np.uint8
+    )  # a drift for the median to remove
+    part = est.gradients_in(frame, window)
+    assert part.shape == (window[0].stop - window[0].start, window[1].stop - window[1].start, 2)
+    np.testing.assert_allclose(part, est.gradients(frame)[window], atol=1e-5)
+    with pytest.raises(ConfigError, match="one frame"):
+        est.gradients_in(np.stack([frame, frame]), window)
 
 
 def test_compact_net_overfits_one_batch():

@@ -44,7 +44,8 @@ def coordinate_mse(estimator, trainset: TrainingSet, split: str = "val") -> pd.D
             slice(max(int(cy - radius), 0), min(int(cy + radius) + 2, height)),
             slice(max(int(cx - radius), 0), min(int(cx + radius) + 2, width)),
         )
-        predicted = estimator.gradients(np.asarray(trainset.frames[i]))[window].transpose(2, 0, 1)
+        predicted = estimator.gradients_in(np.asarray(trainset.frames[i]), window)
+        predicted = predicted.transpose(2, 0, 1)
         label = trainset.labels(i, window)
         rows_idx, cols_idx = np.mgrid[window[0], window[1]]
         disc = (cols_idx - cx) ** 2 + (rows_idx - cy) ** 2 <= radius**2

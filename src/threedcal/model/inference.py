@@ -18,8 +18,8 @@ from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.lens import RadialLens, rectify_if
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
-from threedcal.model.drift import remove_drift
-from threedcal.model.presets import preferred_memory_format
+from threedcal.model.drift import drift_offset, remove_drift
+from threedcal.model.presets import preferred_memory_format, reach_px
 
 
 class DepthEstimator:
@@ -77,6 +77,7 @@ class DepthEstimator:
         grid_y, grid_x = torch.meshgrid(ys, xs, indexing="ij")
         self._coords = torch.stack([grid_x, grid_y]).to(self.device)
         self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
+        self._reach = reach_px(self.model)
 
     def rectify(self, frames: np.ndarray) -> np.ndarray:
         """Camera frames (H, W, 3) or (N, H, W, 3), as the sensor streams them → this model's input:
@@ -123,6 +124,44 @@ class DepthEstimator:
             out.append((self.model(x) * sign).permute(0, 2, 3, 1).float().cpu().numpy())
         grads = np.concatenate(out)
         return grads[0] if single else grads
+
+    @torch.inference_mode()
+    def gradients_in(self, frame: np.ndarray, window: tuple[slice, slice]) -> np.ndarray:
+        """gradients(frame)[window] (h, w, 2), computed on the window plus the network's reach only.
+
+        The lighting drift is still estimated on the whole frame. Equal to the full-frame result up
+        to float rounding; a network whose output is not a window of its input (`multiscale`) runs
+        on the whole frame. Scoring small discs of many frames costs a fraction of whole frames."""
+        frame, _ = self._as_batch(frame)
+        if frame.shape[0] != 1:
+            raise ConfigError(f"gradients_in takes one frame (H, W, 3), got {frame.shape[1:]}")
+        rows, cols = (range(*w.indices(n)) for w, n in zip(window, self.image_shape, strict=True))
+        if (
+            self._reach is None
+            or not len(rows)
+            or not len(cols)
+            or rows.step != 1
+            or cols.step != 1
+        ):
+            return self.gradients(frame[0])[window]
+        height, width = self.image_shape
+        top, left = max(rows.start - self._reach, 0), max(cols.start - self._reach, 0)
+        bottom = min(rows.stop + self._reach, height)
+        right = min(cols.stop + self._reach, width)
+        image = torch.from_numpy(np.array(frame)).to(self.device).permute(0, 3, 1, 2).float()
+        diff = (image - self._blank) / 255.0
+        offset = drift_offset(diff) if self.drift == "median" else None
+        crop = (slice(None), slice(None), slice(top, bottom), slice(left, right))
+        coords = self._coords[None][crop]
+        x = torch.cat([remove_drift(diff[crop], self.drift, offset), coords], 1)
+        x = adapt_inputs(x, self.normalisation, self.image_shape)
+        x = x.contiguous(memory_format=self.memory_format)
+        out = (self.model(x) * self.normalisation["gradient_sign"]).permute(0, 2, 3, 1)[0]
+        inner = (
+            slice(rows.start - top, rows.stop - top),
+            slice(cols.start - left, cols.stop - left),
+        )
+        return out[inner].float().cpu().numpy()
 
     def depth(self, frames: np.ndarray, method: str = "poisson_dst") -> np.ndarray:
         """(…, H, W) float32 depth in mm (positive into the gel), integrated per frame."""

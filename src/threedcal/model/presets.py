@@ -177,6 +177,35 @@ def preferred_memory_format(model: nn.Module) -> torch.memory_format:
     return torch.channels_last if convolutional else torch.contiguous_format
 
 
+def reach_px(model: nn.Module) -> int | None:
+    """How many pixels from an output pixel its value can depend on; None where it is not a window.
+
+    TouchNet, PixelNet and ContextNet are chains (ContextNet residual) of stride-1 'same'
+    convolutions and pointwise layers: they reach the sum of their half-kernels, and the lookup
+    table is per pixel. `multiscale`'s pooled branch aligns to the whole frame, so a crop would
+    change its output: None, as for any network not listed here. Used to score a window of a frame
+    without the rest of it.
+    """
+    from threedcal.model.lookup import LookupTable
+
+    if isinstance(model, LookupTable):
+        return 0
+    if not isinstance(model, TouchNet | PixelNet | ContextNet):
+        return None
+    reach = 0
+    for m in model.modules():
+        if isinstance(m, nn.Conv2d):
+            half = m.dilation[0] * (m.kernel_size[0] - 1) // 2
+            if (
+                m.stride != (1, 1)
+                or m.padding != (half, half)
+                or m.kernel_size[0] != m.kernel_size[1]
+            ):
+                return None
+            reach += half
+    return reach
+
+
 def is_learned(preset: str) -> bool:
     """True for presets trained by gradient descent (lookup is fitted by binning)."""
     return preset != "lookup"
