@@ -17,6 +17,7 @@ from threedcal.dataset.trainset import pool_to
 from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.lens import RadialLens, rectify_if
+from threedcal.model.allocator import reuse_freed_memory
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.presets import preferred_memory_format, reach_px
@@ -38,6 +39,7 @@ class DepthEstimator:
         """`camera_blank`: `blank` is a frame as the camera streams it, to be rectified and pooled
         like the frames (`rectify`); by default it is already the model's input."""
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        reuse_freed_memory()
         self.preset = checkpoint["preset"]
         self.normalisation = dict(checkpoint["normalisation"])
         self.drift = self.normalisation.get("drift", "none")  # checkpoints before the drift step

@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
+from threedcal.model.allocator import reuse_freed_memory
 from threedcal.model.checkpoint import (
     FORMAT,
     FORMAT_VERSION,
@@ -192,6 +193,7 @@ def _batches(ts, windows, batch_size, inputs: _Inputs):
 def configure_torch(settings: TrainSettings) -> torch.device:
     """Threads, determinism and device, set before any tensor is made."""
     os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # deterministic cuBLAS
+    reuse_freed_memory()
     torch.set_num_threads(settings.torch_threads)
     torch.use_deterministic_algorithms(True)
     torch.backends.cudnn.benchmark = False
