@@ -7,3 +7,7 @@ class ThreedcalError(Exception):
 
 class ConfigError(ThreedcalError, ValueError):
     """A configuration, profile, plan or data file is invalid; the message names the file and key."""
+
+
+class TrainingError(ThreedcalError, ArithmeticError):
+    """A training step's loss stopped being finite; the message names the job and what to change."""

@@ -11,7 +11,7 @@ import torch
 
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.errors import ConfigError
+from threedcal.errors import ConfigError, TrainingError
 from threedcal.model import PRESET_NAMES
 from threedcal.model.checkpoint import (
     OUR_NORMALISATION,
@@ -236,6 +236,55 @@ def test_bfloat16_training_runs_the_network_in_bfloat16_and_keeps_float32_weight
     assert (tmp_path / "bf16/model.pt").read_bytes() == (tmp_path / "again/model.pt").read_bytes()
     full = train(ts, tmp_path / "fp32", 80, replace(settings, precision="float32"), progress=False)
     assert not torch.equal(half["state_dict"]["body.0.weight"], full["state_dict"]["body.0.weight"])
+
+
+def test_context_gradients_in_bfloat16_follow_float32():
+    # The simulated scenes train `context` in bfloat16. oneDNN's channels-last bfloat16 weight
+    # gradients of dilated convolutions are NaN at some channel counts (24: multiscale); context's
+    # must stay finite and within bfloat16's rounding of the float32 gradients.
+    from threedcal.model.train import training_autocast
+
+    torch.manual_seed(0)
+    model = build_model("context").to(memory_format=torch.channels_last)
+    x = torch.randn(32, 5, 64, 64).contiguous(memory_format=torch.channels_last)  # config.yaml's
+    y = torch.randn(32, 2, 64, 64)
+    grads = {}
+    for precision in ("float32", "bfloat16"):
+        model.zero_grad()
+        with training_autocast(precision, torch.device("cpu")):
+            prediction = model(x)
+        ((prediction.float() - y) ** 2).mean().backward()
+        grads[precision] = {n: p.grad.clone() for n, p in model.named_parameters()}
+    for name, exact in grads["float32"].items():
+        half = grads["bfloat16"][name]
+        assert torch.isfinite(half).all(), name
+        assert float((half - exact).norm() / exact.norm()) < 0.05, name
+
+
+@pytest.mark.parametrize("precision", ["float32", "bfloat16"])
+def test_a_non_finite_loss_stops_training_with_the_job_and_what_to_change(
+    tmp_path, monkeypatch, precision
+):
+    import threedcal.model.train as module
+
+    ts = synthetic_set()
+    settings = TrainSettings.of(
+        preset="compact_tiny", seed=3, precision=precision, batch_size=2, **TINY
+    )
+    real_loss, calls = module.gradient_loss, []
+
+    def loss_turning_nan(prediction, labels, kind):
+        calls.append(1)
+        value = real_loss(prediction, labels, kind)
+        return value * float("nan") if len(calls) == 2 else value
+
+    monkeypatch.setattr(module, "gradient_loss", loss_turning_nan)
+    with pytest.raises(
+        TrainingError, match=r"P=80 r0 \(compact_tiny\), epoch 1: the loss of batch 2 is nan"
+    ) as info:
+        train(ts, tmp_path / "m", 80, settings, progress=False)
+    assert ("model.precision: float32" in str(info.value)) == (precision == "bfloat16")
+    assert not (tmp_path / "m/model.pt").exists()
 
 
 def test_a_resume_checkpoint_is_written_only_when_its_interval_has_passed(tmp_path, monkeypatch):
@@ -564,3 +613,40 @@ def test_multiscale_sees_past_the_contact_at_a_fraction_of_its_cost():
     with torch.no_grad():
         out = build_model("multiscale").eval()(torch.zeros(1, 5, 37, 45))
     assert out.shape == (1, 2, 37, 45)
+
+
+def test_depth_integrates_with_one_blas_thread_and_restores_the_pool(monkeypatch):
+    # On the CPU, BLAS's workers would compete with torch's for the cores (docs/models.md).
+    from threadpoolctl import ThreadpoolController
+
+    import threedcal.model.inference as inference
+
+    ts = synthetic_set()
+    torch.manual_seed(0)
+    checkpoint = {
+        "preset": "compact_tiny",
+        "preset_args": {},
+        "state_dict": build_model("compact_tiny").state_dict(),
+        "normalisation": dict(OUR_NORMALISATION),
+        "blank": ts.blank,
+        "px_per_mm": 8.0,
+        "image_shape": list(SHAPE),
+    }
+    est = DepthEstimator(checkpoint, device="cpu")
+    frame = np.asarray(ts.frames[2])
+    expected = est.depth(frame)
+
+    def blas_threads():
+        return {i["num_threads"] for i in ThreadpoolController().info() if i["user_api"] == "blas"}
+
+    outside = blas_threads()
+    with ThreadpoolController().limit(limits=2, user_api="blas"):
+        inside = []
+        real = inference.integrate
+        monkeypatch.setattr(
+            inference, "integrate", lambda *a, **k: inside.append(blas_threads()) or real(*a, **k)
+        )
+        np.testing.assert_array_equal(est.depth(frame), expected)
+        assert inside == [{1}]
+        assert blas_threads() == {2}
+    assert blas_threads() == outside

@@ -6,6 +6,7 @@ camera's lens when the dataset stage fitted one. A camera's own frames go throug
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,23 @@ from threedcal.model.allocator import reuse_freed_memory
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.presets import preferred_memory_format, reach_px
+
+_blas_controller = None
+
+
+def _one_blas_thread():
+    """A context in which NumPy's and SciPy's BLAS run on the calling thread alone.
+
+    `depth` integrates on the CPU right after the network ran there: BLAS's own worker threads
+    (the DST's matrix products) then compete with torch's for the same cores, each pool spinning
+    while it waits, and the scheduler hands them out in whole time slices. On 2 cores that doubled
+    the time of a 240 x 320 depth frame (docs/models.md)."""
+    global _blas_controller
+    if _blas_controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _blas_controller = ThreadpoolController()  # after NumPy and SciPy have loaded their BLAS
+    return _blas_controller.limit(limits=1, user_api="blas")
 
 
 class DepthEstimator:
@@ -170,10 +188,11 @@ class DepthEstimator:
         grads = self.gradients(frames)
         single = grads.ndim == 3
         grads = grads[None] if single else grads
-        depth = np.stack(
-            [
-                integrate(g[..., 0], g[..., 1], method=method, px_per_mm=self.px_per_mm)
-                for g in grads
-            ]
-        ).astype(np.float32)
+        with _one_blas_thread() if self.device.type == "cpu" else contextlib.nullcontext():
+            depth = np.stack(
+                [
+                    integrate(g[..., 0], g[..., 1], method=method, px_per_mm=self.px_per_mm)
+                    for g in grads
+                ]
+            ).astype(np.float32)
         return depth[0] if single else depth

@@ -25,7 +25,7 @@ import torch
 from tqdm import tqdm
 
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.errors import ConfigError
+from threedcal.errors import ConfigError, TrainingError
 from threedcal.model.allocator import reuse_freed_memory
 from threedcal.model.checkpoint import (
     FORMAT,
@@ -323,9 +323,15 @@ def train(
         if is_learned(settings.preset):
             for group in optimizer.param_groups:
                 group["lr"] = epoch_lr(settings, epoch, epochs)
-            train_loss = _train_epoch(
-                model, ts, train_idx, settings, rng, device, optimizer, normalisation, inputs
-            )
+            try:
+                train_loss = _train_epoch(
+                    model, ts, train_idx, settings, rng, device, optimizer, normalisation, inputs
+                )
+            except TrainingError as exc:
+                raise TrainingError(
+                    f"training P={percent} r{replicate} ({settings.preset}), epoch {epoch}: {exc}; "
+                    + _divergence_hint(settings)
+                ) from None
         else:
             model.fit(_Pairs(ts, train_idx, inputs))
             train_loss = _mse(
@@ -406,11 +412,24 @@ def _train_epoch(
         with training_autocast(settings.precision, device):
             prediction = model(x)
         loss = gradient_loss(prediction.float() * sign, y, settings.loss)
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            raise TrainingError(f"the loss of batch {count // settings.batch_size + 1} is {value}")
         loss.backward()
         optimizer.step()
-        total += float(loss.detach()) * len(x)
+        total += value * len(x)
         count += len(x)
     return total / count
+
+
+def _divergence_hint(settings: TrainSettings) -> str:
+    if settings.precision == "bfloat16":
+        return (
+            "model.precision is bfloat16, whose gradients are not finite for some networks on "
+            "some CPUs (multiscale's 24-channel dilated convolutions in channels-last, torch "
+            "2.13): set model.precision: float32 (docs/models.md)"
+        )
+    return "lower model.lr, or look for non-finite labels in the dataset"
 
 
 def training_autocast(precision: str, device: torch.device):
