@@ -55,6 +55,20 @@ def synthetic_set(n=6, seed=0) -> TrainingSet:
     return TrainingSet(np.stack(frames), blank, samples, px_per_mm=8.0, sphere_radius_mm=2.0)
 
 
+def fresh_checkpoint(preset: str, ts: TrainingSet, seed: int) -> dict:
+    """An untrained model of `preset` as a checkpoint for `ts`'s frames (inference tests)."""
+    torch.manual_seed(seed)
+    return {
+        "preset": preset,
+        "preset_args": {},
+        "state_dict": build_model(preset).state_dict(),
+        "normalisation": dict(OUR_NORMALISATION),
+        "blank": ts.blank,
+        "px_per_mm": 8.0,
+        "image_shape": list(SHAPE),
+    }
+
+
 TINY = dict(epochs_base=1, patch_px=24, contact_patches=2, background_patches=1, torch_threads=1)
 
 
@@ -384,17 +398,7 @@ def test_checkpoint_round_trip_carries_what_inference_needs(tmp_path):
 @pytest.mark.parametrize("preset", [p for p in PRESET_NAMES if p != "touchnet"])
 def test_channels_last_inference_gives_the_contiguous_layouts_gradients(preset):
     ts = synthetic_set()
-    torch.manual_seed(0)
-    model = build_model(preset)
-    checkpoint = {
-        "preset": preset,
-        "preset_args": {},
-        "state_dict": model.state_dict(),
-        "normalisation": dict(OUR_NORMALISATION),
-        "blank": ts.blank,
-        "px_per_mm": 8.0,
-        "image_shape": list(SHAPE),
-    }
+    checkpoint = fresh_checkpoint(preset, ts, seed=0)
     frames = np.asarray(ts.frames[:2])
     fast = DepthEstimator(checkpoint, device="cpu", channels_last=True)
     plain = DepthEstimator(checkpoint, device="cpu", channels_last=False)
@@ -486,21 +490,10 @@ def test_a_pooled_preset_has_no_window_reach_and_lookup_is_per_pixel():
 )
 def test_a_window_is_scored_as_the_whole_frame_would_score_it(preset, window):
     ts = synthetic_set()
-    torch.manual_seed(1)
-    checkpoint = {
-        "preset": preset,
-        "preset_args": {},
-        "state_dict": build_model(preset).state_dict(),
-        "normalisation": dict(OUR_NORMALISATION),
-        "blank": ts.blank,
-        "px_per_mm": 8.0,
-        "image_shape": list(SHAPE),
-    }
-    est = DepthEstimator(checkpoint, device="cpu")
+    est = DepthEstimator(fresh_checkpoint(preset, ts, seed=1), device="cpu")
     frame = np.asarray(ts.frames[3])
-    frame = np.clip(frame.astype(int) + 9, 0, 255).astype(
-        np.uint8
-    )  # a drift for the median to remove
+    # a lighting drift for the whole-frame median to remove
+    frame = np.clip(frame.astype(int) + 9, 0, 255).astype(np.uint8)
     part = est.gradients_in(frame, window)
     assert part.shape == (window[0].stop - window[0].start, window[1].stop - window[1].start, 2)
     np.testing.assert_allclose(part, est.gradients(frame)[window], atol=1e-5)
@@ -622,17 +615,7 @@ def test_depth_integrates_with_one_blas_thread_and_restores_the_pool(monkeypatch
     import threedcal.model.inference as inference
 
     ts = synthetic_set()
-    torch.manual_seed(0)
-    checkpoint = {
-        "preset": "compact_tiny",
-        "preset_args": {},
-        "state_dict": build_model("compact_tiny").state_dict(),
-        "normalisation": dict(OUR_NORMALISATION),
-        "blank": ts.blank,
-        "px_per_mm": 8.0,
-        "image_shape": list(SHAPE),
-    }
-    est = DepthEstimator(checkpoint, device="cpu")
+    est = DepthEstimator(fresh_checkpoint("compact_tiny", ts, seed=0), device="cpu")
     frame = np.asarray(ts.frames[2])
     expected = est.depth(frame)
 
