@@ -29,10 +29,9 @@ _blas_controller = None
 def _one_blas_thread():
     """A context in which NumPy's and SciPy's BLAS run on the calling thread alone.
 
-    `depth` integrates on the CPU right after the network ran there: BLAS's own worker threads
-    (the DST's matrix products) then compete with torch's for the same cores, each pool spinning
-    while it waits, and the scheduler hands them out in whole time slices. On 2 cores that doubled
-    the time of a 240 x 320 depth frame (docs/models.md)."""
+    `depth` integrates on the CPU right after the network ran there, and BLAS's own worker threads
+    (the DST's matrix products) then compete with torch's for the same cores: on 2 cores that
+    doubled the time of a 240 x 320 depth frame (docs/models.md)."""
     global _blas_controller
     if _blas_controller is None:
         from threadpoolctl import ThreadpoolController
