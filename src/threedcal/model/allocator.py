@@ -1,12 +1,13 @@
 """Keep freed tensor memory in the process instead of handing it back to the OS after every step.
 
-glibc serves each allocation above its mmap threshold (128 kB, rising up to 32 MB as it adapts)
-with a fresh mapping and unmaps it on free, so every 4-8 MB activation of a training step or of a
-240 x 320 inference is page-faulted in again, page by page. On this project's 2-core machine that
-was a quarter of a `context` training step. Raising the mmap threshold to 32 MB and the trim
-threshold to 1 GB lets the heap reuse the freed blocks: the process keeps its peak memory instead
-of returning it between steps. Numbers are unchanged; only where memory comes from. No-op where
-the C library has no `mallopt` (not glibc).
+glibc serves large allocations with fresh mappings (above an mmap threshold that adapts upward
+from 128 kB) and trims the freed top of its heap back to the OS (above twice that threshold), so
+many of the 4-8 MB activations of a training step or of a 240 x 320 inference are page-faulted in
+again, page by page, at every step (tests/model/test_allocator.py counts the faults). Raising the
+mmap threshold to 32 MB and the trim threshold to 1 GB lets the heap reuse the freed blocks: the
+process keeps its peak memory instead of returning it between steps. The arithmetic is unchanged;
+only where memory comes from. No-op where the C library has no `mallopt` (not glibc). Measured by
+benchmarks/bench_allocator.py (docs/models.md).
 """
 
 from __future__ import annotations
