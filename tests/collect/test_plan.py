@@ -192,8 +192,43 @@ def test_plan_phases_are_checked_against_the_collected_plan():
     stored = plan[["x_mm", "y_mm", "depth_mm", "frames"]].to_dict("list")
     np.testing.assert_array_equal(plan_phases(stored, config, MINI_LIKE), plan["phase"])
     other = {**config, "touch_search": {**SEARCH, "step_mm": 0.025}}
-    with pytest.raises(ConfigError, match="does not start with the touch search"):
+    with pytest.raises(ConfigError, match="rows its plan.touch_search describes"):
         plan_phases(stored, other, MINI_LIKE)
+    # a store collected before registration presses were asked for is not read as having them
+    asked = {**config, "registration": REGISTRATION}
+    with pytest.raises(ConfigError, match="rows its plan.registration describes"):
+        plan_phases(stored, asked, MINI_LIKE)
+
+
+REGISTRATION = {"spacing_mm": 1.0, "depth_mm": 0.4, "frames": 1}
+
+
+def test_registration_presses_follow_the_search_and_precede_the_grid():
+    config = {
+        "spacing_mm": 2.0,
+        "depth_mm": 1.0,
+        "frames": 2,
+        "touch_search": SEARCH,
+        "registration": REGISTRATION,
+    }
+    plan = plan_from_config(config, MINI_LIKE)
+    order = plan["phase"].drop_duplicates().tolist()
+    assert order == ["touch", "register", "grid"]
+    register = plan[plan["phase"] == "register"]
+    width, height = MINI_LIKE["probing"]["plan_area_mm"]
+    # a 1 mm lattice over the whole probe area, corners included, each pressed 0.4 mm once
+    assert len(register) == (int(width) + 1) * (int(height) + 1)
+    assert register["x_mm"].min() == 0 and register["x_mm"].max() == width
+    assert register["y_mm"].min() == 0 and register["y_mm"].max() == height
+    np.testing.assert_allclose(register["depth_mm"], 0.4)
+    assert (register["frames"] == 1).all()
+    validate_plan(plan, MINI_LIKE, PRINTER)
+    stored = plan[["x_mm", "y_mm", "depth_mm", "frames"]].to_dict("list")
+    np.testing.assert_array_equal(plan_phases(stored, config, MINI_LIKE), plan["phase"])
+    magnetic = {**MINI_LIKE, "type": "magnetic"}
+    assert (plan_from_config(config, magnetic)["phase"] == "grid").all()
+    off = {**config, "registration": {**REGISTRATION, "spacing_mm": 0}}
+    assert not (plan_from_config(off, MINI_LIKE)["phase"] == "register").any()
 
 
 def test_only_search_steps_may_sit_above_the_gel_and_never_above_clearance():

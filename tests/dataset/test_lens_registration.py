@@ -87,6 +87,24 @@ def test_registration_fits_the_lens_within_0_3_px_of_the_benchs_over_the_view(mi
     assert fitted["kappa1_per_px2"] == pytest.approx(truth["kappa1_per_px2"], rel=0.15)
 
 
+def test_shallow_registration_presses_register_the_digit_within_0_3_px(tmp_path):
+    """The DIGIT's grid contacts (1-3 mm deep, up to R across) leave a 45 px band along each edge of
+    its 240 px wide frame where no contact lies whole and the lens fit extrapolates (0.35 px in the
+    default study). Shallow presses over the whole area reach nearer the edges: the registration
+    takes them alone, not the grid's."""
+    plan = {
+        "spacing_mm": 3.0,
+        "depth_mm": 1.0,
+        "frames": 1,
+        "registration": {"spacing_mm": 1.0, "depth_mm": 0.4, "frames": 1},
+    }
+    record = collect_and_register(tmp_path, "digit", plan, 5)
+    assert record["contacts_from"] == "register" and record["locator"] == "rim"
+    # the grid's 3 mm lattice holds ~20 presses in view; the 1 mm registration lattice ~100
+    assert record["contacts_used"] >= 60, record
+    assert record["error_px"] <= 0.3, record
+
+
 def test_dataset_frames_are_rectified_so_contacts_sit_at_their_labels(mini_with_lens):
     folder, record = mini_with_lens
     ts = TrainingSet.load(folder / "ts")

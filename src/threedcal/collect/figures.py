@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 
 def _pyplot():
@@ -23,8 +24,19 @@ def coverage_figure(plan, sensor: Mapping, path: str | Path, title: str = "") ->
     width, height = sensor["probing"]["plan_area_mm"]
     fig, ax = plt.subplots(figsize=(5, 5 * height / width + 0.6), dpi=120)
     ax.add_patch(plt.Rectangle((0, 0), width, height, fill=False, lw=1, ec="0.5", ls="--"))
-    touch = plan["phase"] == "touch" if "phase" in plan else np.zeros(len(plan), dtype=bool)
-    grid = plan[~touch]
+    phase = plan["phase"] if "phase" in plan else pd.Series("grid", index=plan.index)
+    touch, register = phase == "touch", phase == "register"
+    grid = plan[phase == "grid"]
+    if register.any():
+        ax.scatter(
+            plan.loc[register, "x_mm"],
+            plan.loc[register, "y_mm"],
+            marker="+",
+            c="0.55",
+            s=10,
+            lw=0.6,
+            label=f"registration presses ({int(register.sum())})",
+        )
     points = ax.scatter(grid["x_mm"], grid["y_mm"], c=grid["depth_mm"], s=12, cmap="viridis")
     ax.plot(grid["x_mm"], grid["y_mm"], lw=0.3, c="0.7", zorder=0)  # the serpentine path
     if touch.any():
@@ -38,6 +50,7 @@ def coverage_figure(plan, sensor: Mapping, path: str | Path, title: str = "") ->
             s=40,
             label=f"touch search ({steps} steps each)",
         )
+    if touch.any() or register.any():
         ax.legend(loc="upper right", fontsize=7)
     fig.colorbar(points, ax=ax, label="commanded depth (mm)")
     ax.set(

@@ -9,8 +9,10 @@ authors' DIGIT plan follows. py3DCal plan CSVs (``x, y, depth, frames`` with a `
 A scene's plan (`plan_from_config`) also has a ``phase`` column: ``touch`` rows come first — a
 first-contact search that steps the probe down through the nominal touch height at a few places,
 one row per step, from which the dataset stage measures where the gel really is — then the
-``grid`` rows (grid, cross or CSV) that the model trains on. Touch rows may sit above the gel
-(negative depth); the collection loop and store carry them like any other row.
+``register`` rows — shallow presses over the whole probe area, whose small contacts lie whole in
+the frame nearer its edges than the grid's, from which the dataset stage fits the camera's
+registration — then the ``grid`` rows (grid, cross or CSV) that the model trains on. Touch rows
+may sit above the gel (negative depth); the collection loop and store carry them like any other row.
 """
 
 from __future__ import annotations
@@ -275,6 +277,23 @@ def touch_search_plan(sensor: Mapping, search: Mapping) -> pd.DataFrame:
     )[columns]
 
 
+def registration_plan(sensor: Mapping, presses: Mapping) -> pd.DataFrame:
+    """The registration presses (phase "register"): a grid of `spacing_mm` over the probe area,
+    each point pressed `depth_mm` deep (dome compensated) for `frames` frames; none when
+    `spacing_mm` is 0.
+
+    Shallow, so that a contact is small: the locators only take contacts that lie whole in the
+    frame, and the grid's 1-3 mm presses (radius up to R) leave a band along every edge where
+    the lens fit extrapolates (docs/registration.md, Registration presses). One depth, so that
+    every contact carries the locator's bias at that depth alike."""
+    columns = [*PLAN_COLUMNS, "phase"]
+    spacing = float(presses.get("spacing_mm", 0.0))
+    if spacing == 0:
+        return pd.DataFrame({c: [] for c in columns}).astype({"frames": int})
+    rows = grid_plan(sensor, spacing, [float(presses["depth_mm"])], int(presses["frames"]))
+    return rows.assign(phase="register")[columns]
+
+
 def serpentine(plan: pd.DataFrame, row_tolerance_mm: float = 1e-6) -> pd.DataFrame:
     """Order by rows of equal y; alternate the x direction each row, so travel between points is short."""
     plan = plan.copy()
@@ -288,6 +307,8 @@ def serpentine(plan: pd.DataFrame, row_tolerance_mm: float = 1e-6) -> pd.DataFra
 def _describe_row(plan: pd.DataFrame, i: int, source: str) -> str:
     if _phase(plan, i) == "touch":
         return f"{source}, touch search row {i}"
+    if _phase(plan, i) == "register":
+        return f"{source}, registration press row {i}"
     if "line" in plan and pd.notna(plan["line"].iloc[i]):
         return f"{source}, line {int(plan['line'].iloc[i])}"
     return f"{source}, point {i}"
@@ -376,7 +397,9 @@ def check_plan_size(points: float, frames: float, what: str = "the plan") -> Non
 
 def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     """The plan a scene's `plan:` section describes: the touch search (vision sensors, when
-    `touch_search.points` > 0), then the grid rows (CSV, grid or cross); column `phase` tells them apart."""
+    `touch_search.points` > 0), the registration presses (vision sensors, when
+    `registration.spacing_mm` > 0), then the grid rows (CSV, grid or cross); column `phase`
+    tells them apart."""
     if plan_config.get("csv"):
         rows = read_plan_csv(plan_config["csv"])
         check_plan_size(len(rows), rows["frames"].sum(), str(plan_config["csv"]))
@@ -409,10 +432,15 @@ def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
                 depth_mode=mode,
             )
     rows = rows.assign(phase="grid")
-    search = touch_search_of(plan_config, sensor)
-    if search.empty:
+    before = [p for p in _leading_phases(plan_config, sensor) if not p.empty]
+    if not before:
         return rows
-    return pd.concat([search, rows], ignore_index=True)
+    return pd.concat([*before, rows], ignore_index=True)
+
+
+def _leading_phases(plan_config: Mapping, sensor: Mapping) -> list[pd.DataFrame]:
+    """The rows a scene's plan starts with, in order: the touch search, the registration presses."""
+    return [touch_search_of(plan_config, sensor), registration_presses_of(plan_config, sensor)]
 
 
 def touch_search_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
@@ -423,17 +451,33 @@ def touch_search_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     return touch_search_plan(sensor, search)
 
 
+def registration_presses_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
+    """The registration presses a scene's plan holds after its touch search (none for a magnetic
+    sensor or spacing 0)."""
+    presses = plan_config.get("registration") or {}
+    if sensor.get("type") != "vision":
+        return registration_plan(sensor, {"spacing_mm": 0})
+    return registration_plan(sensor, presses)
+
+
 def plan_phases(stored_plan: Mapping, plan_config: Mapping, sensor: Mapping) -> np.ndarray:
     """The phase of every row of a collected plan (a store's ``plan`` attribute: x_mm, y_mm,
-    depth_mm, frames lists), checked against the touch search its config describes."""
+    depth_mm, frames lists), checked against the touch search and registration presses its
+    config describes."""
     n_rows = len(stored_plan["x_mm"])
-    search = touch_search_of(plan_config, sensor)
-    n_touch = len(search)
     stored = np.column_stack([np.asarray(stored_plan[c], dtype=float) for c in PLAN_COLUMNS])
-    expected = search[list(PLAN_COLUMNS)].to_numpy(dtype=float)
-    if n_touch > n_rows or not np.allclose(stored[:n_touch], expected, atol=1e-6):
-        raise ConfigError(
-            "the collected plan does not start with the touch search its plan.touch_search "
-            f"describes ({n_touch} rows): was the store collected with another config?"
-        )
-    return np.array(["touch"] * n_touch + ["grid"] * (n_rows - n_touch))
+    phases: list[str] = []
+    for rows, key in zip(
+        _leading_phases(plan_config, sensor),
+        ("plan.touch_search", "plan.registration"),
+        strict=True,
+    ):
+        start, stop = len(phases), len(phases) + len(rows)
+        expected = rows[list(PLAN_COLUMNS)].to_numpy(dtype=float)
+        if stop > n_rows or not np.allclose(stored[start:stop], expected, atol=1e-6):
+            raise ConfigError(
+                f"the collected plan does not hold the rows its {key} describes ({len(rows)} "
+                f"rows from row {start}): was the store collected with another config?"
+            )
+        phases += [str(p) for p in rows["phase"]]
+    return np.array(phases + ["grid"] * (n_rows - len(phases)))

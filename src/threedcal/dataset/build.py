@@ -82,10 +82,11 @@ class RegisteredStore:
     raw: object  # the store as an xarray Dataset
     sensor: dict
     plan_config: dict  # the plan section the store was collected with
-    phase: np.ndarray  # per plan row: "touch" or "grid"
+    phase: np.ndarray  # per plan row: "touch", "register" or "grid"
     first: np.ndarray
     last: np.ndarray
-    registration: object  # threedcal.dataset.registration.Registration (grid rows only)
+    registration: object  # threedcal.dataset.registration.Registration (of `registered_rows`)
+    registered_rows: np.ndarray  # the plan rows the registration located contacts in
     centres: np.ndarray  # (frames, 2) where the affine puts each frame's probe, px
     nominal_depth: np.ndarray  # (frames,) commanded depth below the gel surface there, mm
 
@@ -138,10 +139,15 @@ def register_store(
             and margin <= contact.y_px <= height - 1 - margin
         )
 
-    grid = np.flatnonzero(phase == "grid")
+    # The registration presses when the plan has them: alone, for their contacts share one depth
+    # and so one locator bias, where adding the grid's 1-3 mm contacts mixes biases that the lens
+    # fit then bends to (docs/registration.md, Registration presses).
+    rows = np.flatnonzero(phase == "register")
+    if not len(rows):
+        rows = np.flatnonzero(phase == "grid")
     registration = register(
-        cmd_xy[first[grid]],
-        [_mean_frame(raw, first[p], last[p]) for p in grid],
+        cmd_xy[first[rows]],
+        [_mean_frame(raw, first[p], last[p]) for p in rows],
         raw["blank_frames"].values.astype(np.float32).mean(axis=0),
         accept=whole,
         flat_gel=sensor["gel"].get("dome") is None,
@@ -154,7 +160,7 @@ def register_store(
     # registration says, and the sag there is what the press's depth is measured from.
     depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
     return RegisteredStore(
-        raw, sensor, plan_config, phase, first, last, registration, centres, depth
+        raw, sensor, plan_config, phase, first, last, registration, rows, centres, depth
     )
 
 
@@ -266,6 +272,7 @@ def build_collected(
         "residual_px": round(fit.residual_px, 4),
         "px_per_mm": [round(v, 5) for v in fit.px_per_mm],
         "rotation_deg": round(float(np.degrees(np.arctan2(linear[1, 0], linear[0, 0]))), 4),
+        "contacts_from": "register" if len(store.rows("register")) else "grid",
         "contacts_found": int(sum(c is not None for c in registration.contacts)),
         "contacts_used": int(fit.inliers.sum()),
         "locator": registration.locator,
@@ -349,9 +356,9 @@ def touch_height(
     if method != "rim":
         raise ConfigError(f"touch height method {method!r} is not allowed (allowed: search, rim)")
     used = np.flatnonzero(fit.inliers)
-    grid = store.rows("grid")[used]
+    located = store.registered_rows[used]
     estimate = estimate_touch(
-        store.nominal_depth[store.first[grid]],
+        store.nominal_depth[store.first[located]],
         np.array([store.registration.contacts[i].radius_px for i in used]) / store.px_per_mm,
         radius_mm,
     )
