@@ -229,6 +229,10 @@ def test_registration_presses_follow_the_search_and_precede_the_grid():
     assert (plan_from_config(config, magnetic)["phase"] == "grid").all()
     off = {**config, "registration": {**REGISTRATION, "spacing_mm": 0}}
     assert not (plan_from_config(off, MINI_LIKE)["phase"] == "register").any()
+    with pytest.raises(ConfigError, match="plan.registration spacing_mm=0.001 would have"):
+        plan_from_config(
+            {**config, "registration": {**REGISTRATION, "spacing_mm": 0.001}}, MINI_LIKE
+        )
 
 
 def test_only_search_steps_may_sit_above_the_gel_and_never_above_clearance():

@@ -290,6 +290,12 @@ def registration_plan(sensor: Mapping, presses: Mapping) -> pd.DataFrame:
     spacing = float(presses.get("spacing_mm", 0.0))
     if spacing == 0:
         return pd.DataFrame({c: [] for c in columns}).astype({"frames": int})
+    if spacing > 0 and np.isfinite(spacing):
+        width, height = plan_area_mm(sensor)
+        points = (width // spacing + 1) * (height // spacing + 1)
+        check_plan_size(
+            points, points * int(presses["frames"]), f"plan.registration spacing_mm={spacing:g}"
+        )
     rows = grid_plan(sensor, spacing, [float(presses["depth_mm"])], int(presses["frames"]))
     return rows.assign(phase="register")[columns]
 

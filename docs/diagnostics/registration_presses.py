@@ -1,0 +1,102 @@
+"""How well shallow registration presses register the rig, against the grid's own contacts.
+
+For each sensor, seed and (depth, spacing) variant: a plan of registration-like presses alone
+(one depth, one frame, no touch search) collected on the simulated bench, registered by the
+dataset stage (`register_store`), then the RMS / max error against the bench's hidden truth over
+a 0.25 mm lattice of the probe area, where it lies in view. Seeds other than the default study's
+0: the figures the study reports are not the ones this chose on (docs/registration.md,
+Registration presses). Usage (about a minute per run on 2 cores):
+
+    .venv/bin/python docs/diagnostics/registration_presses.py [--elastic] digit 11 0.4 1.0 [...]
+
+arguments in fours: sensor, seed, depth_mm, spacing_mm. `--elastic`: the sensor's profile with
+`gel.mechanics: elastic` (docs/simulator.md, Gel mechanics).
+"""
+
+from __future__ import annotations
+
+import copy
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from threedcal.collect.plan import plan_area_mm
+from threedcal.collect.session import collect_scene
+from threedcal.config import validate_config
+from threedcal.dataset.build import register_store
+from threedcal.dataset.splits import in_field_of_view
+from threedcal.profiles import load_profile
+from threedcal.sim.bench import BenchTruth
+
+
+def elastic_profile(sensor: str, folder: Path) -> str:
+    """A copy of a built-in profile with the elastic gel, as a path a scene can name."""
+    profile = copy.deepcopy(load_profile("sensor", sensor))
+    profile["gel"]["mechanics"] = "elastic"
+    profile.pop("source", None)
+    path = folder / f"{sensor}_elastic.yaml"
+    path.write_text(yaml.safe_dump(profile))
+    return str(path)
+
+
+def measure(
+    sensor: str, seed: int, depth_mm: float, spacing_mm: float, folder: Path, elastic: bool
+) -> str:
+    name = elastic_profile(sensor, folder) if elastic else sensor
+    plan = {
+        "spacing_mm": spacing_mm,
+        "depths_mm": [depth_mm],
+        "touch_search": {"points": 0},
+        "registration": {"spacing_mm": 0},
+    }
+    config = validate_config(
+        {"seed": seed, "scenes": {"s": {"sensor": name, "printer": "ender3", "plan": plan}}}
+    )
+    scene = config["scenes"]["s"]
+    collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)
+    truth = BenchTruth.read(folder / "truth.json")
+    store = register_store(scene, folder / "raw.zarr", progress=False)
+    raw = store.raw
+    height, width = raw["frames"].shape[1:3]
+    area_w, area_h = plan_area_mm(store.sensor)
+    gx, gy = np.meshgrid(np.arange(0, area_w + 1e-9, 0.25), np.arange(0, area_h + 1e-9, 0.25))
+    # plan-relative mm to commanded printer mm: the store's own first row gives the offset
+    mount = np.array(
+        [
+            raw["cmd_x_mm"].values[0] - raw["x_mm"].values[0],
+            raw["cmd_y_mm"].values[0] - raw["y_mm"].values[0],
+        ]
+    )
+    probe = np.column_stack([gx.ravel(), gy.ravel()]) + mount
+    true_px = truth.camera_px(probe)
+    view = in_field_of_view(true_px[:, 0], true_px[:, 1], width, height)
+    fit = store.registration.fit
+    error = np.linalg.norm(fit.apply(probe[view]) - true_px[view], axis=1)
+    return (
+        f"{sensor}{' (elastic gel)' if elastic else ''} seed {seed}, {depth_mm:g} mm deep on a {spacing_mm:g} mm lattice: "
+        f"{np.sqrt(np.mean(error**2)):.3f} / {error.max():.2f} px RMS / max "
+        f"({store.registration.locator}, {int(fit.inliers.sum())} contacts of "
+        f"{len(store.rows('grid'))} presses)"
+    )
+
+
+def main() -> None:
+    args = sys.argv[1:]
+    elastic = "--elastic" in args
+    args = [a for a in args if a != "--elastic"]
+    if not args or len(args) % 4:
+        raise SystemExit(__doc__)
+    for i in range(0, len(args), 4):
+        sensor, seed, depth, spacing = args[i : i + 4]
+        with tempfile.TemporaryDirectory() as folder:
+            print(
+                measure(sensor, int(seed), float(depth), float(spacing), Path(folder), elastic),
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
