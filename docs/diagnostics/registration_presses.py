@@ -32,7 +32,7 @@ from threedcal.collect.plan import plan_area_mm
 from threedcal.collect.session import collect_scene
 from threedcal.config import validate_config
 from threedcal.dataset.build import register_store
-from threedcal.dataset.registration import locate_contact
+from threedcal.dataset.registration import locate_contact, refine_by_symmetry
 from threedcal.dataset.splits import in_field_of_view
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import BenchTruth
@@ -89,6 +89,31 @@ def measure(
     )
 
 
+def symmetry_by_edge(store, rows, true_px, blank) -> str:
+    """The symmetry locator's RMS error against the truth, by the contact's distance from the
+    frame's nearest edge (px): where a halo that the frame cuts pulls it."""
+    raw = store.raw
+    height, width = raw["frames"].shape[1:3]
+    frames = [store.mean_frame(row) for row in rows]
+    rim = [locate_contact(frame, blank) for frame in frames]
+    refined = refine_by_symmetry(frames, blank, rim, progress=False).contacts
+    edge, error = [], []
+    for contact, where in zip(refined, true_px, strict=True):
+        if contact is not None:
+            edge.append(
+                min(contact.x_px, width - 1 - contact.x_px, contact.y_px, height - 1 - contact.y_px)
+            )
+            error.append(np.hypot(contact.x_px - where[0], contact.y_px - where[1]))
+    edge, error = np.array(edge), np.array(error)
+    bands = []
+    for low, high in ((0, 30), (30, 45), (45, 60), (60, 80), (80, np.inf)):
+        inside = (edge >= low) & (edge < high)
+        if inside.any():
+            rms = float(np.sqrt(np.mean(error[inside] ** 2)))
+            bands.append(f"{low:g}-{high:g} px {rms:.2f} px (n {int(inside.sum())})")
+    return "symmetry locator by distance from the frame's edge: " + ", ".join(bands)
+
+
 def locator_bias(store, truth: BenchTruth, radius_mm: float) -> str:
     """The rim locator against the truth, and against the truth shifted by the dome (docstring)."""
     raw = store.raw
@@ -113,7 +138,7 @@ def locator_bias(store, truth: BenchTruth, radius_mm: float) -> str:
     text = f"rim locator: {rms:.3f} px RMS over {len(found)} whole contacts"
     dome = store.sensor["gel"].get("dome")
     if dome is None:
-        return text + " (flat gel)"
+        return text + " (flat gel); " + symmetry_by_edge(store, rows, true_px, blank)
     scale = store.px_per_mm
     shift = np.zeros_like(axis)
     for i, (key, apex, size) in enumerate(

@@ -27,17 +27,29 @@ def scene(sensor="gelsight_mini", seed=4, **overrides):
 
 
 def interrupted(monkeypatch, config, path, after=4):
-    """Collect until `after` points are stored, then Ctrl-C (KeyboardInterrupt) while pressed."""
-    original, calls = RawStore.write_point, {"n": 0}
+    """Collect `after` points, then Ctrl-C (KeyboardInterrupt) while the next one is pressed. No
+    point is flushed before the stop (FLUSH_EVERY_S made huge): the stop must write them all."""
+    from threedcal.collect import run
 
-    def write_point(self, point, record):
-        calls["n"] += 1
-        if calls["n"] > after:
-            raise KeyboardInterrupt
-        original(self, point, record)
+    probe = run._Run.probe
+
+    def probe_then_stop(self, bar):
+        capture = self.camera.capture
+
+        def capture_or_stop(count):
+            if self.pending and self.pending_from + len(self.pending) >= after:
+                raise KeyboardInterrupt
+            return capture(count)
+
+        self.camera.capture = capture_or_stop
+        try:
+            probe(self, bar)
+        finally:
+            self.camera.capture = capture
 
     with monkeypatch.context() as patch:
-        patch.setattr(RawStore, "write_point", write_point)
+        patch.setattr(run._Run, "probe", probe_then_stop)
+        patch.setattr(run, "FLUSH_EVERY_S", 1e9)
         with pytest.raises(KeyboardInterrupt):
             collect_scene("s", config, path, progress=False)
 

@@ -1,6 +1,7 @@
 """The collection run: home, blank frames, then for every plan point lift → travel → press → wait →
-settle → flush → capture → label → store. Crash-safe: every point is committed to the store before
-the next starts, and a rerun resumes at the first point not captured.
+settle → flush → capture → label → store. Crash-safe: a captured point is committed to the store
+within a second (FLUSH_EVERY_S; on a printer, before the next point starts), and a rerun resumes at
+the first point not captured.
 
 Timing is synchronised, not guessed: a press is captured only after Marlin reports the queued moves
 done (M400), and the travel to the next point is queued right after the capture, so the printer
@@ -31,6 +32,14 @@ from tqdm import tqdm
 
 from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_to_printer
 from threedcal.collect.store import PointRecord, RawStore, StoreError
+
+# Captured points are written to the store together, once FLUSH_EVERY_S has passed since the last
+# write or FLUSH_MAX_POINTS wait: a zarr write costs about a millisecond whatever its size, ten
+# per point, which was most of a simulated collection's time. A printer takes over a second a point,
+# so on hardware every point is still written as it is captured. A kill loses only what waits: those
+# points are not `captured` and the next run probes them again.
+FLUSH_EVERY_S = 1.0
+FLUSH_MAX_POINTS = 256
 
 
 class FrameSource(Protocol):
@@ -150,6 +159,20 @@ def make_safe(printer, safe_z: float, feed_mm_s: float, cause: BaseException | N
     return f"probe lifted to Z={safe_z:g} mm, steppers released as the printer profile says"
 
 
+def _keep_what_was_captured(run: _Run) -> None:
+    """After a stop, write the points captured but not yet flushed (a store that fails to take
+    them leaves them uncaptured: the next run probes them again)."""
+    try:
+        run.flush()
+    except BaseException as exc:  # noqa: BLE001 - the first error (or signal) is the one to report
+        logging.getLogger("threedcal").warning(
+            "%d captured point(s) could not be written after the stop (%s); the next run probes "
+            "them again",
+            len(run.pending),
+            exc,
+        )
+
+
 def _emergency_stop(printer) -> None:
     stop = getattr(printer, "emergency_stop", None)
     if stop is not None:
@@ -207,6 +230,7 @@ def collect(
                 release()
         except BaseException as exc:
             outcome = make_safe(printer, run.safe_z, settings.plunge_feed_mm_s, exc)
+            _keep_what_was_captured(run)
             run.record(stopped=f"{type(exc).__name__}: {exc}".strip(": "), safe_stop=outcome)
             bar.close()
             logging.getLogger("threedcal").warning(
@@ -236,6 +260,10 @@ class _Run:
         self.done = np.asarray(store.captured, dtype=bool)
         self.safe_z = clearance_z(sensor)
         self.points = self.frames = 0
+        # captured points not yet written (consecutive, from `pending_from`): see FLUSH_EVERY_S
+        self.pending: list[PointRecord] = []
+        self.pending_from = 0
+        self.flushed_at = time.monotonic()
 
     def record(self, new: bool = False, **extra: Any) -> None:
         """Keep this run's record in the store up to date (a killed run still counts)."""
@@ -316,6 +344,7 @@ class _Run:
             lift_z = min(self.safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
             printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
             if self.done[point]:
+                self.flush(bar)  # what waits is contiguous: it ends before a replayed point
                 if samples is not None and not np.array_equal(samples, store.read_point(point)):
                     raise StoreError(
                         f"{store.path}: replaying point {point} of the simulated bench did not "
@@ -323,20 +352,37 @@ class _Run:
                         "the store away to collect it anew"
                     )
                 continue
-            store.write_point(
-                point,
+            if not self.pending:
+                self.pending_from = point
+            self.pending.append(
                 PointRecord(
                     frames=frames,
                     cmd_xyz=target,
                     reported_xyz=reported,
                     t_s=np.asarray(stamps, dtype=float) - self.started_clock,
                     hardware_s=np.full(count, hw_now),
-                ),
+                )
             )
-            self.points += 1
-            self.frames += count
-            self.record()
-            bar.update(1)
+            if (
+                len(self.pending) >= FLUSH_MAX_POINTS
+                or time.monotonic() - self.flushed_at >= FLUSH_EVERY_S
+            ):
+                self.flush(bar)
+        self.flush(bar)
+
+    def flush(self, bar=None) -> None:
+        """Write the points captured since the last flush, then the run's record."""
+        if not self.pending:
+            return
+        records = self.pending
+        self.store.write_points(self.pending_from, records)
+        self.pending = []
+        self.points += len(records)
+        self.frames += sum(len(r.frames) for r in records)
+        self.flushed_at = time.monotonic()
+        self.record()
+        if bar is not None:
+            bar.update(len(records))
 
 
 def _pass_over(camera, count: int):

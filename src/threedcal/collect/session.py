@@ -361,7 +361,7 @@ class _EstimateSink:
     def write_blank(self, frames) -> None:
         self._blank = True
 
-    def write_point(self, point, record) -> None:
+    def write_points(self, first, records) -> None:
         pass
 
     def record_run(self, record, new: bool = False) -> None:

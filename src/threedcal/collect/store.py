@@ -35,7 +35,7 @@ import os
 import re
 import shutil
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -358,27 +358,44 @@ class RawStore:
 
     def write_point(self, point: int, record: PointRecord) -> None:
         """Frames, then labels, then the `captured` flag: a crash in between redoes this point."""
-        start, stop = int(self.offsets[point]), int(self.offsets[point + 1])
-        count = stop - start
-        if record.frames.shape[0] != count:
-            raise ValueError(
-                f"point {point}: plan wants {count} frames, got {record.frames.shape[0]}"
-            )
-        self._array(self.variable)[start:stop] = record.frames
+        self.write_points(point, [record])
+
+    def write_points(self, first: int, records: Sequence[PointRecord]) -> None:
+        """Consecutive points from `first`, one write per array: frames, then labels, then their
+        `captured` flags. A crash in between redoes them all. Each zarr write costs about a
+        millisecond whatever its size, so the collection loop hands over several points at a time
+        (`threedcal.collect.run`)."""
+        if not records:
+            return
+        stop_point = first + len(records)
+        start, stop = int(self.offsets[first]), int(self.offsets[stop_point])
+        counts = np.diff(self.offsets[first : stop_point + 1]).astype(int)
+        for point, record, count in zip(range(first, stop_point), records, counts, strict=True):
+            if record.frames.shape[0] != count:
+                raise ValueError(
+                    f"point {point}: plan wants {count} frames, got {record.frames.shape[0]}"
+                )
+        frames = (
+            records[0].frames if len(records) == 1 else np.concatenate([r.frames for r in records])
+        )
+        self._array(self.variable)[start:stop] = frames
         measured = {
-            "cmd_x_mm": record.cmd_xyz[0],
-            "cmd_y_mm": record.cmd_xyz[1],
-            "cmd_z_mm": record.cmd_xyz[2],
-            "reported_x_mm": record.reported_xyz[0],
-            "reported_y_mm": record.reported_xyz[1],
-            "reported_z_mm": record.reported_xyz[2],
-            "t_s": record.t_s,
-            "hardware_s": record.hardware_s,
+            "cmd_x_mm": [r.cmd_xyz[0] for r in records],
+            "cmd_y_mm": [r.cmd_xyz[1] for r in records],
+            "cmd_z_mm": [r.cmd_xyz[2] for r in records],
+            "reported_x_mm": [r.reported_xyz[0] for r in records],
+            "reported_y_mm": [r.reported_xyz[1] for r in records],
+            "reported_z_mm": [r.reported_xyz[2] for r in records],
         }
-        for name, value in measured.items():
-            values = np.broadcast_to(np.asarray(value, dtype=float), (count,))
-            self._array(name)[start:stop] = values
-        self._array("captured")[point] = True
+        for name, per_point in measured.items():
+            self._array(name)[start:stop] = np.repeat(np.asarray(per_point, dtype=float), counts)
+        for name in ("t_s", "hardware_s"):
+            per_frame = [
+                np.broadcast_to(np.asarray(getattr(r, name), dtype=float), (c,))
+                for r, c in zip(records, counts, strict=True)
+            ]
+            self._array(name)[start:stop] = np.concatenate(per_frame)
+        self._array("captured")[first:stop_point] = True
 
     def read_point(self, point: int) -> np.ndarray:
         """The samples stored for one point (a replayed run compares against them)."""
