@@ -1,6 +1,8 @@
 """Issue 22 with real Snakemake runs: no Snakemake action deletes or overwrites a collection store.
 
-A tiny scene (12 probe points) collected through the workflow, then: reordered config keys, a
+A small scene (616 probe points, a few seconds: long enough that the collection writes a batch to
+the store before it ends, see threedcal.collect.run.FLUSH_EVERY_S) collected through the workflow,
+then: reordered config keys, a
 `--forcerun collect`, a changed seed, Ctrl-C while collecting, Ctrl-C while the figures are drawn
 and `--rerun-incomplete` — the store is never touched, and a real change stops naming the key.
 """
@@ -30,9 +32,10 @@ CONFIG = {
         "t": {
             "sensor": "gelsight_mini",
             "printer": "ender3",
-            # one touch-search place (26 frames), not three: the store's protection, not the search
+            # one touch-search place (26 frames), not three: the store's protection, not the search;
+            # 616 points, so that Ctrl-C can come after the first batch is written, before the last
             "plan": {
-                "spacing_mm": 6.0,
+                "spacing_mm": 0.7,
                 "depth_mm": 1.0,
                 "frames": 1,
                 "touch_search": {"points": 1},
