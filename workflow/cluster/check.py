@@ -4,7 +4,9 @@ Needs a Slurm controller that answers (`scontrol ping`) with accounting (`sacct`
 resources as workflow/profiles/slurm asks, and the executor plugin (`pip install -e ".[cluster]"`).
 workflow/cluster/slurm.sh starts such a cluster on one machine. In WORKDIR it
 
-1. runs tests/config/test.yaml locally with a bare `snakemake --cores 2` (no profile) and checks
+1. runs tests/config/test.yaml (with registration presses added to `tiny_digit`: its collection then
+   lasts long enough to be killed between two writes) locally with a bare `snakemake --cores 2`
+   (no profile) and checks
    that the two collections never overlapped (the `printer` resource the Snakefile sets);
 2. at the same time runs it through `--profile workflow/profiles/slurm` with two failures made on
    purpose: an image of the imported ball scene is unreadable (a cluster job fails: its log must say
@@ -137,6 +139,10 @@ def write_config(work: Path, *workdirs: Path) -> Path:
                 shutil.rmtree(workdir / "data" / name, ignore_errors=True)
                 shutil.copytree(source, workdir / "data" / name)
             scene["import"]["path"] = f"data/{name}"
+    # The collection writes captured points in batches, one a second (threedcal.collect.run):
+    # registration presses (not trained on) make KILLED_SCENE's collection last several seconds,
+    # so that the kill after KILL_AFTER points falls between two batches.
+    config["scenes"][KILLED_SCENE]["plan"]["registration"] = {"spacing_mm": 0.6, "depth_mm": 0.4}
     path = work / "test.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     return path
