@@ -34,6 +34,7 @@ from threedcal.config import validate_config
 from threedcal.dataset.build import register_store
 from threedcal.dataset.registration import locate_contact, refine_by_symmetry
 from threedcal.dataset.splits import in_field_of_view
+from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import BenchTruth
 
@@ -89,29 +90,36 @@ def measure(
     )
 
 
-def symmetry_by_edge(store, rows, true_px, blank) -> str:
+def symmetry_by_edge(store, rows, true_px, blank, lens=None) -> str:
     """The symmetry locator's RMS error against the truth, by the contact's distance from the
-    frame's nearest edge (px): where a halo that the frame cuts pulls it."""
+    frame's nearest edge (px); with `lens` (the bench's true one), also on frames rectified
+    through it, against where the ideal frame holds each axis: whether the lens is the cause."""
     raw = store.raw
     height, width = raw["frames"].shape[1:3]
     frames = [store.mean_frame(row) for row in rows]
-    rim = [locate_contact(frame, blank) for frame in frames]
-    refined = refine_by_symmetry(frames, blank, rim, progress=False).contacts
-    edge, error = [], []
-    for contact, where in zip(refined, true_px, strict=True):
-        if contact is not None:
-            edge.append(
-                min(contact.x_px, width - 1 - contact.x_px, contact.y_px, height - 1 - contact.y_px)
-            )
-            error.append(np.hypot(contact.x_px - where[0], contact.y_px - where[1]))
-    edge, error = np.array(edge), np.array(error)
-    bands = []
-    for low, high in ((0, 30), (30, 45), (45, 60), (60, 80), (80, np.inf)):
-        inside = (edge >= low) & (edge < high)
-        if inside.any():
-            rms = float(np.sqrt(np.mean(error[inside] ** 2)))
-            bands.append(f"{low:g}-{high:g} px {rms:.2f} px (n {int(inside.sum())})")
-    return "symmetry locator by distance from the frame's edge: " + ", ".join(bands)
+    cases = [("camera frames", frames, blank, true_px)]
+    if lens is not None:
+        rectified = [lens.rectify(frame) for frame in frames]
+        cases.append(("rectified", rectified, lens.rectify(blank), lens.undistort(true_px)))
+    lines = []
+    for label, images, reference, truth_px in cases:
+        rim = [locate_contact(image, reference) for image in images]
+        refined = refine_by_symmetry(images, reference, rim, progress=False).contacts
+        edge, error = [], []
+        for contact, where in zip(refined, truth_px, strict=True):
+            if contact is not None:
+                x, y = contact.x_px, contact.y_px
+                edge.append(min(x, width - 1 - x, y, height - 1 - y))
+                error.append(np.hypot(x - where[0], y - where[1]))
+        edge, error = np.array(edge), np.array(error)
+        bands = []
+        for low, high in ((0, 30), (30, 45), (45, 60), (60, 80), (80, np.inf)):
+            inside = (edge >= low) & (edge < high)
+            if inside.any():
+                rms = float(np.sqrt(np.mean(error[inside] ** 2)))
+                bands.append(f"{low:g}-{high:g} px {rms:.2f} px (n {int(inside.sum())})")
+        lines.append(f"{label}: " + ", ".join(bands))
+    return "symmetry locator by distance from the frame's edge, " + "; ".join(lines)
 
 
 def locator_bias(store, truth: BenchTruth, radius_mm: float) -> str:
@@ -138,7 +146,11 @@ def locator_bias(store, truth: BenchTruth, radius_mm: float) -> str:
     text = f"rim locator: {rms:.3f} px RMS over {len(found)} whole contacts"
     dome = store.sensor["gel"].get("dome")
     if dome is None:
-        return text + " (flat gel); " + symmetry_by_edge(store, rows, true_px, blank)
+        return (
+            text
+            + " (flat gel); "
+            + symmetry_by_edge(store, rows, true_px, blank, RadialLens.from_record(truth.lens))
+        )
     scale = store.px_per_mm
     shift = np.zeros_like(axis)
     for i, (key, apex, size) in enumerate(
