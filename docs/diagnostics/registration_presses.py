@@ -32,7 +32,7 @@ from threedcal.collect.plan import plan_area_mm
 from threedcal.collect.session import collect_scene
 from threedcal.config import validate_config
 from threedcal.dataset.build import register_store
-from threedcal.dataset.registration import locate_contact, refine_by_symmetry
+from threedcal.dataset.registration import Contact, locate_contact, refine_by_symmetry
 from threedcal.dataset.splits import in_field_of_view
 from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
@@ -93,17 +93,26 @@ def measure(
 def symmetry_by_edge(store, rows, true_px, blank, lens=None) -> str:
     """The symmetry locator's RMS error against the truth, by the contact's distance from the
     frame's nearest edge (px); with `lens` (the bench's true one), also on frames rectified
-    through it, against where the ideal frame holds each axis: whether the lens is the cause."""
+    through it, against where the ideal frame holds each axis (is the lens the cause?); and with
+    the fit started at the true centre instead of the rim locator's (is the start the cause?)."""
     raw = store.raw
     height, width = raw["frames"].shape[1:3]
     frames = [store.mean_frame(row) for row in rows]
-    cases = [("camera frames", frames, blank, true_px)]
+    cases = [("camera frames", frames, blank, true_px, False)]
     if lens is not None:
         rectified = [lens.rectify(frame) for frame in frames]
-        cases.append(("rectified", rectified, lens.rectify(blank), lens.undistort(true_px)))
+        cases.append(("rectified", rectified, lens.rectify(blank), lens.undistort(true_px), False))
+    cases.append(
+        ("camera frames, the fit started at the true centre", frames, blank, true_px, True)
+    )
     lines = []
-    for label, images, reference, truth_px in cases:
+    for label, images, reference, truth_px, true_start in cases:
         rim = [locate_contact(image, reference) for image in images]
+        if true_start:  # the rim's radius, the truth's centre: is the fit's start the cause?
+            rim = [
+                None if c is None else Contact(float(t[0]), float(t[1]), c.radius_px, c.strength)
+                for c, t in zip(rim, truth_px, strict=True)
+            ]
         refined = refine_by_symmetry(images, reference, rim, progress=False).contacts
         edge, error = [], []
         for contact, where in zip(refined, truth_px, strict=True):
