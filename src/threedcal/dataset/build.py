@@ -272,7 +272,7 @@ def build_collected(
         "residual_px": round(fit.residual_px, 4),
         "px_per_mm": [round(v, 5) for v in fit.px_per_mm],
         "rotation_deg": round(float(np.degrees(np.arctan2(linear[1, 0], linear[0, 0]))), 4),
-        "contacts_from": "register" if len(store.rows("register")) else "grid",
+        "contacts_from": str(store.phase[store.registered_rows[0]]),
         "contacts_found": int(sum(c is not None for c in registration.contacts)),
         "contacts_used": int(fit.inliers.sum()),
         "locator": registration.locator,
