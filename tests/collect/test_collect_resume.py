@@ -177,3 +177,31 @@ def test_the_dataset_stage_refuses_a_store_with_a_missing_chunk(
         build_collected(config, path, *outputs, progress=False)
     assert str(path) in str(exc.value) and words in str(exc.value) and "missing" in str(exc.value)
     assert not any(o.exists() for o in outputs)
+
+
+def test_a_store_killed_before_its_metadata_was_consolidated_is_consolidated_on_resume(
+    tmp_path, monkeypatch
+):
+    """Repro: a kill between `finalize` marking the store complete and consolidating its metadata
+    left a complete staging store that the resume moved into place unconsolidated (xarray then
+    warned and read every array's metadata)."""
+    import json
+    import warnings
+
+    config = scene()
+    staging, final = tmp_path / ".partial" / "raw.zarr", tmp_path / "raw.zarr"
+
+    def killed(self):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(RawStore, "consolidate", killed)
+        with pytest.raises(KeyboardInterrupt):
+            collect_scene("s", config, final, staging_path=staging, progress=False)
+    assert not final.exists()
+    assert json.loads((staging / "zarr.json").read_text()).get("consolidated_metadata") is None
+    collect_scene("s", config, final, staging_path=staging, progress=False)
+    assert json.loads((final / "zarr.json").read_text()).get("consolidated_metadata")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        assert bool(open_raw(final).captured.all())

@@ -205,6 +205,8 @@ def collect_scene(
             else:
                 _collect_hardware(scene, prepared, store, progress)
             store.finalize({"summary": store_summary(store)})
+        elif staging != store_path:  # completed, then killed before the rename: maybe before
+            store.consolidate()  # finalize's last step too
         if staging != store_path:
             os.replace(staging, store_path)  # one rename: the store is whole or not there at all
         summary = store_summary(

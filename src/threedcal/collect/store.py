@@ -414,6 +414,12 @@ class RawStore:
                 )
             )
         )
+        self.consolidate()
+
+    def consolidate(self) -> None:
+        """Write the consolidated metadata (what xarray opens the store by). `finalize` ends with
+        it; a run killed between marking the store complete and this step leaves it without, so a
+        resume that finds a complete store writes it again (it is the same every time)."""
         with (
             warnings.catch_warnings()
         ):  # "consolidated metadata is not in the v3 spec" — xarray reads it
