@@ -189,15 +189,26 @@ def lens_free(sensor: str) -> str:
     """A built-in sensor profile without its lens, as a YAML path: for plans too coarse to fit the
     lens (registration then keeps the affine alone, which the lens bends by up to a pixel at the
     frame's edge; tests/dataset/test_lens_registration.py checks the lens)."""
+    return _profile_variant(sensor, "lens-free", lambda profile: profile.update(lens=None))
+
+
+def elastic_gel(sensor: str) -> str:
+    """A built-in sensor profile with the elastic gel (gel.mechanics: elastic), as a YAML path."""
+    return _profile_variant(
+        sensor, "elastic", lambda profile: profile["gel"].update(mechanics="elastic")
+    )
+
+
+def _profile_variant(sensor: str, name: str, change) -> str:
     import tempfile
 
     from threedcal.profiles import load_profile
 
     profile = {k: v for k, v in load_profile("sensor", sensor).items() if k != "source"}
-    profile["lens"] = None
+    change(profile)
     folder = Path(tempfile.gettempdir()) / "threedcal-tests"
     folder.mkdir(exist_ok=True)
-    path = folder / f"{sensor}-lens-free.yaml"
+    path = folder / f"{sensor}-{name}.yaml"
     staging = path.with_suffix(f".{os.getpid()}.tmp")
     staging.write_text(yaml.safe_dump(profile, sort_keys=False))
     os.replace(staging, path)  # every worker writes the same text: whichever lands is right

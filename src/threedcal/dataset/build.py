@@ -277,6 +277,7 @@ def build_collected(
         "contacts_used": int(fit.inliers.sum()),
         "locator": registration.locator,
         "residual_px_by_locator": {k: round(v, 4) for k, v in registration.residual_px.items()},
+        "symmetry_start": registration.symmetry_start,
         "channel_unmixing": None
         if registration.unmixing is None
         else registration.unmixing.round(4).tolist(),

@@ -674,6 +674,9 @@ class Registration:
     locator: str  # "rim" or "symmetry"
     residual_px: dict[str, float]  # affine RMS residual of each locator that produced a fit
     unmixing: np.ndarray | None  # the symmetry locator's channel unmixing (None: not run)
+    # where the kept symmetric fits started: "rim" (its centres) or "fit" (where the first pass's
+    # affine places each press); None: the symmetry locator did not run
+    symmetry_start: str | None = None
 
 
 def register(
@@ -744,18 +747,27 @@ def _locate_and_fit(
         for f in tqdm(frames, desc="rim centres", unit="frame", disable=not progress)
     ]
     rim = [c if c is not None and accept(c) else None for c in rim]
-    found = {"rim": rim}
     unmixing = None
+    contacts = unbent(rim)
+    candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))}
+    symmetry_start = None
     if flat_gel and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
         refined = refine_by_symmetry(frames, blank, rim, progress=progress)
         unmixing = refined.unmixing
         symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]
         if sum(c is not None for c in symmetric) >= 3:
-            found["symmetry"] = symmetric
-    candidates: dict[str, tuple[list, AffineFit]] = {}
-    for name, contacts in found.items():
-        contacts = unbent(contacts)
-        candidates[name] = (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))
+            contacts = unbent(symmetric)
+            candidates["symmetry"] = (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))
+            symmetry_start = "rim"
+            again = _symmetry_from_fit(
+                xy_mm, frames, blank, rim, candidates["symmetry"][1], accept, back, progress
+            )
+            if sum(c is not None for c in again.contacts) >= 3:
+                contacts = unbent(again.contacts)
+                fit = _fit_contacts(xy_mm, contacts, shape, kappa2)
+                if fit.residual_px < candidates["symmetry"][1].residual_px:
+                    candidates["symmetry"] = (contacts, fit)
+                    unmixing, symmetry_start = again.unmixing, "fit"
     locator = min(candidates, key=lambda name: candidates[name][1].residual_px)
     contacts, fit = candidates[locator]
     return Registration(
@@ -764,6 +776,33 @@ def _locate_and_fit(
         locator=locator,
         residual_px={name: fit.residual_px for name, (_, fit) in candidates.items()},
         unmixing=unmixing,
+        symmetry_start=symmetry_start,
+    )
+
+
+def _symmetry_from_fit(
+    xy_mm, frames, blank, rim, fit: AffineFit, accept, back, progress
+) -> SymmetryRefinement:
+    """The symmetry locator again, each fit started where `fit` places its press.
+
+    The symmetric fit's cost can have a second minimum a few pixels from the true centre. On an
+    elastic gel, whose shading halo reaches well past the rim, the rim locator's centre lies 2-3 px
+    off near the frame's edges and the fit started there can settle in that minimum (a lower cost
+    than the true one's for about half the contacts within 30-45 px of the Mini's edge). A lattice
+    of presses knows better where each contact is: the affine (and lens) of the first pass, fitted
+    over every contact, places each within a fraction of a pixel, and the fit started there stays
+    in the true minimum (docs/registration.md, Symmetric centres on an elastic gel)."""
+    guess = fit.apply(np.asarray(xy_mm, dtype=np.float64))
+    if back is not None:  # the frames are rectified: start where the ideal frame holds each press
+        guess = back.undistort(guess)
+    starts = [
+        None if c is None else Contact(float(g[0]), float(g[1]), c.radius_px, c.strength)
+        for c, g in zip(rim, guess, strict=True)
+    ]
+    refined = refine_by_symmetry(frames, blank, starts, progress=progress)
+    return SymmetryRefinement(
+        contacts=[c if c is not None and accept(c) else None for c in refined.contacts],
+        unmixing=refined.unmixing,
     )
 
 
