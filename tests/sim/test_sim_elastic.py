@@ -254,6 +254,30 @@ def test_profiles_keep_the_geometric_gel_and_carry_the_elastic_constants():
         assert 0.1 <= gel["youngs_modulus_mpa"] <= 1.0 and gel["poisson_ratio"] == 0.5
 
 
+def test_a_scenes_bench_picks_the_simulated_gels_mechanics():
+    """`bench.gel_mechanics` overrides the profile's for the bench alone: the frames change, the
+    profile the rest of the study reads does not."""
+    from threedcal.config import validate_config
+    from threedcal.sim.bench import SimBench
+
+    sensor = load_profile("sensor", "gelsight_mini")
+    frames = {}
+    for mechanics in ("geometric", "elastic", None):
+        scene = {"sensor": "gelsight_mini", "printer": "ender3"}
+        if mechanics:
+            scene["bench"] = {"gel_mechanics": mechanics}
+        scene = validate_config({"seed": 1, "scenes": {"s": scene}})["scenes"]["s"]
+        with SimBench(sensor, 2.0, scene["bench"], scene["seed"]) as bench:
+            assert bench.gel.inner.mechanics == (mechanics or "geometric")  # behind the lens
+            centre = (sensor["image"]["width_px"] / 2, sensor["image"]["height_px"] / 2)
+            frames[mechanics] = bench.gel.render(Sphere(2.0), centre, 0.0, 0.5, frame_index=1)
+    assert sensor["gel"]["mechanics"] == "geometric"
+    np.testing.assert_array_equal(frames[None], frames["geometric"])
+    assert np.abs(frames["elastic"].astype(int) - frames["geometric"]).max() > 20
+    with pytest.raises(ConfigError, match="gel_mechanics"):
+        validate_config({"scenes": {"s": {"sensor": "digit", "bench": {"gel_mechanics": "soft"}}}})
+
+
 def test_elastic_gel_needs_its_constants(tmp_path):
     profile = elastic_profile("gelsight_mini")
     del profile["gel"]["youngs_modulus_mpa"]

@@ -105,6 +105,15 @@ def draw_lens(sensor: Mapping, seed: int):
     )
 
 
+def with_gel_mechanics(sensor: Mapping, mechanics: str | None) -> Mapping:
+    """The sensor profile whose gel the bench simulates: the scene's `bench.gel_mechanics` in
+    place of the profile's `gel.mechanics` (None: the profile's own). The sensor is the same
+    physical one either way; only the simulation of its gel changes."""
+    if mechanics is None or sensor["gel"].get("mechanics", "geometric") == mechanics:
+        return sensor
+    return {**sensor, "gel": {**sensor["gel"], "mechanics": mechanics}}
+
+
 def draw_truth(sensor: Mapping, settings: Mapping, seed: int) -> BenchTruth:
     """Seating and touch errors drawn uniformly within the configured magnitudes, and the lens."""
     rng = np.random.default_rng([seed, 0xBE7C])
@@ -191,13 +200,13 @@ class SimBench(FirmwareBench):
         from threedcal.sim.camera import make_gel
         from threedcal.sim.indenters import Sphere
 
-        self.sensor = sensor
+        self.sensor = with_gel_mechanics(sensor, settings.get("gel_mechanics"))
         self.seed = int(seed)
         self.truth = draw_truth(sensor, settings, seed)
         self._affine = np.asarray(self.truth.affine_px_per_mm)
         self._z_touch = float(sensor["mount"]["z_touch_mm"]) + self.truth.touch_offset_mm
         self.lens = RadialLens.from_record(self.truth.lens)
-        self.gel = make_gel(sensor, seed=seed, lens=self.lens)
+        self.gel = make_gel(self.sensor, seed=seed, lens=self.lens)
         self.ball = Sphere(probe_radius_mm)
         self.tool: MountedObject | None = None
         self.last_render: dict | None = None
