@@ -8,9 +8,13 @@ from threedcal.sim.fit import realism_report
 
 with stage_log(snakemake.log[0]):
     texts = [
-        realism_report(real, sensor, snakemake.params.seed, split_seed=snakemake.params.split_seed)[
-            0
-        ]
-        for real, sensor in snakemake.params.sets
+        realism_report(
+            real,
+            sensor,
+            snakemake.params.seed,
+            split_seed=snakemake.params.split_seed,
+            gel_mechanics=mechanics,
+        )[0]
+        for real, sensor, mechanics in snakemake.params.sets
     ]
     Path(snakemake.output.table).write_text("\n".join(texts))

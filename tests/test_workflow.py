@@ -16,7 +16,8 @@ from conftest import (
 )
 
 from threedcal.config import validate_config
-from threedcal.scenes import scene_targets, study_targets
+from threedcal.errors import ConfigError
+from threedcal.scenes import realism_sets, scene_targets, study_targets
 
 
 def test_dry_run_schedules_exactly_each_scenes_own_targets(tiny_study_dry_run):
@@ -284,3 +285,23 @@ scenes:
   imported: {sensor: gelsight_mini, import: {format: ball_folder, path: x}}
 """
     )
+
+
+def test_realism_sets_carry_each_pairs_gel_mechanics():
+    config = validate_config(
+        {
+            "realism": {
+                "real": "data/gelsight_ball_fots",
+                "gel_mechanics": "elastic",
+                "also": [{"real": "data/digit_frames_fots", "sensor": "digit"}],
+            },
+            "scenes": {"s": {"sensor": "digit", "printer": "ender3"}},
+        }
+    )
+    assert realism_sets(config) == [
+        ["data/gelsight_ball_fots", "gelsight_mini", "elastic"],
+        ["data/digit_frames_fots", "digit", None],
+    ]
+    bad = {"real": "data/gelsight_ball_fots", "gel_mechanics": "soft"}
+    with pytest.raises(ConfigError, match="gel_mechanics"):
+        validate_config({"realism": bad, "scenes": {"s": {"sensor": "digit", "printer": "ender3"}}})

@@ -232,20 +232,23 @@ def write_scene_record(name: str, scene: Mapping, path: str | Path) -> None:
     path.write_text(json.dumps(scene_record(name, scene), indent=2, sort_keys=True) + "\n")
 
 
-def realism_sets(config: Mapping[str, Any]) -> list[list[str]]:
-    """[real folder, sensor] pairs the realism stage fits and compares (realism.real/sensor first,
-    then realism.also); [] without a realism section."""
+def realism_sets(config: Mapping[str, Any]) -> list[list[str | None]]:
+    """[real folder, sensor, gel mechanics or None] the realism stage fits and compares
+    (realism.real/sensor first, then realism.also); [] without a realism section."""
     realism = config.get("realism") or {}
     if not realism:
         return []
-    sets = [[str(realism["real"]), str(realism.get("sensor", "gelsight_mini"))]]
-    return sets + [[str(s["real"]), str(s["sensor"])] for s in realism.get("also", [])]
+    first = {"sensor": "gelsight_mini", **realism}
+    return [
+        [str(s["real"]), str(s["sensor"]), s.get("gel_mechanics")]
+        for s in [first, *realism.get("also", [])]
+    ]
 
 
 def realism_files(config: Mapping[str, Any]) -> list[str]:
     """Every file of the realism stage's real folders (its inputs)."""
     sets = realism_sets(config)
-    for real, _ in sets:
+    for real, *_ in sets:
         if not Path(real).is_dir():
             raise ConfigError(f"realism: real folder {real} is not a folder (realism.real / also)")
-    return [str(p) for real, _ in sets for p in sorted(Path(real).iterdir()) if p.is_file()]
+    return [str(p) for real, *_ in sets for p in sorted(Path(real).iterdir()) if p.is_file()]

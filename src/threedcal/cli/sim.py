@@ -18,6 +18,11 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         default="gelsight_mini",
         help="sensor profile whose optics are rendered, at the dataset's frame size and scale",
     )
+    parser.add_argument(
+        "--gel-mechanics",
+        choices=["geometric", "elastic"],
+        help="the simulated gel's mechanics in place of the profile's gel.mechanics",
+    )
     parser.add_argument("--seed", type=int, default=0, help="the renderer's seed")
     parser.add_argument(
         "--split-seed",
@@ -50,6 +55,7 @@ def _realism(args: argparse.Namespace) -> int:
         split_seed=args.split_seed,
         fit=not args.in_sample,
         fitted_out=args.write_fitted,
+        gel_mechanics=args.gel_mechanics,
     )
     print(text, end="")
     return 0 if ok else 1

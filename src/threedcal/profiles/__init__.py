@@ -76,3 +76,13 @@ def load_profile(
     if defaults:
         fill_defaults(data, schema)
     return data
+
+
+def with_gel_mechanics(sensor: Mapping, mechanics: str | None) -> Mapping:
+    """The sensor profile whose gel a simulation renders: `mechanics` (a scene's
+    `bench.gel_mechanics`, `realism.gel_mechanics`) in place of the profile's `gel.mechanics`
+    (None: the profile's own). The sensor is the same physical one either way; only the simulation
+    of its gel changes."""
+    if mechanics is None or sensor["gel"].get("mechanics", "geometric") == mechanics:
+        return sensor
+    return {**sensor, "gel": {**sensor["gel"], "mechanics": mechanics}}

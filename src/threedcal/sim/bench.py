@@ -105,15 +105,6 @@ def draw_lens(sensor: Mapping, seed: int):
     )
 
 
-def with_gel_mechanics(sensor: Mapping, mechanics: str | None) -> Mapping:
-    """The sensor profile whose gel the bench simulates: the scene's `bench.gel_mechanics` in
-    place of the profile's `gel.mechanics` (None: the profile's own). The sensor is the same
-    physical one either way; only the simulation of its gel changes."""
-    if mechanics is None or sensor["gel"].get("mechanics", "geometric") == mechanics:
-        return sensor
-    return {**sensor, "gel": {**sensor["gel"], "mechanics": mechanics}}
-
-
 def draw_truth(sensor: Mapping, settings: Mapping, seed: int) -> BenchTruth:
     """Seating and touch errors drawn uniformly within the configured magnitudes, and the lens."""
     rng = np.random.default_rng([seed, 0xBE7C])
@@ -197,6 +188,7 @@ class SimBench(FirmwareBench):
         speedup: float = math.inf,
     ):
         from threedcal.lens import RadialLens
+        from threedcal.profiles import with_gel_mechanics
         from threedcal.sim.camera import make_gel
         from threedcal.sim.indenters import Sphere
 

@@ -568,6 +568,7 @@ def realism_report(
     split_seed: int = 0,
     fit: bool = True,
     fitted_out: str | Path | None = None,
+    gel_mechanics: str | None = None,
 ) -> tuple[str, bool]:
     """The side-by-side table as text (and written to `out`), and whether every figure passed.
 
@@ -575,14 +576,15 @@ def realism_report(
     profile's photometric constants are fitted to one half and background.png
     (threedcal.sim.fit), and the table compares the fitted optics with the *other* half only: out
     of sample; `fitted_out` receives the fitted profile (YAML). `fit=False`: the profile as it is,
-    against every image (and the background frame)."""
-    from threedcal.profiles import load_profile
+    against every image (and the background frame). `gel_mechanics`: the gel's model in place of
+    the profile's (threedcal.sim.bench.with_gel_mechanics), as a scene's bench simulates it."""
+    from threedcal.profiles import load_profile, with_gel_mechanics
     from threedcal.sim.realism import LABELLED_ONLY, compare, format_table, load_ball_dataset
 
     data = load_ball_dataset(real)
-    profile = load_profile("sensor", sensor)
+    profile = with_gel_mechanics(load_profile("sensor", sensor), gel_mechanics)
     head = (
-        f"realism: {profile['name']} optics at {data.width_px}x{data.height_px}, "
+        f"realism: {profile['name']} optics ({profile['gel'].get('mechanics', 'geometric')} gel) at {data.width_px}x{data.height_px}, "
         f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} "
         f"{'labelled' if data.labelled else 'unlabelled (contacts located from frame - background)'}"
         f" images of {data.root}"
