@@ -9,8 +9,8 @@ Registration presses). Usage (about a minute per run on 2 cores):
 
     .venv/bin/python docs/diagnostics/registration_presses.py [--elastic] digit 11 0.4 1.0 [...]
 
-arguments in fours: sensor, seed, depth_mm, spacing_mm. `--elastic`: the sensor's profile with
-`gel.mechanics: elastic` (docs/simulator.md, Gel mechanics).
+arguments in fours: sensor, seed, depth_mm, spacing_mm. `--elastic`: the bench simulates the gel as
+an elastic layer (`bench.gel_mechanics: elastic`; docs/simulator.md, Gel mechanics).
 
 Each run also prints the rim locator's own error (camera frames, whole contacts) against where the
 camera truly images each press's axis and, on a domed gel, what is left of it once the patch's
@@ -20,13 +20,11 @@ touches where the gap is smallest, x0 - 2 k x0 R / (1 + 2 k R) per axis (x0 from
 
 from __future__ import annotations
 
-import copy
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from threedcal.collect.plan import plan_area_mm
 from threedcal.collect.session import collect_scene
@@ -35,33 +33,22 @@ from threedcal.dataset.build import register_store
 from threedcal.dataset.registration import Contact, locate_contact, refine_by_symmetry
 from threedcal.dataset.splits import in_field_of_view
 from threedcal.lens import RadialLens
-from threedcal.profiles import load_profile
 from threedcal.sim.bench import BenchTruth
-
-
-def elastic_profile(sensor: str, folder: Path) -> str:
-    """A copy of a built-in profile with the elastic gel, as a path a scene can name."""
-    profile = copy.deepcopy(load_profile("sensor", sensor))
-    profile["gel"]["mechanics"] = "elastic"
-    profile.pop("source", None)
-    path = folder / f"{sensor}_elastic.yaml"
-    path.write_text(yaml.safe_dump(profile))
-    return str(path)
 
 
 def measure(
     sensor: str, seed: int, depth_mm: float, spacing_mm: float, folder: Path, elastic: bool
 ) -> str:
-    name = elastic_profile(sensor, folder) if elastic else sensor
     plan = {
         "spacing_mm": spacing_mm,
         "depths_mm": [depth_mm],
         "touch_search": {"points": 0},
         "registration": {"spacing_mm": 0},
     }
-    config = validate_config(
-        {"seed": seed, "scenes": {"s": {"sensor": name, "printer": "ender3", "plan": plan}}}
-    )
+    scene = {"sensor": sensor, "printer": "ender3", "plan": plan}
+    if elastic:
+        scene["bench"] = {"gel_mechanics": "elastic"}
+    config = validate_config({"seed": seed, "scenes": {"s": scene}})
     scene = config["scenes"]["s"]
     collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)
     truth = BenchTruth.read(folder / "truth.json")
