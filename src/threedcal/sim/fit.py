@@ -577,14 +577,15 @@ def realism_report(
     (threedcal.sim.fit), and the table compares the fitted optics with the *other* half only: out
     of sample; `fitted_out` receives the fitted profile (YAML). `fit=False`: the profile as it is,
     against every image (and the background frame). `gel_mechanics`: the gel's model in place of
-    the profile's (threedcal.sim.bench.with_gel_mechanics), as a scene's bench simulates it."""
+    the profile's (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
     from threedcal.profiles import load_profile, with_gel_mechanics
     from threedcal.sim.realism import LABELLED_ONLY, compare, format_table, load_ball_dataset
 
     data = load_ball_dataset(real)
     profile = with_gel_mechanics(load_profile("sensor", sensor), gel_mechanics)
     head = (
-        f"realism: {profile['name']} optics ({profile['gel'].get('mechanics', 'geometric')} gel) at {data.width_px}x{data.height_px}, "
+        f"realism: {profile['name']} optics ({profile['gel'].get('mechanics', 'geometric')} gel) "
+        f"at {data.width_px}x{data.height_px}, "
         f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} "
         f"{'labelled' if data.labelled else 'unlabelled (contacts located from frame - background)'}"
         f" images of {data.root}"
