@@ -45,9 +45,9 @@ from threedcal.profiles import load_profile, with_gel_mechanics
 from threedcal.sim.optics import GelSimulator
 
 
-class GelGradients:
+class GelGradients(TruthGradients):
     """A model that reads the pressed gel perfectly: the gradients of the bench's gel surface
-    under each press (its true pose and depth), integrated as a model's would be."""
+    under each press (its true pose and depth), integrated as TruthGradients integrates its own."""
 
     def __init__(self, pressing_dir: Path, scene: dict, lens: RadialLens | None):
         plan, frames, _, truth = read_presses(pressing_dir)
@@ -74,12 +74,6 @@ class GelGradients:
             depth = np.asarray(z, dtype=np.float64) - gel.Z0[:height, :width]
             gy, gx = np.gradient(depth)
             self._gradients[frame.tobytes()] = (gx * self.px_per_mm, gy * self.px_per_mm)
-
-    def depth(self, frame: np.ndarray, method: str = "poisson_dst") -> np.ndarray:
-        from threedcal.depth import integrate
-
-        gx, gy = self._gradients[np.asarray(frame).tobytes()]
-        return integrate(gx, gy, method=method, px_per_mm=self.px_per_mm)
 
 
 def main() -> None:
