@@ -104,7 +104,8 @@ def main() -> None:
                 scene["bench"] = {**scene["bench"], "gel_mechanics": args.gel}
             perfect = GelGradients(pressing, scene, lens)
         else:
-            perfect = TruthGradients(pressing, px_per_mm, lens=lens)
+            dome = load_profile("sensor", scene["sensor"])["gel"].get("dome")
+            perfect = TruthGradients(pressing, px_per_mm, lens=lens, dome=dome)
         errors = evaluate_objects(
             scene,
             {80: "perfect"},

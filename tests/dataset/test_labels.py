@@ -3,7 +3,13 @@ import math
 import numpy as np
 import pytest
 
-from threedcal.dataset.labels import contact_radius_mm, sphere_depth, sphere_gradients
+from threedcal.dataset.labels import (
+    LocalDome,
+    contact_radius_mm,
+    local_dome,
+    sphere_depth,
+    sphere_gradients,
+)
 from threedcal.depth import poisson_dst
 from threedcal.errors import ConfigError
 
@@ -72,13 +78,104 @@ def test_labels_approach_the_point_gradient_as_pixels_shrink():
     assert 3.0 < coarse / fine < 5.0  # second order: halving the pitch quarters the difference
 
 
-def pixel_mean_depth(shape, center, R, d, ppm, n=16):
+def pixel_mean_depth(shape, center, R, d, ppm, n=16, dome=None):
     """The true depth map as a finite-volume solver sees it: each pixel's mean depth (n x n samples)."""
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
     total = np.zeros(shape)
     for sy in (np.arange(n) + 0.5) / n - 0.5:
         for sx in (np.arange(n) + 0.5) / n - 0.5:
-            total += sphere_depth(shape, (center[0] - sx, center[1] - sy), R, d, ppm)
+            if dome is None:
+                total += sphere_depth(shape, (center[0] - sx, center[1] - sy), R, d, ppm)
+                continue
+            x, y = (cols + sx - center[0]) / ppm, (rows + sy - center[1]) / ppm
+            inside = x * x + y * y < R * R
+            z = d - R + np.sqrt(np.where(inside, R * R - x * x - y * y, 0.0)) - dome.sag_mm(x, y)
+            total += np.where(inside, np.maximum(z, 0.0), 0.0)
     return total / (n * n)
+
+
+# A DIGIT's dome seen from a press 6 mm left of and 7 mm below its apex, and a far stronger one
+DIGIT_DOME = LocalDome(0.013, 0.0043, -6.0, 7.0)
+STEEP_DOME = LocalDome(0.1, 0.05, 3.0, -4.0)
+
+
+def edge_mean_gradients(shape, center, R, d, ppm, dome, n=3000):
+    """Brute force of the definition: each pixel's mean gradient is the difference of the depth's
+    means along its two edges (n samples each) over the pitch."""
+    pitch = 1.0 / ppm
+    x = (np.arange(shape[1]) - center[0]) * pitch
+    y = (np.arange(shape[0]) - center[1]) * pitch
+    t = ((np.arange(n) + 0.5) / n - 0.5) * pitch
+
+    def z(X, Y):
+        inside = X * X + Y * Y < R * R
+        cap = d - R + np.sqrt(np.where(inside, R * R - X * X - Y * Y, 0.0)) - dome.sag_mm(X, Y)
+        return np.where(inside, np.maximum(cap, 0.0), 0.0)
+
+    g = np.zeros(shape + (2,))
+    x_edges, y_edges = (
+        np.append(x - pitch / 2, x[-1] + pitch / 2),
+        np.append(y - pitch / 2, y[-1] + pitch / 2),
+    )
+    for i in range(shape[0]):
+        g[i, :, 0] = np.diff(z(x_edges[:, None], y[i] + t[None, :]).mean(axis=1)) / pitch
+    for j in range(shape[1]):
+        g[:, j, 1] = np.diff(z(x[j] + t[None, :], y_edges[:, None]).mean(axis=1)) / pitch
+    return g
+
+
+@pytest.mark.parametrize("dome", [DIGIT_DOME, STEEP_DOME], ids=["digit", "steep"])
+@pytest.mark.parametrize("depth", [0.3, 1.0])
+def test_domed_labels_are_the_mean_gradient_over_each_pixel(depth, dome):
+    """On a domed gel the ball pushes the gel where it lies below the undeformed surface: the labels
+    are the pixel means of that depth's gradient (the contact is off the axis and tilted)."""
+    shape, center, R, ppm = (54, 58), (28.3, 25.6), 2.0, 12.0
+    g = sphere_gradients(shape, center, R, depth, ppm, dome=dome).astype(np.float64)
+    brute = edge_mean_gradients(shape, center, R, depth, ppm, dome)
+    # 3e-4: the brute force's own error where the steep dome's contact nears the ball's equator
+    # (a square-root edge: 2.4e-4 with 3,000 samples per edge, 1.4e-5 with 48,000)
+    np.testing.assert_allclose(g, brute, atol=3e-4)
+    flat = sphere_gradients(shape, center, R, depth, ppm).astype(np.float64)
+    assert np.abs(g - flat).max() > 0.1  # the dome changes the labels (at the rim most)
+
+
+def test_a_dome_without_curvature_gives_the_flat_labels():
+    shape, center = (50, 50), (24.2, 25.9)
+    for depth in (0.5, 2.0, 3.0):
+        flat = sphere_gradients(shape, center, 2.0, depth, 12.0)
+        level = sphere_gradients(shape, center, 2.0, depth, 12.0, dome=LocalDome(0, 0, -5.0, 3.0))
+        np.testing.assert_allclose(level, flat, atol=1e-6)
+
+
+def test_local_dome_places_the_press_relative_to_the_apex():
+    dome = {"kx_per_mm": 0.013, "ky_per_mm": 0.0043, "apex_x_mm": 0.5, "apex_y_mm": 0.0}
+    local = local_dome(dome, (159.5 + 40.0, 119.5 - 20.0), (240, 320), 20.0)
+    assert (local.x0_mm, local.y0_mm) == pytest.approx((1.5, -1.0))
+    # the sag relative to the axis: zero there, the dome's own difference elsewhere
+    assert local.sag_mm(0.0, 0.0) == 0.0
+    assert local.sag_mm(1.0, 2.0) == pytest.approx(
+        0.013 * (2.5**2 - 1.5**2) + 0.0043 * (1.0**2 - 1.0**2)
+    )
+    assert local_dome(None, (10, 10), (240, 320), 20.0) is None
+
+
+@pytest.mark.parametrize("depth", [1.0, 3.0])
+def test_domed_labels_integrate_to_the_domed_depth(depth):
+    """poisson_dst of exact domed labels gives back the depth below the undeformed dome (peak to
+    1 um, volume to 0.05 %), a wall (d > R) as on a flat gel."""
+    shape, center, R, ppm = (130, 120), (60.3, 64.6), 2.0, 19.5
+    g = sphere_gradients(shape, center, R, depth, ppm, dome=DIGIT_DOME)
+    z = poisson_dst(g[..., 0], g[..., 1], px_per_mm=ppm, max_angle_deg=None)
+    truth = pixel_mean_depth(shape, center, R, depth, ppm, dome=DIGIT_DOME)
+    peak = np.unravel_index(np.argmax(truth), shape)
+    assert abs(z[peak] - truth[peak]) < 1e-3
+    assert z.sum() == pytest.approx(truth.sum(), rel=5e-4)
+    if depth < R:  # a continuous surface: right everywhere, the rim's kink included
+        assert np.abs(z - truth).max() < 0.015
+    else:  # the wall stands at the equator all round: as on a flat gel, right 3 px from it
+        rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+        away = np.abs(np.hypot(cols - center[0], rows - center[1]) - R * ppm) > 3
+        assert np.abs(z - truth)[away].max() < 0.005 + 0.025 * (depth - R)
 
 
 @pytest.mark.parametrize("depth", [1.0, 2.0, 3.0])  # the calibration press, d = R, d > R

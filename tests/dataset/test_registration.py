@@ -6,6 +6,8 @@ import pytest
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import (
     ChangeDetector,
+    Contact,
+    DomedContacts,
     RegistrationError,
     _levenberg_marquardt,
     estimate_touch,
@@ -207,15 +209,45 @@ def test_register_keeps_the_locator_an_affine_explains_better(mini_contacts):
     assert set(result.residual_px) == {"rim"}
 
 
-def test_register_uses_only_the_rim_on_a_domed_gel():
-    # The DIGIT's domed blank is shaded on a slope, which breaks each LED image's symmetry.
+def test_register_uses_only_the_rim_on_a_domed_gel_and_moves_its_centres_to_the_axis():
+    """The DIGIT's domed blank is shaded on a slope, which breaks each LED image's symmetry: only
+    the rim runs. Its contacts lean toward the dome's apex (the dome falls away from the ball);
+    DomedContacts moves each centre back to its press's axis."""
+    from threedcal.profiles import load_profile
+
     sim, centres, frames, blank = sim_contacts("digit", margin=60)
     xy_mm = (centres - [120, 160]) / 19.5
-    result = register(xy_mm, frames, blank, flat_gel=False)
+    dome = DomedContacts(
+        load_profile("sensor", "digit")["gel"]["dome"],
+        2.0,
+        np.full(len(frames), 1.0),
+        sim.px_per_mm,
+        blank.shape,
+    )
+    result = register(xy_mm, frames, blank, flat_gel=False, dome=dome)
     assert result.locator == "rim" and set(result.residual_px) == {"rim"}
     assert result.unmixing is None
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     assert error.max() < 0.5
+    leaning = register(xy_mm, frames, blank, flat_gel=False)  # the contacts' own centres
+    assert np.linalg.norm(leaning.fit.apply(xy_mm) - centres, axis=1).max() > 2 * error.max()
+
+
+def test_domed_contacts_lean_toward_the_apex_and_are_moved_back_exactly():
+    """The model's contact centre of a press left of and below the apex lies toward the apex;
+    to_axis is its inverse (a fixed point); at the apex, or on a level dome, nothing moves."""
+    dome = DomedContacts(
+        {"kx_per_mm": 0.013, "ky_per_mm": 0.0043}, 2.0, [0.4, 0.4], 20.0, (240, 320)
+    )
+    axis = np.array([159.5 - 100.0, 119.5 + 60.0])  # 5 mm left of the apex, 3 mm below it
+    seen = dome.contact_centre(axis, 0.4)
+    assert seen[0] - axis[0] > 1.0 and seen[1] - axis[1] < -0.2  # toward the apex, by pixels
+    back = dome.to_axis([Contact(*seen, 20.0, 10.0), None])
+    assert back[1] is None
+    assert np.hypot(back[0].x_px - axis[0], back[0].y_px - axis[1]) < 0.01
+    np.testing.assert_allclose(dome.contact_centre((159.5, 119.5), 0.4), (159.5, 119.5), atol=1e-6)
+    level = DomedContacts({"kx_per_mm": 0.0, "ky_per_mm": 0.0}, 2.0, [0.4], 20.0, (240, 320))
+    np.testing.assert_allclose(level.contact_centre(axis, 0.4), axis, atol=1e-6)
 
 
 class _CircleThroughPoints:

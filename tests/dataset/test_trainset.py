@@ -93,3 +93,28 @@ def test_build_imported_real_folder(tmp_path, real_data):
     assert back.frames.shape == (42, 160, 120, 3) and back.max_slope_deg == 70
     assert back.px_per_mm == pytest.approx(19.58 / 2)
     assert ts.indices("val").size == 8
+
+
+def test_a_domed_sets_labels_are_measured_from_its_dome_in_every_window_and_after_saving(tmp_path):
+    """meta `dome` (the profile's gel.dome, which the dataset stage records) makes each frame's
+    labels the depth below the undeformed dome about that frame's press, window or not."""
+    from threedcal.dataset.labels import local_dome, sphere_gradients
+
+    ts = small_set()
+    dome = {"kx_per_mm": 0.05, "ky_per_mm": 0.02, "apex_x_mm": 0.3, "apex_y_mm": 0.0}
+    ts.meta = {"dome": dome}
+    expected = sphere_gradients(
+        ts.image_shape,
+        tuple(ts.center_px[2]),
+        2.0,
+        1.0,
+        8.0,
+        dome=local_dome(dome, ts.center_px[2], ts.image_shape, 8.0),
+    ).transpose(2, 0, 1)
+    np.testing.assert_allclose(ts.labels(2), expected, atol=1e-7)
+    flat = small_set().labels(2)
+    assert np.abs(ts.labels(2) - flat).max() > 0.05
+    window = (slice(5, 25), slice(3, 21))
+    np.testing.assert_allclose(ts.labels(2, window), ts.labels(2)[:, 5:25, 3:21], atol=1e-7)
+    ts.save(tmp_path / "set")
+    np.testing.assert_array_equal(TrainingSet.load(tmp_path / "set").labels(2), ts.labels(2))

@@ -203,3 +203,30 @@ def test_linear_pose_matches_scale_and_rotation_and_mirrors_exactly(objects):
     assert (wide.depth(1.0) > 0).sum() == pytest.approx(1.2 * (plain > 0).sum(), rel=0.03)
     with pytest.raises(ConfigError, match="singular"):
         surface_height(pawn, shape, 1.0, center, 0.0, np.zeros((2, 2)))
+
+
+def test_on_a_domed_gel_the_truth_is_the_depth_below_the_undeformed_dome(objects):
+    """A DIGIT's dome falls away from the object off its apex: the ground truth is the rigid
+    overlap with the undeformed dome, max(0, d - h - (sag - sag under the centre)). The same
+    object pressed at the apex of a dome differs from the flat truth only by the dome's own sag."""
+    pawn = objects["pawn"]
+    shape, center = (160, 200), (60.3, 80.6)
+    dome = {"kx_per_mm": 0.013, "ky_per_mm": 0.0043, "apex_x_mm": 0.0, "apex_y_mm": 0.0}
+    flat = surface_height(pawn, shape, PX_PER_MM, center)
+    domed = surface_height(pawn, shape, PX_PER_MM, center, dome=dome)
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+
+    def sag(c, r):
+        return 0.013 * ((c - 99.5) / PX_PER_MM) ** 2 + 0.0043 * ((r - 79.5) / PX_PER_MM) ** 2
+
+    expected = np.maximum(1.0 - flat.height_mm - (sag(cols, rows) - sag(*center)), 0.0)
+    np.testing.assert_allclose(domed.depth(1.0), expected, atol=1e-12)
+    assert domed.depth(1.0)[flat.covered].sum() != pytest.approx(flat.depth(1.0).sum(), rel=1e-3)
+    # the apex side (right of the centre, toward the image centre) is pressed deeper than the far side
+    right = domed.depth(1.0) - flat.depth(1.0)
+    covered = flat.depth(1.0) > 0
+    assert (
+        right[covered & (cols > center[0] + 10)].mean()
+        > 0
+        > right[covered & (cols < center[0] - 10)].mean()
+    )

@@ -46,6 +46,8 @@ def test_same_seed_same_bytes_and_frames_differ_by_noise(sim):
 
 
 def test_gel_follows_an_exact_sphere_inside_the_contact(sim):
+    """In contact the gel is the ball; the contact is where the ball lies below the undeformed
+    surface: the flat circle of radius sqrt(2Rd - d²), or on a dome a region off the axis."""
     R, d = 2.0, 0.8
     ball = Sphere(R)
     center = (sim.width / 2 + 0.37, sim.height / 2 - 0.21)
@@ -54,15 +56,37 @@ def test_gel_follows_an_exact_sphere_inside_the_contact(sim):
     y0, y1, x0, x1 = win
     yy, xx = np.mgrid[y0:y1, x0:x1]
     r = np.hypot(xx - center[0], yy - center[1]) / sim.px_per_mm
-    a = math.sqrt(2 * R * d - d * d)
-    mismatch = contact ^ (r < a)
-    assert not mismatch.any() or np.abs(r[mismatch] - a).max() < 1e-4  # float32 rounding only
     sag_c = float(
         sim.sag_mm((center[0] - sim._cx) / sim.px_per_mm, (center[1] - sim._cy) / sim.px_per_mm)
     )
     expected = sag_c + d - (R - np.sqrt(np.maximum(R * R - r**2, 0)))
+    below = np.where(r < R, expected - sim.Z0[y0:y1, x0:x1], -1.0)
+    mismatch = contact ^ (below > 0)
+    assert not mismatch.any() or np.abs(below[mismatch]).max() < 1e-5  # float32 rounding only
+    if not sim.domed:
+        a = math.sqrt(2 * R * d - d * d)
+        assert np.abs(r[contact].max() - a) < 1.5 / sim.px_per_mm
     np.testing.assert_allclose(z[contact], expected[contact], atol=1e-5)
     assert z[contact].max() == pytest.approx(sag_c + d, abs=2e-3)
+
+
+def test_a_domed_gels_contact_leans_toward_the_apex():
+    """Off the apex a dome falls away from the ball: the contact's centroid lies toward the apex and
+    outside it the gel returns to the dome, never above it (no lifted patch)."""
+    profile = dict(load_profile("sensor", "digit"))
+    profile["lens"] = None
+    sim = GelSimulator(profile, seed=0)
+    ball = Sphere(2.0)
+    center = (sim.width / 2 - 60.0, sim.height / 2)  # left of the apex
+    win = sim.window(ball, center, 0.5)
+    z, contact = sim.surface(ball, center, 0.0, 0.5, win)
+    y0, y1, x0, x1 = win
+    xx = np.mgrid[y0:y1, x0:x1][1]
+    assert xx[contact].mean() > center[0] + 0.5  # toward the apex (right), by pixels
+    outside = ~contact
+    rim_band = z[outside] - sim.Z0[y0:y1, x0:x1][outside]
+    assert rim_band.max() < 1e-6  # a raised rim (toward the camera is +), never pushed in
+    assert rim_band.min() < -1e-3  # ... and it is there
 
 
 def test_contact_changes_the_image_where_the_ball_is(sim):

@@ -116,9 +116,9 @@ def register_store(
     """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
     its frames), and each frame's depth below the gel where the affine places it. The store is
     read whole and checked (`threedcal.collect.store.open_checked`)."""
-    from threedcal.collect.plan import dome_sag_at_px, plan_phases
+    from threedcal.collect.plan import dome_sag_at_px, dome_sag_mm, plan_phases
     from threedcal.collect.store import open_checked
-    from threedcal.dataset.registration import register
+    from threedcal.dataset.registration import DomedContacts, register
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])
@@ -145,6 +145,19 @@ def register_store(
     rows = np.flatnonzero(phase == "register")
     if not len(rows):
         rows = np.flatnonzero(phase == "grid")
+    dome = None
+    if sensor["gel"].get("dome"):
+        # each press's depth below the gel as the plan meant it (its dome compensation undone)
+        nominal = raw["depth_mm"].values[first[rows]] - dome_sag_mm(
+            sensor, raw["x_mm"].values[first[rows]], raw["y_mm"].values[first[rows]]
+        )
+        dome = DomedContacts(
+            sensor["gel"]["dome"],
+            float(scene["probe"]["radius_mm"]),
+            np.clip(nominal, 0.0, None),
+            float(sensor["px_per_mm"]),
+            (height, width),
+        )
     registration = register(
         cmd_xy[first[rows]],
         [_mean_frame(raw, first[p], last[p]) for p in rows],
@@ -153,6 +166,7 @@ def register_store(
         flat_gel=sensor["gel"].get("dome") is None,
         progress=progress,
         lens=bool(sensor.get("lens")),
+        dome=dome,
     )
     # where each press lies in the ideal frame: what the trainset's rectified frames show
     centres = registration.fit.ideal(cmd_xy)
@@ -258,6 +272,8 @@ def build_collected(
             "source": "collected",
             "store_frames": keep.tolist(),
             "lens": None if fit.lens is None else fit.lens.record(),
+            # labels are the depth below the undeformed gel: on a domed gel, its dome's
+            "dome": sensor["gel"].get("dome"),
         },
     )
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))

@@ -665,6 +665,69 @@ def fit_lensed(
     return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers, lens=fit.lens)
 
 
+class DomedContacts:
+    """Where a ball's contact lies on a domed gel, relative to the ball's axis (what the affine maps).
+
+    Off the apex the dome falls away from the ball, which meets the gel first on its apex side: the
+    contact, and the centre the rim locator finds in it, lies toward the apex (by up to ~3 px on a
+    DIGIT 0.4 mm deep). The affine would take that radial shift for a scale. The rigid overlap
+    w = d − gap − (sag − sag under the axis) predicts it: the located centre lies near the centroid
+    of w > 0 (docs/registration.md, Domed gels). Each located centre is moved to the axis whose
+    predicted centre it is (a fixed point, three steps). Coordinates: pixels of an image of
+    `image_shape` at `px_per_mm`; the dome (profile gel.dome) in mm about the image centre;
+    `depth_mm` per frame, the press's depth below the gel as the plan meant it.
+    """
+
+    _GRID = 81  # samples across the ball's diameter (0.05 mm for R = 2 mm)
+
+    def __init__(self, dome, radius_mm: float, depth_mm, px_per_mm: float, image_shape):
+        self.kx, self.ky = float(dome["kx_per_mm"]), float(dome["ky_per_mm"])
+        self.apex = (float(dome.get("apex_x_mm", 0.0)), float(dome.get("apex_y_mm", 0.0)))
+        self.radius_mm = float(radius_mm)
+        self.depth_mm = np.asarray(depth_mm, dtype=np.float64)
+        self.px_per_mm = float(px_per_mm)
+        height, width = image_shape[:2]
+        self.centre_px = ((width - 1) / 2, (height - 1) / 2)
+        half = self._GRID // 2  # a grid exactly symmetric about the axis: no centroid of its own
+        g = self.radius_mm * (np.arange(-half, half + 1) / half)
+        self._dx, self._dy = np.meshgrid(g, g)
+        r2 = self._dx**2 + self._dy**2
+        self._gap = np.where(
+            r2 < self.radius_mm**2,
+            self.radius_mm - np.sqrt(np.maximum(self.radius_mm**2 - r2, 0.0)),
+            np.inf,
+        )
+
+    def _sag(self, x_mm, y_mm):
+        return self.kx * (x_mm - self.apex[0]) ** 2 + self.ky * (y_mm - self.apex[1]) ** 2
+
+    def contact_centre(self, axis_px, depth_mm: float) -> np.ndarray:
+        """The centroid of the contact of a press with its axis at `axis_px`, `depth_mm` deep."""
+        ax = (axis_px[0] - self.centre_px[0]) / self.px_per_mm
+        ay = (axis_px[1] - self.centre_px[1]) / self.px_per_mm
+        w = depth_mm - self._gap - (self._sag(ax + self._dx, ay + self._dy) - self._sag(ax, ay))
+        inside = np.isfinite(w) & (w > 0)
+        if not inside.any():
+            return np.asarray(axis_px, dtype=np.float64)
+        shift = np.array([self._dx[inside].mean(), self._dy[inside].mean()])
+        return np.asarray(axis_px, dtype=np.float64) + shift * self.px_per_mm
+
+    def to_axis(self, contacts: list[Contact | None]) -> list[Contact | None]:
+        """Each located centre moved to the axis of the press whose contact is centred there."""
+        out = []
+        for contact, depth in zip(contacts, self.depth_mm, strict=True):
+            if contact is not None:
+                seen = np.array([contact.x_px, contact.y_px])
+                axis = seen.copy()
+                for _ in range(3):
+                    axis = axis + (seen - self.contact_centre(axis, depth))
+                contact = Contact(
+                    float(axis[0]), float(axis[1]), contact.radius_px, contact.strength
+                )
+            out.append(contact)
+        return out
+
+
 @dataclass(frozen=True)
 class Registration:
     """The affine of the chosen contact locator, and what the choice rested on."""
@@ -687,14 +750,17 @@ def register(
     flat_gel: bool = True,
     progress: bool = False,
     lens: bool = False,
+    dome: DomedContacts | None = None,
 ) -> Registration:
     """Locate the contact in every frame by rim and, on a flat gel, by symmetry; fit the affine
     (and with `lens`, the camera lens's radial distortion with it: `fit_lensed`).
 
     The rim locator's bias drifts across the frame and the affine absorbs it as a scale. The
-    symmetry locator has no such drift on a flat gel; on a domed gel (`flat_gel=False`) the
-    blank is shaded on a slope, which shifts symmetric centres toward the apex by up to a pixel —
-    a radial bias an affine absorbs unseen — so there only the rim is used. Where both run, the
+    symmetry locator has no such drift on a flat gel; on a domed gel (`flat_gel=False`, or a
+    `dome`) the blank is shaded on a slope, which shifts symmetric centres toward the apex by up to
+    a pixel — a radial bias an affine absorbs unseen — so there only the rim is used, and with
+    `dome` (DomedContacts) each rim centre is moved from the contact, which leans toward the apex,
+    to its press's axis. Where both run, the
     locator whose centres an affine maps with the smaller RMS residual is kept (a failing
     unmixing or a clipped sensor shows there). `accept(contact)` drops contacts (e.g. too near
     the image edge) before fitting.
@@ -706,7 +772,9 @@ def register(
     refitted to them (docs/registration.md, The lens).
     """
     shape = np.shape(blank)[:2] if lens else None
-    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, kappa2=False)
+    located = _locate_and_fit(
+        xy_mm, frames, blank, accept, flat_gel, progress, shape, kappa2=False, dome=dome
+    )
     if not lens:
         return located
     first = located.fit.lens
@@ -721,12 +789,13 @@ def register(
         progress,
         shape,
         back=first,
+        dome=dome,
     )
     return again
 
 
 def _locate_and_fit(
-    xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None, kappa2=True
+    xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None, kappa2=True, dome=None
 ):
     """One pass of `register`. `back`: the frames were rectified through this lens; the contacts
     are mapped back through it to camera pixels before the fit."""
@@ -748,10 +817,11 @@ def _locate_and_fit(
     ]
     rim = [c if c is not None and accept(c) else None for c in rim]
     unmixing = None
-    contacts = unbent(rim)
+    contacts = unbent(rim if dome is None else dome.to_axis(rim))
     candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))}
     symmetry_start = None
-    if flat_gel and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
+
+    if flat_gel and dome is None and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
         refined = refine_by_symmetry(frames, blank, rim, progress=progress)
         unmixing = refined.unmixing
         symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]

@@ -7,7 +7,8 @@ On disk (``results/{scene}/dataset/``)::
     samples.csv   one row per frame: frame, point, center_x_px, center_y_px, depth_mm,
                   eval_radius_px, split (train/val), min_p (and min_p_r1 ... for replicates
                   1 .. R-1, threedcal.dataset.splits) — parsed once, into arrays
-    meta.json     px_per_mm, sphere_radius_mm, max_slope_deg (null: no clamp), downscale, source
+    meta.json     px_per_mm, sphere_radius_mm, max_slope_deg (null: no clamp), downscale, source,
+                  dome (the profile's gel.dome the labels are measured from; null: flat)
 
 Labels are not stored: they are the exact sphere gradients (each pixel's mean slope) of
 (centre, depth, radius) computed on demand for any window (threedcal.dataset.labels), so a sub-pixel registration change never leaves
@@ -25,7 +26,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.dataset.labels import DEFAULT_MAX_SLOPE_DEG, check_max_slope, sphere_gradients
+from threedcal.dataset.labels import (
+    DEFAULT_MAX_SLOPE_DEG,
+    LocalDome,
+    check_max_slope,
+    local_dome,
+    sphere_gradients,
+)
 from threedcal.errors import ConfigError
 
 SAMPLE_COLUMNS = (
@@ -146,8 +153,18 @@ class TrainingSet:
             float(self.depth_mm[i]),
             self.px_per_mm,
             self.max_slope_deg,
+            dome=self.dome_at(i),
         )
         return g.transpose(2, 0, 1)
+
+    def dome_at(self, i: int) -> LocalDome | None:
+        """The gel's dome around frame i's press (meta `dome`: the profile's gel.dome; None: flat)."""
+        dome = (self.meta or {}).get("dome")
+        return (
+            None
+            if not dome
+            else local_dome(dome, self.center_px[i], self.image_shape, self.px_per_mm)
+        )
 
     def eval_mask(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
         """Pixels whose label is trusted for evaluation (inside eval_radius_px of the centre)."""

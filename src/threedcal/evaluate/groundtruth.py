@@ -10,11 +10,12 @@ depth at any d a clip, which the indentation fit exploits.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from threedcal.dataset.labels import local_dome
 from threedcal.errors import ConfigError
 from threedcal.evaluate.mesh import Mesh
 
@@ -102,13 +103,16 @@ def surface_height(
     center_px: Sequence[float] | None = None,
     rotation_deg: float = 0.0,
     linear_px_per_mm: np.ndarray | None = None,
+    dome: Mapping | None = None,
 ) -> HeightMap:
     """Rasterise the gel-facing surface of `mesh` posed on an image of `shape` (H, W).
 
     `center_px` defaults to the image centre. Parts outside the image are clipped; the lowest point
     counts even when it lies outside the image (the object still rests on it). With
     `linear_px_per_mm` the pose is that linear map (see `pose_vertices`); the HeightMap then
-    records its mean scale and the turn of the object's x axis.
+    records its mean scale and the turn of the object's x axis. `dome`: the gel's (profile
+    `gel.dome`); the height is then measured from the undeformed dome, which falls away from the
+    object by its sag relative to the sag under `center_px` (where the press depth is measured).
     """
     height, width = (int(v) for v in shape[:2])
     if height < 1 or width < 1:
@@ -127,6 +131,11 @@ def surface_height(
     if linear_px_per_mm is not None:
         px_per_mm = math.sqrt(abs(np.linalg.det(linear)))
         rotation_deg = math.degrees(math.atan2(linear[1, 0], linear[0, 0]))
+    if dome:
+        local = local_dome(dome, center, (height, width), px_per_mm)
+        x = (np.arange(width, dtype=np.float64) - center[0]) / px_per_mm
+        y = (np.arange(height, dtype=np.float64) - center[1]) / px_per_mm
+        zbuf = zbuf + local.sag_mm(x[None, :], y[:, None])
     return HeightMap(zbuf, float(px_per_mm), center, float(rotation_deg))
 
 

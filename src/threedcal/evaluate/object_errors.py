@@ -12,7 +12,7 @@ wrong); Type 2 where it is not (the shape inside the contact). All reported in Â
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,6 +144,7 @@ def evaluate_press(
     max_shift_px: float | None = None,
     iterations: int = 3,
     min_shift_px: float = 0.05,
+    dome: Mapping | None = None,
 ) -> PressEvaluation:
     """The paper's protocol on one predicted depth map: align in x, y, fit the depth, score.
 
@@ -154,7 +155,8 @@ def evaluate_press(
     keeping the pose and depth with the least squared error. Rotation is never changed.
     `surface`: the ground truth already rasterised at that starting pose (saves one raster). A
     shift under `min_shift_px` in x and y (below the sub-pixel peak's precision) counts as none:
-    the alignment has converged and the mesh is not rasterised again.
+    the alignment has converged and the mesh is not rasterised again. `dome`: the gel's (profile
+    `gel.dome`), which the ground truth is measured from (`surface_height`).
     """
     pred = np.asarray(pred, dtype=np.float64)
     check_indentation(nominal_indentation_mm, max_penetration_mm)
@@ -164,7 +166,9 @@ def evaluate_press(
     center = np.array(center_px if center_px is not None else ((w - 1) / 2, (h - 1) / 2), float)
 
     def raster(at: np.ndarray) -> HeightMap:
-        return surface_height(mesh, pred.shape, px_per_mm, at, rotation_deg, linear_px_per_mm)
+        return surface_height(
+            mesh, pred.shape, px_per_mm, at, rotation_deg, linear_px_per_mm, dome=dome
+        )
 
     if surface is None:
         surface = raster(center)

@@ -608,6 +608,7 @@ def evaluate_objects(
     figures.mkdir(parents=True, exist_ok=True)
     sensor = load_profile("sensor", scene["sensor"])
     limit = float(sensor["gel"]["max_penetration_mm"])
+    dome = sensor["gel"].get("dome")  # the truth is the depth below the undeformed gel
     frame_map = PrinterFrame(
         sensor, read_registration(registration_path), scene_mount(scene, "scene")
     )
@@ -645,7 +646,13 @@ def evaluate_objects(
             key = (press.frame, tuple(est.image_shape))
             if key not in truths:
                 truths[key] = surface_height(
-                    mesh, est.image_shape, 1.0, pose.center_px, 0.0, pose.linear_px_per_mm
+                    mesh,
+                    est.image_shape,
+                    1.0,
+                    pose.center_px,
+                    0.0,
+                    pose.linear_px_per_mm,
+                    dome=dome,
                 )
             for k, method in enumerate(integrators if p == full else integrators[:1]):
                 depth = est.depth(image, method=method)
@@ -656,6 +663,7 @@ def evaluate_objects(
                     truths[key],
                     px_per_mm=est.px_per_mm,
                     max_penetration_mm=limit,
+                    dome=dome,
                     # the paper's protocol for comparison on the reporting presses; the
                     # integrators are compared, and settings chosen, under the printer protocol
                     paper=k == 0 and press.set == "reporting",
@@ -731,10 +739,12 @@ def score_press(
     px_per_mm: float,
     max_penetration_mm: float,
     paper: bool = True,
+    dome: Mapping | None = None,
 ) -> dict:
     """One predicted depth map under each protocol: {"printer": ..., "paper": ...}.
 
-    `pose` and `surface`: where the printer put the object, on the prediction's pixel grid."""
+    `pose` and `surface`: where the printer put the object, on the prediction's pixel grid
+    (`surface` measured from the gel's `dome` when it has one, as the paper protocol's rasters)."""
     from threedcal.evaluate.object_errors import evaluate_press, printer_press
 
     results = {
@@ -752,6 +762,7 @@ def score_press(
             center_px=pose.center_px,
             linear_px_per_mm=pose.linear_px_per_mm,
             surface=surface,
+            dome=dome,
         )
     return results
 
@@ -799,9 +810,12 @@ class TruthGradients:
         px_per_mm: float,
         step_px: float = 0.05,
         lens: RadialLens | None = None,
+        dome: Mapping | None = None,
     ):
         """`lens`: the registration's (registration.json), through which `evaluate_objects`
-        rectifies each frame before it asks for its depth."""
+        rectifies each frame before it asks for its depth; `dome`: the sensor's gel.dome, which
+        the depth is measured from."""
+        self.dome = dome
         plan, frames, _, truth = read_presses(pressing_dir)
         frames = rectify_if(lens, frames)
         if not truth.get("simulated"):
@@ -818,7 +832,8 @@ class TruthGradients:
             self._gradients[frame.tobytes()] = ((at[0] - at[1]) * scale, (at[2] - at[3]) * scale)
 
     def _depth(self, mesh, true: Mapping, shift: tuple[float, float]) -> np.ndarray:
-        """The true depth map sampled at (x, y) + `shift` px."""
+        """The true depth map sampled at (x, y) + `shift` px (the object moved by -shift; the dome,
+        which stays put, sampled at the shifted points)."""
         cx, cy = true["center_px"]
         surface = surface_height(
             mesh,
@@ -827,7 +842,16 @@ class TruthGradients:
             (cx - shift[0], cy - shift[1]),
             true["rotation_deg"],
         )
-        return surface.depth(true["depth_mm"])
+        height = surface.height_mm
+        if self.dome:
+            from threedcal.dataset.labels import local_dome
+
+            local = local_dome(self.dome, (cx, cy), self.image_shape, self.px_per_mm)
+            rows, cols = self.image_shape
+            x = (np.arange(cols) + shift[0] - cx) / self.px_per_mm
+            y = (np.arange(rows) + shift[1] - cy) / self.px_per_mm
+            height = height + local.sag_mm(x[None, :], y[:, None])
+        return np.maximum(true["depth_mm"] - height, 0.0)
 
     def depth(self, frame: np.ndarray, method: str = "poisson_dst") -> np.ndarray:
         from threedcal.depth import integrate

@@ -37,6 +37,7 @@ def evaluate(estimator: DepthEstimator, ts: TrainingSet, indices: np.ndarray) ->
             ts.sphere_radius_mm,
             float(ts.depth_mm[i]),
             ts.px_per_mm,
+            dome=ts.dome_at(int(i)),
         )
         depth_ae.append(float(np.mean(np.abs(depth[mask] - truth[mask]))))
     return {

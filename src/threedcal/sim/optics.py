@@ -394,31 +394,31 @@ class GelSimulator:
             c, sn = math.cos(math.radians(rotation_deg)), math.sin(math.radians(rotation_deg))
             dx, dy = c * dx + sn * dy, -sn * dx + c * dy  # into the indenter's frame
         pen = depth_mm - indenter.gap(dx, dy)  # -inf where the indenter has no surface
-        contact = pen > 0
+        sag_c = float(self.sag_mm(ax, ay))
+        z0 = self.Z0[y0:y1, x0:x1]
+        # the gel is pushed where the indenter lies below its undeformed (domed) surface
+        below = pen - (z0 - sag_c) if self.domed else pen
+        contact = below > 0
         if not contact.any():
-            return self.Z0[y0:y1, x0:x1], contact
-        a = indenter.contact_radius_mm(depth_mm)
+            return z0, contact
+        a = None if self.domed else indenter.contact_radius_mm(depth_mm)
         if a is not None:
             t = np.maximum(np.sqrt(dx * dx + dy * dy) - a, 0.0)
-            area = math.pi * a * a
         else:
             import cv2
 
             t = cv2.distanceTransform((~contact).astype(np.uint8), cv2.DIST_L2, 5) / s
-            area = contact.sum() / s**2
-            a = math.sqrt(area / math.pi)
+            a = math.sqrt(contact.sum() / s**2 / math.pi)
         w = self.skirt_mm
-        volume = float(np.sum(pen[contact])) / s**2
+        volume = float(np.sum(below[contact])) / s**2
         # a raised rim (incompressible gel) holding part of the displaced volume, slope at most 0.3
         amp = self.rim_fraction * volume / (2 * math.pi * math.e * (a * w + 2 * w * w))
         amp = min(amp, 0.3 * w / math.e)
         tw = t / w
         rim = -amp * tw * np.exp(1.0 - tw)
-        sag_c = float(self.sag_mm(ax, ay))
-        z0 = self.Z0[y0:y1, x0:x1]
-        # back to the undeformed (domed) surface over the skirt; exactly there at SKIRT_EXTENT widths
+        # back to the undeformed surface over the skirt; exactly there at SKIRT_EXTENT widths
         taper = np.square(np.clip(1.0 - tw * (1.0 / SKIRT_EXTENT), 0.0, 1.0))
-        z_out = z0 + ((sag_c - z0) * np.exp(-tw) + rim) * taper
+        z_out = z0 + rim * taper  # the contact's edge lies on the undeformed surface
         with np.errstate(invalid="ignore"):
             z = np.maximum(sag_c + pen, z_out)  # never through the indenter; equal to it in contact
         return z.astype(np.float32), contact
@@ -429,7 +429,8 @@ class GelSimulator:
             press = self.press(indenter, center_px, rotation_deg, depth_mm)
             return None if press is None else self._elastic_window(press)
         s = self.px_per_mm
-        a = indenter.contact_radius_mm(depth_mm)
+        # on a dome the contact is not the flat one: it reaches toward the apex
+        a = None if self.domed else indenter.contact_radius_mm(depth_mm)
         reach = (indenter.reach_mm if a is None else a) + SKIRT_EXTENT * self.skirt_mm
         margin = reach * s + 3 * self.blur_sigma + 2
         return self._clip_window(
