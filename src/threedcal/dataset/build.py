@@ -107,6 +107,21 @@ def _mean_frame(raw, start: int, stop: int) -> np.ndarray:
     return np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8)
 
 
+def contact_material(scene: Mapping, sensor: Mapping):
+    """The gel's elastic constants when its contacts are elastic, else None (it follows the ball).
+
+    A real gel is elastic. A simulated bench renders the gel its `bench.gel_mechanics` (else the
+    profile's `gel.mechanics`) names, and the contacts the registration sees are that gel's."""
+    from threedcal.profiles import with_gel_mechanics
+    from threedcal.sim.elastic import GelMaterial
+
+    if scene.get("port") == "sim":
+        gel = with_gel_mechanics(sensor, (scene.get("bench") or {}).get("gel_mechanics"))["gel"]
+        if gel.get("mechanics", "geometric") != "elastic":
+            return None
+    return GelMaterial.from_profile(sensor["gel"])
+
+
 def register_store(
     scene: Mapping,
     store_path: str | Path,
@@ -157,6 +172,7 @@ def register_store(
             np.clip(nominal, 0.0, None),
             float(sensor["px_per_mm"]),
             (height, width),
+            material=contact_material(scene, sensor),
         )
     registration = register(
         cmd_xy[first[rows]],

@@ -669,50 +669,113 @@ class DomedContacts:
     """Where a ball's contact lies on a domed gel, relative to the ball's axis (what the affine maps).
 
     Off the apex the dome falls away from the ball, which meets the gel first on its apex side: the
-    contact, and the centre the rim locator finds in it, lies toward the apex (by up to ~3 px on a
+    contact, and the centre a locator finds in it, lies toward the apex (by up to ~3.5 px on a
     DIGIT 0.4 mm deep). The affine would take that radial shift for a scale. The rigid overlap
-    w = d − gap − (sag − sag under the axis) predicts it: the located centre lies near the centroid
-    of w > 0 (docs/registration.md, Domed gels). Each located centre is moved to the axis whose
-    predicted centre it is (a fixed point, three steps). Coordinates: pixels of an image of
-    `image_shape` at `px_per_mm`; the dome (profile gel.dome) in mm about the image centre;
-    `depth_mm` per frame, the press's depth below the gel as the plan meant it.
+    w = d − gap − (sag − sag under the axis) predicts it (docs/registration.md, Domed gels):
+
+    - `area`: the centroid of w > 0, where the rim of a gel that follows the ball is centred;
+    - `pressure`: the centroid of the pressure with which the ball presses w into an elastic layer
+      of the gel's `material` (threedcal.sim.elastic), where the symmetric centre of an elastic
+      contact lies. Solved on a coarse lattice of axes over the image once per depth (a few dozen
+      solves), then interpolated: the shift varies smoothly, almost linearly, across the frame.
+
+    Each located centre is moved to the axis whose predicted centre it is (a fixed point, three
+    steps). Coordinates: pixels of an image of `image_shape` at `px_per_mm`; the dome (profile
+    gel.dome) in mm about the image centre; `depth_mm` per frame, the press's depth below the gel
+    as the plan meant it.
     """
 
     _GRID = 81  # samples across the ball's diameter (0.05 mm for R = 2 mm)
+    _FIELD = (7, 9)  # axes (rows, columns) at which the pressure centroid is solved per depth
 
-    def __init__(self, dome, radius_mm: float, depth_mm, px_per_mm: float, image_shape):
+    def __init__(
+        self, dome, radius_mm: float, depth_mm, px_per_mm: float, image_shape, material=None
+    ):
         self.kx, self.ky = float(dome["kx_per_mm"]), float(dome["ky_per_mm"])
         self.apex = (float(dome.get("apex_x_mm", 0.0)), float(dome.get("apex_y_mm", 0.0)))
         self.radius_mm = float(radius_mm)
         self.depth_mm = np.asarray(depth_mm, dtype=np.float64)
         self.px_per_mm = float(px_per_mm)
         height, width = image_shape[:2]
+        self.shape = (height, width)
         self.centre_px = ((width - 1) / 2, (height - 1) / 2)
         half = self._GRID // 2  # a grid exactly symmetric about the axis: no centroid of its own
         g = self.radius_mm * (np.arange(-half, half + 1) / half)
         self._dx, self._dy = np.meshgrid(g, g)
-        r2 = self._dx**2 + self._dy**2
-        self._gap = np.where(
-            r2 < self.radius_mm**2,
-            self.radius_mm - np.sqrt(np.maximum(self.radius_mm**2 - r2, 0.0)),
-            np.inf,
-        )
+        self.material = material
+        self._gel = None
+        self._fields: dict[float, object] = {}
+
+    @property
+    def elastic(self) -> bool:
+        """True when the gel's elastic constants are known: its contacts are modelled as elastic."""
+        return self.material is not None
 
     def _sag(self, x_mm, y_mm):
         return self.kx * (x_mm - self.apex[0]) ** 2 + self.ky * (y_mm - self.apex[1]) ** 2
 
-    def contact_centre(self, axis_px, depth_mm: float) -> np.ndarray:
-        """The centroid of the contact of a press with its axis at `axis_px`, `depth_mm` deep."""
-        ax = (axis_px[0] - self.centre_px[0]) / self.px_per_mm
-        ay = (axis_px[1] - self.centre_px[1]) / self.px_per_mm
-        w = depth_mm - self._gap - (self._sag(ax + self._dx, ay + self._dy) - self._sag(ax, ay))
-        inside = np.isfinite(w) & (w > 0)
+    def _overlap(self, ax: float, ay: float, dx, dy, depth_mm: float):
+        """w at (ax + dx, ay + dy) mm for a press with its axis at (ax, ay); -inf off the ball."""
+        r2 = dx * dx + dy * dy
+        root = np.sqrt(np.maximum(self.radius_mm**2 - r2, 0.0))
+        w = depth_mm - (self.radius_mm - root) - (self._sag(ax + dx, ay + dy) - self._sag(ax, ay))
+        return np.where(r2 < self.radius_mm**2, w, -np.inf)
+
+    def _axis_mm(self, axis_px) -> tuple[float, float]:
+        return (
+            (axis_px[0] - self.centre_px[0]) / self.px_per_mm,
+            (axis_px[1] - self.centre_px[1]) / self.px_per_mm,
+        )
+
+    def _area_shift(self, ax: float, ay: float, depth_mm: float) -> np.ndarray:
+        inside = self._overlap(ax, ay, self._dx, self._dy, depth_mm) > 0
         if not inside.any():
-            return np.asarray(axis_px, dtype=np.float64)
-        shift = np.array([self._dx[inside].mean(), self._dy[inside].mean()])
+            return np.zeros(2)
+        return np.array([self._dx[inside].mean(), self._dy[inside].mean()])
+
+    def _pressure_shift(self, ax: float, ay: float, depth_mm: float) -> np.ndarray:
+        from threedcal.sim.elastic import ElasticGel
+
+        if self._gel is None:
+            # the simulator's lattice: a node every 2 px at the DIGIT's scale (0.1 mm)
+            self._gel = ElasticGel(self.material, 0.1)
+        reach = self.radius_mm
+        press = self._gel.press(
+            lambda X, Y: self._overlap(ax, ay, X - ax, Y - ay, depth_mm),
+            (ax - reach, ax + reach, ay - reach, ay + reach),
+            (ax, ay),
+        )
+        if press is None:
+            return np.zeros(2)
+        X, Y = press.node_coords(press.node_box())
+        p = press.pressure
+        return np.array([(p * (X - ax)).sum(), (p * (Y - ay)).sum()]) / p.sum()
+
+    def _pressure_field(self, depth_mm: float):
+        from scipy.interpolate import RegularGridInterpolator
+
+        key = round(float(depth_mm), 4)
+        if key not in self._fields:
+            rows, cols = self._FIELD
+            ys = (np.linspace(0, self.shape[0] - 1, rows) - self.centre_px[1]) / self.px_per_mm
+            xs = (np.linspace(0, self.shape[1] - 1, cols) - self.centre_px[0]) / self.px_per_mm
+            shifts = np.array([[self._pressure_shift(x, y, key) for x in xs] for y in ys])
+            self._fields[key] = RegularGridInterpolator(
+                (ys, xs), shifts, bounds_error=False, fill_value=None
+            )
+        return self._fields[key]
+
+    def contact_centre(self, axis_px, depth_mm: float, model: str = "area") -> np.ndarray:
+        """Where the contact of a press with its axis at `axis_px`, `depth_mm` deep, is centred
+        under `model` ("area" or "pressure")."""
+        ax, ay = self._axis_mm(axis_px)
+        if model == "pressure":
+            shift = self._pressure_field(depth_mm)([[ay, ax]])[0]
+        else:
+            shift = self._area_shift(ax, ay, depth_mm)
         return np.asarray(axis_px, dtype=np.float64) + shift * self.px_per_mm
 
-    def to_axis(self, contacts: list[Contact | None]) -> list[Contact | None]:
+    def to_axis(self, contacts: list[Contact | None], model: str = "area") -> list[Contact | None]:
         """Each located centre moved to the axis of the press whose contact is centred there."""
         out = []
         for contact, depth in zip(contacts, self.depth_mm, strict=True):
@@ -720,12 +783,18 @@ class DomedContacts:
                 seen = np.array([contact.x_px, contact.y_px])
                 axis = seen.copy()
                 for _ in range(3):
-                    axis = axis + (seen - self.contact_centre(axis, depth))
+                    axis = axis + (seen - self.contact_centre(axis, depth, model))
                 contact = Contact(
                     float(axis[0]), float(axis[1]), contact.radius_px, contact.strength
                 )
             out.append(contact)
         return out
+
+    def contacts_at(self, axes_px, model: str) -> np.ndarray:
+        """The contact centres (N, 2) of presses whose axes lie at `axes_px`."""
+        return np.array(
+            [self.contact_centre(a, d, model) for a, d in zip(axes_px, self.depth_mm, strict=True)]
+        )
 
 
 @dataclass(frozen=True)
@@ -756,11 +825,12 @@ def register(
     (and with `lens`, the camera lens's radial distortion with it: `fit_lensed`).
 
     The rim locator's bias drifts across the frame and the affine absorbs it as a scale. The
-    symmetry locator has no such drift on a flat gel; on a domed gel (`flat_gel=False`, or a
-    `dome`) the blank is shaded on a slope, which shifts symmetric centres toward the apex by up to
-    a pixel — a radial bias an affine absorbs unseen — so there only the rim is used, and with
-    `dome` (DomedContacts) each rim centre is moved from the contact, which leans toward the apex,
-    to its press's axis. Where both run, the
+    symmetry locator has no such drift on a flat gel. On a domed gel every contact leans toward the
+    apex; with `dome` (DomedContacts) each centre is moved from its contact to its press's axis —
+    the rim's by the rigid overlap's centroid, the symmetric one (run only where the gel is
+    elastic, `dome.elastic`) by the elastic pressure's. Where the gel follows the ball (`flat_gel=
+    False` without an elastic `dome`), the shading of the domed blank's slope shifts symmetric
+    centres radially by up to a pixel, an error an affine absorbs unseen: only the rim is used. Where both run, the
     locator whose centres an affine maps with the smaller RMS residual is kept (a failing
     unmixing or a clipped sensor shows there). `accept(contact)` drops contacts (e.g. too near
     the image edge) before fitting.
@@ -816,24 +886,29 @@ def _locate_and_fit(
         for f in tqdm(frames, desc="rim centres", unit="frame", disable=not progress)
     ]
     rim = [c if c is not None and accept(c) else None for c in rim]
+
+    def on_axis(contacts, model):  # on a dome: each centre moved from its contact to its axis
+        return contacts if dome is None else dome.to_axis(contacts, model)
+
     unmixing = None
-    contacts = unbent(rim if dome is None else dome.to_axis(rim))
+    contacts = unbent(on_axis(rim, "area"))
     candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))}
     symmetry_start = None
-
-    if flat_gel and dome is None and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
+    # the symmetric centre of a contact on a dome: where an elastic layer's pressure is centred
+    by_symmetry = flat_gel if dome is None else dome.elastic
+    if by_symmetry and np.ndim(blank) == 3 and sum(c is not None for c in rim) >= 3:
         refined = refine_by_symmetry(frames, blank, rim, progress=progress)
         unmixing = refined.unmixing
         symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]
         if sum(c is not None for c in symmetric) >= 3:
-            contacts = unbent(symmetric)
+            contacts = unbent(on_axis(symmetric, "pressure"))
             candidates["symmetry"] = (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))
             symmetry_start = "rim"
             again = _symmetry_from_fit(
-                xy_mm, frames, blank, rim, candidates["symmetry"][1], accept, back, progress
+                xy_mm, frames, blank, rim, candidates["symmetry"][1], accept, back, progress, dome
             )
             if sum(c is not None for c in again.contacts) >= 3:
-                contacts = unbent(again.contacts)
+                contacts = unbent(on_axis(again.contacts, "pressure"))
                 fit = _fit_contacts(xy_mm, contacts, shape, kappa2)
                 if fit.residual_px < candidates["symmetry"][1].residual_px:
                     candidates["symmetry"] = (contacts, fit)
@@ -851,7 +926,7 @@ def _locate_and_fit(
 
 
 def _symmetry_from_fit(
-    xy_mm, frames, blank, rim, fit: AffineFit, accept, back, progress
+    xy_mm, frames, blank, rim, fit: AffineFit, accept, back, progress, dome=None
 ) -> SymmetryRefinement:
     """The symmetry locator again, each fit started where `fit` places its press.
 
@@ -865,6 +940,8 @@ def _symmetry_from_fit(
     guess = fit.apply(np.asarray(xy_mm, dtype=np.float64))
     if back is not None:  # the frames are rectified: start where the ideal frame holds each press
         guess = back.undistort(guess)
+    if dome is not None:  # ... at its contact's centre, off the axis toward the dome's apex
+        guess = dome.contacts_at(guess, "pressure")
     starts = [
         None if c is None else Contact(float(g[0]), float(g[1]), c.radius_px, c.strength)
         for c, g in zip(rim, guess, strict=True)
