@@ -20,6 +20,15 @@ from threedcal.sim.indenters import Sphere
 SHAPE = (240, 320)
 
 
+# a 3 mm grid and the default scenes' registration presses (a 1 mm lattice 0.4 mm deep)
+REGISTRATION_PRESSES_PLAN = {
+    "spacing_mm": 3.0,
+    "depth_mm": 1.0,
+    "frames": 1,
+    "registration": {"spacing_mm": 1.0, "depth_mm": 0.4, "frames": 1},
+}
+
+
 def test_fit_lensed_recovers_an_exact_lens_and_affine_that_an_affine_cannot():
     lens = RadialLens(centre_px=(161.7, 118.2), kappa1=-8e-7, shape=SHAPE)
     affine = np.array([[15.6, 0.4, -1700.0], [0.5, -15.7, 1990.0]])
@@ -93,12 +102,7 @@ def test_shallow_registration_presses_register_the_digit_within_0_3_px(tmp_path)
     its 240 px wide frame where no contact lies whole and the lens fit extrapolates (0.35 px in the
     default study). Shallow presses over the whole area reach nearer the edges: the registration
     takes them alone, not the grid's."""
-    plan = {
-        "spacing_mm": 3.0,
-        "depth_mm": 1.0,
-        "frames": 1,
-        "registration": {"spacing_mm": 1.0, "depth_mm": 0.4, "frames": 1},
-    }
+    plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, "digit", plan, 5)
     assert record["contacts_from"] == "register" and record["locator"] == "rim"
     # the grid's 3 mm lattice holds ~20 presses in view; the 1 mm registration lattice ~100
@@ -115,12 +119,7 @@ def test_on_the_elastic_mini_symmetric_centres_started_from_the_lattice_register
     it stays in the true one (0.04 px)."""
     from threedcal.dataset import registration
 
-    plan = {
-        "spacing_mm": 3.0,
-        "depth_mm": 1.0,
-        "frames": 1,
-        "registration": {"spacing_mm": 1.0, "depth_mm": 0.4, "frames": 1},
-    }
+    plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("gelsight_mini"), plan, 11)
     assert record["locator"] == "symmetry" and record["symmetry_start"] == "fit", record
     assert record["error_px"] <= 0.3, record
@@ -147,12 +146,7 @@ def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_wit
     ball, moves them less well."""
     from threedcal.dataset.registration import DomedContacts
 
-    plan = {
-        "spacing_mm": 3.0,
-        "depth_mm": 1.0,
-        "frames": 1,
-        "registration": {"spacing_mm": 1.0, "depth_mm": 0.4, "frames": 1},
-    }
+    plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("digit"), plan, 11)
     assert record["locator"] == "symmetry", record
     assert record["error_px"] <= 0.3, record

@@ -250,6 +250,28 @@ def test_domed_contacts_lean_toward_the_apex_and_are_moved_back_exactly():
     np.testing.assert_allclose(level.contact_centre(axis, 0.4), axis, atol=1e-6)
 
 
+def test_an_elastic_contacts_pressure_leans_toward_the_apex_and_vanishes_at_it():
+    """The pressure model (an elastic layer of the DIGIT's constants, interpolated over a lattice
+    of axes): left of and below the apex the pressure's centroid lies toward it, by more than the
+    rigid overlap's area centroid there (the pressure gathers where the ball presses deepest);
+    at the apex it stays on the axis."""
+    from threedcal.profiles import load_profile
+    from threedcal.sim.elastic import GelMaterial
+
+    gel = load_profile("sensor", "digit")["gel"]
+    dome = DomedContacts(
+        gel["dome"], 2.0, [0.4], 20.0, (240, 320), material=GelMaterial.from_profile(gel)
+    )
+    assert dome.elastic
+    axis = np.array([159.5 - 100.0, 119.5 + 60.0])
+    pressure = dome.contact_centre(axis, 0.4, "pressure") - axis
+    area = dome.contact_centre(axis, 0.4, "area") - axis
+    assert pressure[0] > area[0] > 1.0 and pressure[1] < -0.2
+    np.testing.assert_allclose(
+        dome.contact_centre((159.5, 119.5), 0.4, "pressure"), (159.5, 119.5), atol=0.02
+    )
+
+
 class _CircleThroughPoints:
     """Least squares with a known zero-residual answer: a circle (centre, radius) through points."""
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage, optimize
@@ -26,6 +27,9 @@ from tqdm import tqdm
 
 from threedcal.errors import ThreedcalError
 from threedcal.lens import RadialLens
+
+if TYPE_CHECKING:
+    from threedcal.sim.elastic import GelMaterial
 
 
 class RegistrationError(ThreedcalError):
@@ -687,9 +691,16 @@ class DomedContacts:
 
     _GRID = 81  # samples across the ball's diameter (0.05 mm for R = 2 mm)
     _FIELD = (7, 9)  # axes (rows, columns) at which the pressure centroid is solved per depth
+    _LATTICE_MM = 0.1  # the elastic solver's nodes: the simulator's 2 px at ~20 px/mm
 
     def __init__(
-        self, dome, radius_mm: float, depth_mm, px_per_mm: float, image_shape, material=None
+        self,
+        dome,
+        radius_mm: float,
+        depth_mm,
+        px_per_mm: float,
+        image_shape,
+        material: GelMaterial | None = None,
     ):
         self.kx, self.ky = float(dome["kx_per_mm"]), float(dome["ky_per_mm"])
         self.apex = (float(dome.get("apex_x_mm", 0.0)), float(dome.get("apex_y_mm", 0.0)))
@@ -737,8 +748,7 @@ class DomedContacts:
         from threedcal.sim.elastic import ElasticGel
 
         if self._gel is None:
-            # the simulator's lattice: a node every 2 px at the DIGIT's scale (0.1 mm)
-            self._gel = ElasticGel(self.material, 0.1)
+            self._gel = ElasticGel(self.material, self._LATTICE_MM)
         reach = self.radius_mm
         press = self._gel.press(
             lambda X, Y: self._overlap(ax, ay, X - ax, Y - ay, depth_mm),
@@ -828,10 +838,11 @@ def register(
     symmetry locator has no such drift on a flat gel. On a domed gel every contact leans toward the
     apex; with `dome` (DomedContacts) each centre is moved from its contact to its press's axis —
     the rim's by the rigid overlap's centroid, the symmetric one (run only where the gel is
-    elastic, `dome.elastic`) by the elastic pressure's. Where the gel follows the ball (`flat_gel=
-    False` without an elastic `dome`), the shading of the domed blank's slope shifts symmetric
-    centres radially by up to a pixel, an error an affine absorbs unseen: only the rim is used. Where both run, the
-    locator whose centres an affine maps with the smaller RMS residual is kept (a failing
+    elastic, `dome.elastic`) by the elastic pressure's. Where the gel follows the ball
+    (`flat_gel=False` without an elastic `dome`), the shading of the domed blank's slope shifts
+    symmetric centres radially by up to a pixel, an error an affine absorbs unseen: only the rim
+    is used. Where both run, the locator whose centres an affine maps with the smaller RMS
+    residual is kept (a failing
     unmixing or a clipped sensor shows there). `accept(contact)` drops contacts (e.g. too near
     the image edge) before fitting.
 
