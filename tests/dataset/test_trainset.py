@@ -118,3 +118,29 @@ def test_a_domed_sets_labels_are_measured_from_its_dome_in_every_window_and_afte
     np.testing.assert_allclose(ts.labels(2, window), ts.labels(2)[:, 5:25, 3:21], atol=1e-7)
     ts.save(tmp_path / "set")
     np.testing.assert_array_equal(TrainingSet.load(tmp_path / "set").labels(2), ts.labels(2))
+
+
+def test_kept_labels_equal_the_labels_computed_for_each_window_to_the_bit():
+    """Labels are computed once per frame over the box its press can reach, then cut per window:
+    every window, one that crosses the box's edge or lies outside it included, equals the labels
+    computed for that window alone (so a model trains to the same bits either way)."""
+    from threedcal.dataset.labels import sphere_gradients
+
+    ts = small_set(shape=(120, 110))
+    ts.meta = {"dome": {"kx_per_mm": 0.05, "ky_per_mm": 0.02}}
+    for i in range(4):
+        cx, cy = ts.center_px[i]
+        for r0, c0 in ((0, 0), (3, 40), (50, 2), (90, 80), (int(cy) - 7, int(cx) - 9)):
+            r0, c0 = max(r0, 0), max(c0, 0)
+            window = (slice(r0, r0 + 30), slice(c0, c0 + 30))
+            h, w = ts.labels(i, window).shape[1:]
+            direct = sphere_gradients(
+                (h, w),
+                (cx - c0, cy - r0),
+                2.0,
+                float(ts.depth_mm[i]),
+                8.0,
+                dome=ts.dome_at(i),
+            ).transpose(2, 0, 1)
+            np.testing.assert_array_equal(ts.labels(i, window), direct)
+    assert set(ts._label_boxes) == {0, 1, 2, 3}
