@@ -1,6 +1,6 @@
 """Registration of a paper-sized plan, end to end: how long `register` takes and how right it is.
 
-    .venv/bin/python docs/diagnostics/registration_scale.py [sensor ...] [--points N]
+    .venv/bin/python docs/diagnostics/registration_scale.py [sensor ...] [--points N] [--elastic]
 
 For each sensor (default: digit and gelsight_mini) the gel simulator renders one frame per point
 of an N-point lattice (default 1,221, the paper's DIGIT plan) over the area where a contact lies
@@ -9,7 +9,10 @@ a 10-frame blank. The printer coordinates map to pixels by a known affine (a 1.5
 the sensor's scale). `register` then runs as the dataset stage calls it (rim on every frame; on a
 flat gel the symmetric centres too; the affine) and is timed; its affine is scored against the
 known one over the lattice (the stage's `error_px`). One frame per point where the stage uses the
-mean of `probing.frames_per_point`: slightly noisier contacts, the same work.
+mean of `probing.frames_per_point`: slightly noisier contacts, the same work. On a domed gel the
+located centres are moved to the press axes as the stage moves them (DomedContacts); `--elastic`
+renders the elastic gel, whose symmetric centres are moved by the elastic pressure's centroid
+(its per-depth pressure field is part of the timed `register`).
 """
 
 import argparse
@@ -19,8 +22,9 @@ import time
 
 import numpy as np
 
-from threedcal.dataset.registration import register
-from threedcal.profiles import load_profile
+from threedcal.dataset.registration import DomedContacts, register
+from threedcal.profiles import load_profile, with_gel_mechanics
+from threedcal.sim.elastic import GelMaterial
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 
@@ -51,8 +55,8 @@ def lattice(sim: GelSimulator, points: int):
     return xy_mm, xy_mm @ linear.T + offset
 
 
-def run(sensor: str, points: int) -> str:
-    profile = load_profile("sensor", sensor)
+def run(sensor: str, points: int, elastic: bool = False) -> str:
+    profile = with_gel_mechanics(load_profile("sensor", sensor), "elastic" if elastic else None)
     sim = GelSimulator(profile, seed=1)
     blank = np.mean([sim.blank(i).astype(np.float32) for i in range(10)], axis=0)
     xy_mm, centres = lattice(sim, points)
@@ -69,12 +73,20 @@ def run(sensor: str, points: int) -> str:
         )
 
     flat = profile["gel"].get("dome") is None
+    dome = None
+    if not flat:
+        depths = [DEPTHS_MM[i % len(DEPTHS_MM)] for i in range(len(frames))]
+        material = GelMaterial.from_profile(profile["gel"]) if elastic else None
+        dome = DomedContacts(
+            profile["gel"]["dome"], SPHERE_MM, depths, sim.px_per_mm, blank.shape, material
+        )
     wall, cpu = time.perf_counter(), time.process_time()
-    result = register(xy_mm, frames, blank, accept=whole, flat_gel=flat)
+    result = register(xy_mm, frames, blank, accept=whole, flat_gel=flat, dome=dome)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     return (
-        f"{sensor}: {len(frames)} points, {'flat' if flat else 'domed'} gel, locator "
+        f"{sensor}: {len(frames)} points, {'flat' if flat else 'domed'}"
+        f"{' elastic' if elastic else ''} gel, locator "
         f"{result.locator}, {int(result.fit.inliers.sum())} contacts used; register "
         f"{wall:.1f} s wall, {cpu:.1f} CPU-s ({len(frames) / cpu:.0f} points per CPU-s); "
         f"error_px {np.sqrt(np.mean(error**2)):.3f} RMS, {error.max():.3f} max"
@@ -85,10 +97,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sensors", nargs="*", default=["digit", "gelsight_mini"])
     parser.add_argument("--points", type=int, default=1221)
+    parser.add_argument("--elastic", action="store_true", help="render the elastic gel")
     args = parser.parse_args()
     print(f"load average {os.getloadavg()[0]:.1f}")
     for sensor in args.sensors:
-        print(run(sensor, args.points), flush=True)
+        print(run(sensor, args.points, args.elastic), flush=True)
 
 
 if __name__ == "__main__":
