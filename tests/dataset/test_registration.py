@@ -408,3 +408,20 @@ def test_change_detector_sizes_a_shallow_contact_by_its_half_peak_radius(mini_si
     radius_mm = detector.contact_radius_px(frame, centre, 40.0) / sim.px_per_mm
     a = math.sqrt(2 * 2.0 * depth - depth**2)
     assert 0.9 * a < radius_mm < 1.1 * a + 0.1  # + the blur's share
+
+
+def test_contacts_are_modelled_as_elastic_where_the_gel_is(caplog):
+    """A simulated bench's contacts are elastic when it renders the elastic gel; a real gel's always,
+    unless its profile lacks the constants (then the rim alone, with a warning naming them)."""
+    from threedcal.dataset.build import contact_material
+    from threedcal.profiles import load_profile
+
+    digit = load_profile("sensor", "digit")
+    assert contact_material({"port": "sim", "bench": {}}, digit) is None  # geometric profile
+    elastic = contact_material({"port": "sim", "bench": {"gel_mechanics": "elastic"}}, digit)
+    assert elastic.youngs_modulus_mpa == digit["gel"]["youngs_modulus_mpa"]
+    assert contact_material({"port": "/dev/ttyUSB0"}, digit) == elastic
+    bare = {**digit, "gel": {k: v for k, v in digit["gel"].items() if k != "poisson_ratio"}}
+    with caplog.at_level("WARNING"):
+        assert contact_material({"port": "/dev/ttyUSB0"}, bare) is None
+    assert "gel.poisson_ratio" in caplog.text

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -119,6 +120,15 @@ def contact_material(scene: Mapping, sensor: Mapping):
         gel = with_gel_mechanics(sensor, (scene.get("bench") or {}).get("gel_mechanics"))["gel"]
         if gel.get("mechanics", "geometric") != "elastic":
             return None
+    missing = [k for k in ("youngs_modulus_mpa", "poisson_ratio") if k not in sensor["gel"]]
+    if missing:  # a real gel whose profile lacks its constants: the rim, moved by the overlap
+        logging.getLogger(__name__).warning(
+            "sensor profile %r has no gel.%s: its domed contacts are registered as a gel that "
+            "follows the ball (rim centres only; docs/registration.md, Domed gels)",
+            sensor.get("name"),
+            " or gel.".join(missing),
+        )
+        return None
     return GelMaterial.from_profile(sensor["gel"])
 
 
