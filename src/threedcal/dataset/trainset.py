@@ -11,7 +11,8 @@ On disk (``results/{scene}/dataset/``)::
                   dome (the profile's gel.dome the labels are measured from; null: flat)
 
 Labels are not stored: they are the exact sphere gradients (each pixel's mean slope) of
-(centre, depth, radius) computed on demand for any window (threedcal.dataset.labels), so a sub-pixel registration change never leaves
+(centre, depth, radius; the dome's on a domed gel) computed on demand, once per frame over the box
+its press can reach and kept in memory for every window of it (threedcal.dataset.labels), so a sub-pixel registration change never leaves
 stale label images behind. Inputs are (frame − blank)/255 as three channels plus two coordinate
 channels, x and y of each pixel normalised to [-1, 1] over the full image — the network learns
 position-dependent illumination from them, also when it trains on patches.

@@ -132,11 +132,20 @@ def surface_height(
         px_per_mm = math.sqrt(abs(np.linalg.det(linear)))
         rotation_deg = math.degrees(math.atan2(linear[1, 0], linear[0, 0]))
     if dome:
-        local = local_dome(dome, center, (height, width), px_per_mm)
-        x = (np.arange(width, dtype=np.float64) - center[0]) / px_per_mm
-        y = (np.arange(height, dtype=np.float64) - center[1]) / px_per_mm
-        zbuf = zbuf + local.sag_mm(x[None, :], y[:, None])
+        zbuf = zbuf + dome_rise(dome, center, (height, width), px_per_mm)
     return HeightMap(zbuf, float(px_per_mm), center, float(rotation_deg))
+
+
+def dome_rise(
+    dome: Mapping, center_px: Sequence[float], shape: Sequence[int], px_per_mm: float, shift=(0, 0)
+) -> np.ndarray:
+    """How far the undeformed dome (profile `gel.dome`) falls below its height under `center_px`,
+    mm, at every pixel of an image of `shape` — sampled at (x, y) + `shift` px."""
+    height, width = (int(v) for v in shape[:2])
+    local = local_dome(dome, center_px, (height, width), px_per_mm)
+    x = (np.arange(width, dtype=np.float64) + shift[0] - center_px[0]) / px_per_mm
+    y = (np.arange(height, dtype=np.float64) + shift[1] - center_px[1]) / px_per_mm
+    return local.sag_mm(x[None, :], y[:, None])
 
 
 def depth_map(

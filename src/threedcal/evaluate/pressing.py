@@ -34,7 +34,7 @@ import pandas as pd
 from threedcal.config import mount_problem
 from threedcal.dataset.trainset import pool_to
 from threedcal.errors import ConfigError
-from threedcal.evaluate.groundtruth import HeightMap, surface_height
+from threedcal.evaluate.groundtruth import HeightMap, dome_rise, surface_height
 from threedcal.evaluate.objects import load_object as _load_object
 from threedcal.evaluate.objects import object_label
 from threedcal.lens import RadialLens, rectify_if
@@ -844,13 +844,9 @@ class TruthGradients:
         )
         height = surface.height_mm
         if self.dome:
-            from threedcal.dataset.labels import local_dome
-
-            local = local_dome(self.dome, (cx, cy), self.image_shape, self.px_per_mm)
-            rows, cols = self.image_shape
-            x = (np.arange(cols) + shift[0] - cx) / self.px_per_mm
-            y = (np.arange(rows) + shift[1] - cy) / self.px_per_mm
-            height = height + local.sag_mm(x[None, :], y[:, None])
+            height = height + dome_rise(
+                self.dome, (cx, cy), self.image_shape, self.px_per_mm, shift
+            )
         return np.maximum(true["depth_mm"] - height, 0.0)
 
     def depth(self, frame: np.ndarray, method: str = "poisson_dst") -> np.ndarray:
