@@ -362,7 +362,11 @@ def touch_height(
 ) -> dict:
     """registration.json's touch fields, by `method`: "search" (the plan's first-contact search,
     the default) or "rim" (the grid's contact radii; d < R only, see docs/registration.md)."""
-    from threedcal.dataset.registration import estimate_touch, measure_touch_search
+    from threedcal.dataset.registration import (
+        TOUCH_FIT_SPAN_MM,
+        estimate_touch,
+        measure_touch_search,
+    )
 
     fit = store.registration.fit
     if method == "search":
@@ -381,7 +385,7 @@ def touch_height(
             store.centres[rows],
             store.px_per_mm,
             reach_mm=radius_mm,
-            span_mm=float(store.plan_config["touch_search"]["beyond_mm"]),
+            span_mm=TOUCH_FIT_SPAN_MM,
             progress=progress,
         )
         return {
@@ -393,6 +397,7 @@ def touch_height(
                 "offset_mm_by_place": result.place_offsets_mm.round(4).tolist(),
                 "onset_depth_mm_by_place": result.onset_depth_mm.round(4).tolist(),
                 "steps_fitted_by_place": result.steps_fitted.tolist(),
+                "signal_exponent": result.exponent,
                 "frames": int((store.last[touch] - store.first[touch]).sum()),
             },
         }

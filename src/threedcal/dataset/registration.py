@@ -1100,40 +1100,6 @@ class ChangeDetector:
         change = _smoothed_change(frame, self.blank, usable, self.smooth_px, window)
         return ((change / self.sigma) ** 2).sum(axis=-1)
 
-    def contact_radius_px(
-        self, frame: np.ndarray, centre_px, reach_px: float, level: float = 0.5, bin_px: float = 0.5
-    ) -> float:
-        """Radius of the contact about `centre_px`: where the ring-averaged change magnitude falls
-        to `level` of its peak on the way out; 0 when nothing within `reach_px` is significant.
-
-        A fraction of the peak, not of the noise: a noise-relative edge moves outward as the
-        contrast grows (the change of a shallow sphere has no sharp border), a peak-relative one
-        scales with the contact. Averaging over rings keeps the one-sided patterns of the LEDs
-        (bright toward one, dark away from it) from splitting the contact into lobes."""
-        height, width = self.blank.shape[:2]
-        cx, cy = (float(v) for v in centre_px)
-        y0, y1 = max(int(cy - reach_px) - 1, 0), min(int(cy + reach_px) + 2, height)
-        x0, x1 = max(int(cx - reach_px) - 1, 0), min(int(cx + reach_px) + 2, width)
-        if y1 <= y0 or x1 <= x0:
-            return 0.0
-        q = self.significance(frame, (y0, y1, x0, x1))
-        rows, cols = np.ogrid[y0:y1, x0:x1]
-        r = np.sqrt((cols - cx) ** 2 + (rows - cy) ** 2)
-        near = r <= reach_px
-        if not near.any() or float(q[near].max()) <= self.threshold:
-            return 0.0
-        ring = (r[near] / bin_px).astype(np.int64)
-        counts = np.bincount(ring)
-        profile = np.bincount(ring, weights=np.sqrt(q[near])) / np.maximum(counts, 1)
-        peak = int(np.argmax(profile))
-        edge = level * profile[peak]
-        below = np.flatnonzero(profile[peak:] < edge)
-        if below.size == 0:
-            return float(reach_px)
-        j = peak + int(below[0]) - 1  # last ring above the edge; interpolate to the crossing
-        fraction = (profile[j] - edge) / (profile[j] - profile[j + 1])
-        return float((j + 0.5 + fraction) * bin_px)
-
 
 def _smoothed_change(frame, reference, usable, smooth_px: float, window=None) -> np.ndarray:
     """frame − (g · reference + o) per channel over usable pixels, normalised-Gaussian smoothed:
@@ -1175,11 +1141,21 @@ class TouchSearch:
     place_offsets_mm: np.ndarray  # δ of each place
     onset_depth_mm: np.ndarray  # per place: the commanded depth of the first step with contact
     steps_fitted: np.ndarray  # per place: steps in the fit
-    area_mm2: np.ndarray  # per step: the contact area the fit saw (0 without contact)
+    signal: np.ndarray  # per step: the contact signal the fit saw (0 without contact)
+    exponent: float  # p of signal ∝ (c + δ)^p, measured from the steps (or as given)
 
 
-# The two smoothing widths (px) the contact size is measured at; see `measure_touch_search`.
-TOUCH_SMOOTHING_PX = (1.0, 2.0)
+# The smoothing (px) of the changes the contact signal is taken from.
+TOUCH_SMOOTHING_PX = 1.0
+# The window the signal is summed over: this many probe radii about the place, clipped to the frame.
+TOUCH_WINDOW_RADII = 3.0
+# A step has contact where its signal exceeds this many times the blanks' own (and twice their largest).
+TOUCH_SIGNAL_SIGMAS = 6.0
+# The depth past the onset the signal is fitted over: 8 steps of 0.02 mm. Chosen on the bench's
+# elastic DIGIT (sharp and 6 px blurred cameras) and geometric DIGIT, seeds 11-14 (docs/registration.md).
+TOUCH_FIT_SPAN_MM = 0.16
+# The exponents p of signal ∝ (c + δ)^p the search chooses from.
+TOUCH_EXPONENTS = np.round(np.arange(1.0, 3.0001, 0.05), 2)
 
 
 def measure_touch_search(
@@ -1197,86 +1173,148 @@ def measure_touch_search(
     depth `depth_mm[i]`, below the nominal touch and corrected for the gel's sag there, at place
     `place[i]`, its contact expected at `centres_px[i]` from the registration).
 
-    Each frame's contact is detected against the blank's own noise (`ChangeDetector`) and sized by
-    its half-peak radius, at two smoothing widths s₁ < s₂. Smoothing (like the camera's blur)
-    widens a contact's image, adding to its area a constant ∝ s² — which a linear fit of area
-    against depth cannot tell from δ. The two widths remove that share: A₀ = A₁ − (A₂ − A₁) s₁² /
-    (s₂² − s₁²). `fit_touch_onset` then finds where A₀ grows from.
+    Each step's change (frame − blank, `ChangeDetector`'s recipe, over `TOUCH_WINDOW_RADII` probe
+    radii `reach_mm` about the place) is projected onto its place's template, the mean change of
+    its three deepest steps: the contact signal L. A projection is linear in the image, so the
+    camera's blur and the smoothing scale it but add nothing to it — unlike a contact's size, which
+    a blur widens by a constant that a line through the sizes takes for depth (on a 6 px blur,
+    0.3 mm). The same projection of each blank frame against the others' mean gives L's noise; a
+    step has contact where L exceeds `TOUCH_SIGNAL_SIGMAS` times it and twice the largest blank's.
+    `fit_touch_onset` then finds where L grows from.
     """
-    s1, s2 = TOUCH_SMOOTHING_PX
-    detectors = [ChangeDetector.from_blanks(blank_frames, smooth_px=s) for s in (s1, s2)]
-    reach_px = reach_mm * px_per_mm
-    radii = np.zeros((len(depth_mm), 2))
-    for i in tqdm(range(len(depth_mm)), desc="touch search", unit="frame", disable=not progress):
-        frame = np.asarray(frames[i])
-        for k, detector in enumerate(detectors):
-            radii[i, k] = detector.contact_radius_px(frame, centres_px[i], reach_px)
-    touching = (radii > 0).all(axis=1)
-    areas = np.pi * (radii / px_per_mm) ** 2
-    area0 = np.where(
-        touching, areas[:, 0] - (areas[:, 1] - areas[:, 0]) * s1**2 / (s2**2 - s1**2), 0
-    )
-    return fit_touch_onset(depth_mm, place, area0, touching, span_mm)
+    detector = ChangeDetector.from_blanks(blank_frames, smooth_px=TOUCH_SMOOTHING_PX)
+    blanks = np.asarray(blank_frames, dtype=np.float32)
+    total = blanks.sum(axis=0)
+    height, width = detector.blank.shape[:2]
+    reach_px = TOUCH_WINDOW_RADII * reach_mm * px_per_mm
+    depth = np.asarray(depth_mm, dtype=float)
+    place = np.asarray(place)
+    signal = np.zeros(len(depth))
+    touching = np.zeros(len(depth), bool)
+    bar = tqdm(total=len(depth), desc="touch search", unit="frame", disable=not progress)
+    for p in np.unique(place):
+        rows = np.flatnonzero(place == p)
+        rows = rows[np.argsort(depth[rows], kind="stable")]
+        cx, cy = np.median(np.asarray(centres_px, dtype=float)[rows], axis=0)
+        window = (
+            max(int(cy - reach_px), 0),
+            min(int(cy + reach_px) + 1, height),
+            max(int(cx - reach_px), 0),
+            min(int(cx + reach_px) + 1, width),
+        )
+        if window[1] - window[0] < 3 or window[3] - window[2] < 3:
+            raise RegistrationError(f"touch search place {p}: its contact lies off the frame")
+
+        def change(frame, reference, usable, window=window):
+            return _smoothed_change(frame, reference, usable, TOUCH_SMOOTHING_PX, window) / (
+                detector.sigma
+            )
+
+        changes = []
+        for i in rows:
+            frame = np.asarray(frames[i], dtype=np.float32)
+            usable = detector.usable & (frame < SATURATED_DN) & (frame > DARK_DN)
+            changes.append(change(frame, detector.blank, usable))
+            bar.update()
+        template = np.mean(changes[-3:], axis=0)
+        norm = float((template * template).sum())
+        if not norm > 0:
+            raise RegistrationError(f"touch search place {p}: no change at its deepest steps")
+        quiet = [
+            float((change(f, (total - f) / (len(blanks) - 1), detector.usable) * template).sum())
+            / norm
+            for f in blanks
+        ]
+        level = max(TOUCH_SIGNAL_SIGMAS * float(np.std(quiet, ddof=1)), 2 * max(map(abs, quiet)))
+        signal[rows] = [float((c * template).sum()) / norm for c in changes]
+        touching[rows] = signal[rows] > level
+    bar.close()
+    return fit_touch_onset(depth, place, np.where(touching, signal, 0.0), touching, span_mm)
+
+
+def _onset_steps(c: np.ndarray, on: np.ndarray, span_mm: float, p) -> np.ndarray:
+    """Indices of a place's steps (sorted by depth) the line is fitted to, or an error naming why not.
+    Contact counts from the step after the last one without it: a lone false alarm above that is
+    passed over."""
+    if on.all():
+        raise RegistrationError(
+            f"touch search place {p}: contact already at the first step ({c[0]:+.3f} mm): "
+            "the gel sits higher than the search starts — raise the sensor profile's "
+            "probing.touch_uncertainty_mm — or the image drifted from the blank frames"
+        )
+    if not on[-1]:
+        raise RegistrationError(
+            f"touch search place {p}: no contact even at the last step ({c[-1]:+.3f} mm): "
+            "the gel sits lower than the search reaches — raise probing.touch_uncertainty_mm "
+            "or plan.touch_search.beyond_mm"
+        )
+    onset = int(np.flatnonzero(~on)[-1]) + 1  # contact from here on
+    fit = np.flatnonzero((np.arange(len(c)) >= onset) & (c <= c[onset] + span_mm + 1e-9))
+    if len(fit) < 3:
+        raise RegistrationError(
+            f"touch search place {p}: {len(fit)} steps with contact within {span_mm:g} mm "
+            "of its onset; at least 3 are needed (a smaller step_mm or a larger beyond_mm)"
+        )
+    return fit
 
 
 def fit_touch_onset(
     depth_mm: np.ndarray,
     place: np.ndarray,
-    area_mm2: np.ndarray,
+    signal: np.ndarray,
     touching: np.ndarray,
     span_mm: float,
+    exponent: float | None = None,
 ) -> TouchSearch:
-    """δ from the contact area A against commanded depth c at each place of a first-contact search.
+    """δ from a contact signal L against commanded depth c at each place of a first-contact search.
 
-    Contact begins where c + δ = 0. At small depths the contact area of a sphere grows in
-    proportion to the depth whatever the gel's mechanics (rigid: πa² = π(2Rd − d²); an elastic
-    half-space: a² ≈ Rd), so A = α (c + δ) near the onset, α free per place (the law, the LEDs).
-    From the first step after which every step shows contact (`touching`), the steps within
-    `span_mm` are fitted by least squares and δ is the line's zero; the median over places is
-    returned. Contact at a place's first step, none at its last, or fewer than 3 steps to fit
-    are errors that say which setting to change.
+    Contact begins where c + δ = 0, and near it L grows as a power of the true depth:
+    L = α (c + δ)^p, α free per place (the LEDs, the place). p depends on the gel's mechanics (about
+    2 for a rigid cap, whose volume grows as d²; about 1.5 for an elastic gel, whose surface also
+    sinks around the contact, as a·d/r), so unless `exponent` gives it, p is the one of
+    `TOUCH_EXPONENTS` whose lines through L^(1/p) fit L best, all places together. From the first
+    step after which every step shows contact (`touching`), the steps within `span_mm` are fitted
+    by least squares and δ is the line's zero; the median over places is returned. Contact at a
+    place's first step, none at its last, or fewer than 3 steps to fit are errors that say which
+    setting to change.
     """
     depth = np.asarray(depth_mm, dtype=float)
-    area = np.asarray(area_mm2, dtype=float)
+    signal = np.asarray(signal, dtype=float)
     touching = np.asarray(touching, dtype=bool)
     place = np.asarray(place)
-    offsets, onsets, used = [], [], []
+    groups = []
     for p in np.unique(place):
         rows = np.flatnonzero(place == p)
         rows = rows[np.argsort(depth[rows], kind="stable")]
-        c, a, on = depth[rows], area[rows], touching[rows]
-        if on[0]:
-            raise RegistrationError(
-                f"touch search place {p}: contact already at the first step ({c[0]:+.3f} mm): "
-                "the gel sits higher than the search starts — raise the sensor profile's "
-                "probing.touch_uncertainty_mm — or the image drifted from the blank frames"
-            )
-        if not on[-1]:
-            raise RegistrationError(
-                f"touch search place {p}: no contact even at the last step ({c[-1]:+.3f} mm): "
-                "the gel sits lower than the search reaches — raise probing.touch_uncertainty_mm "
-                "or plan.touch_search.beyond_mm"
-            )
-        onset = int(np.flatnonzero(~on)[-1]) + 1  # contact from here on
-        fit = np.flatnonzero((np.arange(len(c)) >= onset) & (c <= c[onset] + span_mm + 1e-9))
-        if len(fit) < 3:
-            raise RegistrationError(
-                f"touch search place {p}: {len(fit)} steps with contact within {span_mm:g} mm "
-                "of its onset; at least 3 are needed (a smaller step_mm or a larger beyond_mm)"
-            )
-        slope, intercept = np.polyfit(c[fit], a[fit], 1)
+        fit = _onset_steps(depth[rows], touching[rows], span_mm, p)
+        groups.append((p, rows[fit]))
+
+    def lines(p_exp: float):
+        out, sse = [], 0.0
+        for _, rows in groups:
+            c, y = depth[rows], np.clip(signal[rows], 0.0, None)
+            slope, intercept = np.polyfit(c, y ** (1.0 / p_exp), 1)
+            sse += float(np.sum((np.clip(slope * c + intercept, 0.0, None) ** p_exp - y) ** 2))
+            out.append((slope, intercept))
+        return out, sse
+
+    if exponent is None:
+        exponent = float(min(TOUCH_EXPONENTS, key=lambda e: lines(float(e))[1]))
+    offsets, onsets, used = [], [], []
+    for (p, rows), (slope, intercept) in zip(groups, lines(exponent)[0], strict=True):
         if not slope > 0:
             raise RegistrationError(
                 f"touch search place {p}: the contact does not grow with depth (slope {slope:.3g})"
             )
         offsets.append(intercept / slope)
-        onsets.append(c[onset])
-        used.append(len(fit))
+        onsets.append(depth[rows[0]])
+        used.append(len(rows))
     offsets = np.asarray(offsets)
     return TouchSearch(
         offset_mm=float(np.median(offsets)),
         place_offsets_mm=offsets,
         onset_depth_mm=np.asarray(onsets),
         steps_fitted=np.asarray(used),
-        area_mm2=area,
+        signal=signal,
+        exponent=float(exponent),
     )
