@@ -1177,8 +1177,8 @@ def measure_touch_search(
     radii `reach_mm` about the place) is projected onto its place's template, the mean change of
     its three deepest steps: the contact signal L. A projection is linear in the image, so the
     camera's blur and the smoothing scale it but add nothing to it — unlike a contact's size, which
-    a blur widens by a constant that a line through the sizes takes for depth (on a 6 px blur,
-    0.3 mm). The same projection of each blank frame against the others' mean gives L's noise; a
+    a blur widens by a constant that a line through the sizes takes for depth (behind a 6 px
+    blur, 0.36 mm). The same projection of each blank frame against the others' mean gives L's noise; a
     step has contact where L exceeds `TOUCH_SIGNAL_SIGMAS` times it and twice the largest blank's.
     `fit_touch_onset` then finds where L grows from.
     """
@@ -1274,8 +1274,8 @@ def fit_touch_onset(
     sinks around the contact, as a·d/r), so unless `exponent` gives it, p is the one of
     `TOUCH_EXPONENTS` whose lines through L^(1/p) fit L best, all places together. From the first
     step after which every step shows contact (`touching`), the steps within `span_mm` are fitted
-    by least squares and δ is the line's zero; the median over places is returned. Contact at a
-    place's first step, none at its last, or fewer than 3 steps to fit are errors that say which
+    by least squares and δ is the line's zero; the median over places is returned. Contact at every
+    step of a place, none at its last, or fewer than 3 steps to fit are errors that say which
     setting to change.
     """
     depth = np.asarray(depth_mm, dtype=float)
