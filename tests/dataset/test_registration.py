@@ -411,13 +411,12 @@ def test_change_detector_sees_no_contact_in_blank_frames(mini_sim):
         assert detector.significance(sim.blank(frame_index=500 + k)).max() <= detector.threshold
 
 
-def shallow_search(sim, blanks, blur_px, delta=-0.03, centre=(120.3, 159.6)):
-    """measure_touch_search on one place of 0.01 mm steps rendered by `sim` with the camera blur
-    `blur_px` (commanded c, true depth c + δ)."""
+def shallow_search(sim, blanks, delta=-0.03, centre=(120.3, 159.6)):
+    """measure_touch_search on one place of 0.01 mm steps rendered by `sim` (commanded c, true
+    depth c + δ)."""
     from threedcal.dataset.registration import TOUCH_FIT_SPAN_MM, measure_touch_search
     from threedcal.sim.indenters import Sphere
 
-    sim.blur_sigma = blur_px
     c = np.round(np.arange(-0.1, 0.2501, 0.01), 4)
     frames = [
         sim.render(Sphere(2.0), centre, 0.0, max(d + delta, 0.0), frame_index=20 + i)
@@ -447,10 +446,11 @@ def test_touch_signal_is_the_same_through_a_sharp_and_a_blurred_camera(mini_sim)
     sim, blanks = mini_sim
     results = []
     for blur in (0.8, 6.0):
-        gel = GelSimulator(copy.deepcopy(sim.profile), seed=2)
-        gel.blur_sigma = blur
+        profile = copy.deepcopy(sim.profile)
+        profile["optics"]["blur_sigma_px"] = blur
+        gel = GelSimulator(profile, seed=2)
         blank = np.stack([gel.blank(frame_index=100 + i) for i in range(10)])
-        results.append(shallow_search(gel, blank, blur))
+        results.append(shallow_search(gel, blank))
     for result in results:
         assert result.offset_mm == pytest.approx(-0.03, abs=0.01), result
     sharp, blurred = results
