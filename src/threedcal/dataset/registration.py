@@ -25,6 +25,7 @@ import numpy as np
 from scipy import ndimage, optimize
 from tqdm import tqdm
 
+from threedcal.dataset.labels import LocalDome
 from threedcal.errors import ThreedcalError
 from threedcal.lens import RadialLens
 
@@ -722,14 +723,15 @@ class DomedContacts:
         """True when the gel's elastic constants are known: its contacts are modelled as elastic."""
         return self.material is not None
 
-    def _sag(self, x_mm, y_mm):
-        return self.kx * (x_mm - self.apex[0]) ** 2 + self.ky * (y_mm - self.apex[1]) ** 2
+    def _local_dome(self, ax: float, ay: float) -> LocalDome:
+        """The dome about an axis at (ax, ay) mm from the image centre, as the labels see it."""
+        return LocalDome(self.kx, self.ky, ax - self.apex[0], ay - self.apex[1])
 
     def _overlap(self, ax: float, ay: float, dx, dy, depth_mm: float):
         """w at (ax + dx, ay + dy) mm for a press with its axis at (ax, ay); -inf off the ball."""
         r2 = dx * dx + dy * dy
         root = np.sqrt(np.maximum(self.radius_mm**2 - r2, 0.0))
-        w = depth_mm - (self.radius_mm - root) - (self._sag(ax + dx, ay + dy) - self._sag(ax, ay))
+        w = depth_mm - (self.radius_mm - root) - self._local_dome(ax, ay).sag_mm(dx, dy)
         return np.where(r2 < self.radius_mm**2, w, -np.inf)
 
     def _axis_mm(self, axis_px) -> tuple[float, float]:
