@@ -3,9 +3,9 @@ presses: how docs/labels.md chose `model.loss` and `dataset.max_depth_over_radiu
 
 Usage (from a study's folder, after its `dataset` and `object_presses` stages):
     python docs/diagnostics/choose_on_tuning.py SCENE P NAME [--model KEY=VALUE ...]
-        [--max-depth-over-radius X]
-Trains results/SCENE/models-like output into /tmp/choose_on_tuning/SCENE_NAME/P{P}/ (reused when
-there), scores every press under both protocols (what rule `objects` does) and prints tuning.csv
+        [--max-depth-over-radius X] [--replicate R]
+Trains replicate R (default 0: its own training draw and initialisation, as rule `train`'s) into
+/tmp/choose_on_tuning/SCENE_NAME/P{P}/r{R}/ (reused when there), scores every press under both protocols (what rule `objects` does) and prints tuning.csv
 only: settings are chosen on the tuning presses, never on the reporting ones. Frames pressed
 deeper than X times R are taken out of the built training set, as the dataset stage does.
 """
@@ -54,6 +54,7 @@ def main() -> None:
     parser.add_argument("name")
     parser.add_argument("--model", nargs="*", default=[], metavar="KEY=VALUE")
     parser.add_argument("--max-depth-over-radius", type=float)
+    parser.add_argument("--replicate", type=int, default=0)
     parser.add_argument("--config", type=Path, default=Path("config.yaml"))
     args = parser.parse_args()
     config = load_config(args.config)
@@ -63,19 +64,21 @@ def main() -> None:
         scene["model"][key] = yaml.safe_load(value)
     results = Path("results") / args.scene
     out = Path("/tmp/choose_on_tuning") / f"{args.scene}_{args.name}"
-    model = out / f"P{args.p}" / "model.pt"
+    run = out / f"P{args.p}" / f"r{args.replicate}"
+    model = run / "model.pt"
     if not model.is_file():
         ts = TrainingSet.load(results / "dataset/trainset")
         if args.max_depth_over_radius is not None:
             registration = json.loads((results / "dataset/registration.json").read_text())
             offset = registration["touch_offset_mm"]
             ts = without_deep_presses(ts, args.max_depth_over_radius, offset)
-        print(f"training on {len(ts.indices('train', percent=args.p))} frames", flush=True)
+        train_frames = ts.indices("train", percent=args.p, replicate=args.replicate)
+        print(f"training on {len(train_frames)} frames", flush=True)
         began = time.perf_counter()
         settings = TrainSettings.from_scene(
             {k: scene[k] for k in ("model", "seed", "torch_threads") if k in scene}
         )
-        train(ts, model.parent, args.p, settings, progress=False)
+        train(ts, run, args.p, settings, replicate=args.replicate, progress=False)
         print(f"trained in {time.perf_counter() - began:.0f} s", flush=True)
     objects = stage_config(scene, "objects")
     torch.set_num_threads(objects["torch_threads"])
@@ -84,9 +87,9 @@ def main() -> None:
         {args.p: str(model)},
         results / "objects/pressing",
         results / "dataset/registration.json",
-        out / "objects",
+        run / "objects",
     )
-    tuning = pd.read_csv(out / "objects/tuning.csv").query("protocol == 'printer'")
+    tuning = pd.read_csv(run / "objects/tuning.csv").query("protocol == 'printer'")
     columns = ["object", "protocol", "presses", "overall_um", "type1_um", "type2_um"]
     print(tuning[columns].round(1).to_string(index=False))
     print(f"mean Type 2 over objects: {np.mean(tuning['type2_um']):.1f} um (tuning presses)")
