@@ -4,9 +4,10 @@ presses: how docs/labels.md chose `model.loss` and `dataset.max_depth_over_radiu
 Usage (from a study's folder, after its `dataset` and `object_presses` stages):
     python docs/diagnostics/choose_on_tuning.py SCENE P NAME [--model KEY=VALUE ...]
         [--max-depth-over-radius X] [--replicate R]
-Trains replicate R (default 0: its own training draw and initialisation, as rule `train`'s) into
-/tmp/choose_on_tuning/SCENE_NAME/P{P}/r{R}/ (reused when there), scores every press under both protocols (what rule `objects` does) and prints tuning.csv
-only: settings are chosen on the tuning presses, never on the reporting ones. Frames pressed
+Trains replicate R (default 0; each has its own training draw and initialisation, as in rule
+`train`) into /tmp/choose_on_tuning/SCENE_NAME/P{P}/r{R}/ (reused when there), scores every press
+under both protocols (what rule `objects` does) and prints tuning.csv only: settings are chosen on
+the tuning presses, never on the reporting ones. Frames pressed
 deeper than X times R are taken out of the built training set, as the dataset stage does.
 """
 
