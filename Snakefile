@@ -7,7 +7,6 @@ from snakemake.utils import min_version, validate
 from threedcal.config import (
     is_imported,
     model_keys,
-    training_fractions,
     validate_config,
 )
 from threedcal.provenance import script_digest

@@ -37,12 +37,6 @@ def scene_models(wildcards):
     }
 
 
-def first_replicate_models(wildcards):
-    """{"P5": "results/{scene}/models/P5/r0/model.pt", ...}: replicate 0 of every fraction."""
-    fractions = training_fractions(config["scenes"][wildcards.scene])
-    return {f"P{p}": model_file(wildcards.scene, p, 0) for p in fractions}
-
-
 def ablation_losses(wildcards):
     scene = config["scenes"][wildcards.scene]
     return [

@@ -4,7 +4,8 @@
 # those frames, scored under the `printer` protocol (ground truth where the registration and the
 # commanded Z put the object) and the paper's (`paper`: aligned and depth-fitted), Table II,
 # Figs. 3C, 5, 6. A new model reruns only the scoring. With ablation replicates, `objects` scores
-# replicate 0 of each P (models/P{p}/r0/model.pt) under both protocols.
+# every replicate of each P (models/P{p}/r{r}/model.pt) and reports the mean over presses and
+# replicates; the figures show replicate 0.
 
 
 # The presses drive the printer, attached to the machine that runs Snakemake: never submitted to a cluster.
@@ -41,7 +42,7 @@ rule object_presses:
 
 rule objects:
     input:
-        unpack(first_replicate_models),
+        unpack(scene_models),
         registration="results/{scene}/dataset/registration.json",
         frames="results/{scene}/objects/pressing/frames.npz",
         plan="results/{scene}/objects/pressing/plan.csv",
@@ -77,9 +78,7 @@ rule objects:
         scene=lambda wildcards: stage_config(
             config["scenes"][wildcards.scene], "objects"
         ),
-        fractions=lambda wildcards: training_fractions(
-            config["scenes"][wildcards.scene]
-        ),
+        models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
         code=code_digest("objects.py"),
     script:
         "../scripts/objects.py"

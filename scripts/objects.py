@@ -1,4 +1,5 @@
-"""Rule `objects`: every model's depth of the pressed test objects, scored under both protocols."""
+"""Rule `objects`: every model's depth of the pressed test objects (every P, every replicate),
+scored under both protocols."""
 
 from pathlib import Path
 
@@ -9,7 +10,9 @@ from threedcal.logs import stage_log
 
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.params.scene["torch_threads"])
-    models = {p: snakemake.input[f"P{p}"] for p in snakemake.params.fractions}
+    models = {}  # P -> its replicates' checkpoints, in replicate order
+    for p, r in sorted(snakemake.params.models):
+        models.setdefault(p, []).append(snakemake.input[f"P{p}_r{r}"])
     evaluate_objects(
         snakemake.params.scene,
         models,

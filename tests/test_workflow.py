@@ -117,7 +117,8 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     ):
         assert (tmp_path / f"results/{collected}/{leaf}").exists(), leaf
     # errors.csv: per object, P and protocol, the mean over the object's reporting presses (two
-    # pill presses here; the tuning press is in presses.csv and tuning.csv only)
+    # pill presses here; the tuning press is in presses.csv and tuning.csv only) and over the
+    # replicates' models (two here: every one scores every press)
     objects = tmp_path / f"results/{collected}/objects"
     presses = pd.read_csv(objects / "presses.csv")
     reporting = presses[presses["set"] == "reporting"]
@@ -132,6 +133,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         errors.set_index(["object", "P", "protocol"])[metrics].sort_index(), means.sort_index()
     )
     assert (errors["presses"] == 2).all() and (errors["type2_um_lo"] <= errors["type2_um"]).all()
+    assert (errors["replicates"] == 2).all() and set(reporting["replicate"]) == {0, 1}
     tuning = pd.read_csv(objects / "tuning.csv")
     assert (tuning["presses"] == 1).all()
     for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
@@ -264,11 +266,10 @@ def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_sin
     assert trains == [("balls", p, r) for p in ("20", "80") for r in ("0", "1")] + [
         ("sim", p, r) for p in ("20", "80") for r in ("0", "1", "2")
     ]
-    # objects and inference_speed read replicate 0 (of every P / of the largest P); ball_eval
-    # scores the cross-validation's fold models, never an ablation replicate
+    # objects reads every replicate of every P; inference_speed replicate 0 of the largest P;
+    # ball_eval scores the cross-validation's fold models, never an ablation replicate
     objects = blocks[("objects", "sim", None, None)]
-    assert "models/P20/r0/model.pt" in objects and "models/P80/r0/model.pt" in objects
-    assert "/r1/" not in objects and "/r2/" not in objects
+    assert all(f"models/P{p}/r{r}/model.pt" in objects for p in (20, 80) for r in range(3))
     speed = blocks[("inference_speed", "sim", None, None)]
     assert "models/P80/r0/model.pt" in speed and "/r1/" not in speed
     ball_eval = blocks[("ball_eval", "balls", None, None)]

@@ -12,7 +12,12 @@ from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import surface_height
 from threedcal.evaluate.mesh import write_stl
-from threedcal.evaluate.object_errors import evaluate_press, mean_interval, printer_press
+from threedcal.evaluate.object_errors import (
+    crossed_mean_interval,
+    evaluate_press,
+    mean_interval,
+    printer_press,
+)
 from threedcal.evaluate.objects import load_object, make_object
 from threedcal.evaluate.pressing import (
     SETS,
@@ -27,6 +32,7 @@ from threedcal.evaluate.pressing import (
     read_registration,
     relief_indenter,
     session_draws,
+    summarise,
     true_mount,
 )
 from threedcal.lens import RadialLens
@@ -253,6 +259,69 @@ def test_mean_interval_is_a_t_interval():
     assert mean == 12.0
     assert hi - mean == pytest.approx(4.302653 * 2.0 / np.sqrt(3), rel=1e-5)  # t(0.975, 2)
     assert np.isnan(mean_interval([5.0])[1]) and np.isnan(mean_interval([])[0])
+
+
+def test_crossed_interval_covers_the_mean_when_the_models_differ():
+    """Three replicate models score the same ten presses: model, press and residual effects all
+    random. The crossed interval holds its 95 % (Satterthwaite: approximately, at 2-3 degrees of
+    freedom), where a t interval over the presses' replicate means misses the model spread."""
+    rng = np.random.default_rng(1)
+    for sd_model, sd_press in ((3.0, 2.0), (0.0, 2.0)):
+        crossed = over_presses = 0
+        draws = 2000
+        for _ in range(draws):
+            cells = 10.0 + rng.normal(0, sd_model, (3, 1)) + rng.normal(0, sd_press, (1, 10))
+            cells += rng.normal(0, 1.0, (3, 10))
+            _, lo, hi = crossed_mean_interval(cells)
+            crossed += lo <= 10.0 <= hi
+            _, lo, hi = mean_interval(cells.mean(axis=0))
+            over_presses += lo <= 10.0 <= hi
+        assert 0.92 <= crossed / draws <= 0.97
+        if sd_model > 0:
+            assert over_presses / draws < 0.7
+        else:  # no model spread: the two agree
+            assert abs(over_presses - crossed) / draws < 0.03
+
+
+def test_crossed_interval_with_one_replicate_or_missing_presses():
+    one = crossed_mean_interval([[10.0, 12.0, 14.0, np.nan]])
+    assert one == mean_interval([10.0, 12.0, 14.0])
+    # a press without a value in one replicate leaves the table for every replicate
+    cells = np.array([[1.0, 2.0, np.nan], [3.0, 4.0, 9.0]])
+    mean, lo, hi = crossed_mean_interval(cells)
+    assert mean == 2.5 and lo < mean < hi
+    # 2 x 2, by hand: press means 2, 3 (MS_press 1), replicate means 1.5, 3.5 (MS_rep 4), no
+    # residual; variance (4 + 1 - 0) / 4, Satterthwaite df 25 / (16 + 1) = 25 / 17
+    from scipy import stats
+
+    half = stats.t.ppf(0.975, 25 / 17) * np.sqrt(5 / 4)
+    assert hi - mean == pytest.approx(half, rel=1e-9)
+    assert np.isnan(crossed_mean_interval([[5.0], [6.0]])[1])  # one press: no interval
+
+
+def test_summarise_pools_replicates_and_counts_presses():
+    rows = [
+        {
+            "object": "pill",
+            "press": k,
+            "P": 20,
+            "replicate": r,
+            "protocol": "printer",
+            "overall_um": 1.0,
+            "type1_um": 1.0,
+            "type2_um": 10.0 * r + k,
+            "depth_ratio": 1.0,
+        }
+        for r in range(3)
+        for k in range(4)
+    ]
+    table = summarise(pd.DataFrame(rows)).iloc[0]
+    assert (table["presses"], table["replicates"]) == (4, 3)
+    assert table["type2_um"] == pytest.approx(
+        np.mean([10.0 * r + k for r in range(3) for k in range(4)])
+    )
+    cells = np.array([[10.0 * r + k for k in range(4)] for r in range(3)])
+    assert (table["type2_um_lo"], table["type2_um_hi"]) == crossed_mean_interval(cells)[1:]
 
 
 def test_printer_frame_places_the_object_where_the_head_puts_it():

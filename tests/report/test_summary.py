@@ -30,7 +30,7 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     rows = []
     for protocol, shift in (("printer", 0.0), ("paper", -20.0)):
         for p, (overall, type1, type2) in ((80, (20.0, 5.0, 61.0)), (20, (30.0, 6.0, 90.0))):
-            row = {"object": "pill", "P": p, "protocol": protocol, "presses": 10}
+            row = {"object": "pill", "P": p, "protocol": protocol, "presses": 10, "replicates": 3}
             for metric, value in zip(
                 ("overall_um", "type1_um", "type2_um"), (overall, type1, type2 + shift), strict=True
             ):
@@ -89,6 +89,7 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     paper = "| paper | pill | 20 [16, 24] | 5 [1, 9] | 41 [37, 45] | 70 [66, 74] | 0.900 |"
     assert printer in text and paper in text and text.index(printer) < text.index(paper)
     assert "10 or more per object" in text
+    assert "the 3 replicate models of each P [95 % interval, presses and models both" in text
     assert "gradient RMSE 0.300 [0.280, 0.320] (lookup 0.370)" in text
     assert "cap depth MAE 200 [180, 221] µm (lookup 250 µm), 42 images, 6 grouped folds" in text
     assert (tmp_path / "summary.md").read_text() == text

@@ -217,9 +217,10 @@ def contrast(
     df_e = (replicates - 1) * (blocks - 1)
     ms_e = (residual**2).sum(axis=(-2, -1)) / df_e
     combined = ms_r + ms_k - ms_e
-    satterthwaite = combined**2 / (
-        ms_r**2 / (replicates - 1) + ms_k**2 / (blocks - 1) + ms_e**2 / df_e
-    )
+    with np.errstate(divide="ignore", invalid="ignore"):  # all zero: the floor's df below
+        satterthwaite = combined**2 / (
+            ms_r**2 / (replicates - 1) + ms_k**2 / (blocks - 1) + ms_e**2 / df_e
+        )
     floor = combined <= ms_e
     variance = np.where(floor, ms_e, combined)
     df = np.where(floor, float(df_e), satterthwaite)

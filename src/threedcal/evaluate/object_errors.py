@@ -230,3 +230,27 @@ def mean_interval(values, level: float = 0.95) -> tuple[float, float, float]:
         return mean, float("nan"), float("nan")
     half = float(stdtrit(x.size - 1, 0.5 + level / 2) * x.std(ddof=1) / np.sqrt(x.size))
     return mean, mean - half, mean + half
+
+
+def crossed_mean_interval(cells, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean of a (replicates, presses) table and its `level` t interval when both are random
+    draws: every replicate's model (its own subset and initialisation) scores the same presses.
+
+    The two-way random-effects grand mean of `threedcal.evaluate.ablation.contrast` (replicate +
+    press + residual, Satterthwaite's degrees of freedom): the model's spread between replicates
+    widens the interval, which a t interval over one model's presses leaves out. Presses with a NaN
+    in any replicate (no Type 2 pixel) are left out; one replicate gives `mean_interval`.
+    """
+    from scipy.special import stdtrit
+
+    from threedcal.evaluate.ablation import contrast
+
+    x = np.asarray(cells, dtype=np.float64)
+    if x.ndim == 1:
+        x = x[None, :]
+    x = x[:, np.isfinite(x).all(axis=0)]
+    if x.shape[0] == 1 or x.shape[1] < 2:
+        return mean_interval(x.mean(axis=0), level)
+    mean, se, df = (float(v) for v in contrast(x, np.zeros_like(x), 0.0))
+    half = float(stdtrit(df, 0.5 + level / 2)) * se
+    return mean, mean - half, mean + half

@@ -578,7 +578,7 @@ def read_presses(pressing_dir: str | Path) -> tuple[pd.DataFrame, np.ndarray, di
 
 def evaluate_objects(
     scene: Mapping,
-    models: Mapping[int, object],
+    models: Mapping[int, object | Sequence[object]],
     pressing_dir: str | Path,
     registration_path: str | Path,
     out_dir: str | Path,
@@ -589,12 +589,14 @@ def evaluate_objects(
 ) -> pd.DataFrame:
     """Score every model's depth of every press under both protocols; write tables and figures.
 
-    `estimator(models[p], session_blank)` gives an object with `px_per_mm`, `image_shape` and
-    `depth(frame, method=)` (a DepthEstimator by default). `plots=False` skips the figures. Every press is rendered once (by the
-    object_presses rule); the printer protocol's ground truth is rasterised once per press and
-    frame size. errors.csv: reporting presses only, per object, P and protocol, the mean with its
-    95 % t interval over presses; tuning.csv: the same over the tuning presses, under the printer
-    protocol only (the one settings are chosen on).
+    `models[p]` is one model or a list of them, one per ablation replicate (list position =
+    replicate). `estimator(model, session_blank)` gives an object with `px_per_mm`, `image_shape`
+    and `depth(frame, method=)` (a DepthEstimator by default). `plots=False` skips the figures
+    (drawn from replicate 0). Every press is rendered once (by the object_presses rule); the
+    printer protocol's ground truth is rasterised once per press and frame size. errors.csv:
+    reporting presses only, per object, P and protocol, the mean over presses and replicates with
+    its 95 % interval (`summarise`); tuning.csv: the same over the tuning presses, under the
+    printer protocol only (the one settings are chosen on).
     """
     from tqdm import tqdm
 
@@ -619,10 +621,15 @@ def evaluate_objects(
     blanks = {name: rectify_if(lens, blank) for name, blank in blanks.items()}
     true_presses = truth.get("presses") if truth.get("simulated") else None
     integrators = list(scene["integrators"])
-    fractions = sorted(models)
+    replicates = {p: list(m) if isinstance(m, (list, tuple)) else [m] for p, m in models.items()}
+    fractions = sorted(replicates)
     full = fractions[-1]
     estimators = {
-        (p, s): estimator(models[p], blanks[s]) for p in fractions for s in SETS if s in blanks
+        (p, r, s): estimator(model, blanks[s])
+        for p in fractions
+        for r, model in enumerate(replicates[p])
+        for s in SETS
+        if s in blanks
     }
     meshes: dict[str, object] = {}
     truths: dict[tuple[int, tuple], HeightMap] = {}
@@ -638,8 +645,8 @@ def evaluate_objects(
             press, placed, None if true_presses is None else true_presses[press.frame]
         )
         image_full = frames[press.frame]
-        for p in fractions:
-            est = estimators[(p, press.set)]
+        for p, r in [(q, r) for q in fractions for r in range(len(replicates[q]))]:
+            est = estimators[(p, r, press.set)]
             factor = image_full.shape[0] / est.image_shape[0]
             image = pool_to(image_full, est.image_shape)
             pose = placed.at_scale(factor)
@@ -674,6 +681,7 @@ def evaluate_objects(
                         "set": press.set,
                         "press": press.press,
                         "P": p,
+                        "replicate": r,
                         "protocol": protocol,
                         **{m: result.errors[m] for m in SUMMARY_METRICS},
                         "depth_mm": result.indentation_mm,
@@ -688,7 +696,7 @@ def evaluate_objects(
                         comparison.append({**row, "integrator": method})
                     if k == 0:
                         rows.append(row)
-                if k > 0 or press.set != "reporting" or not plots:
+                if k > 0 or r > 0 or press.set != "reporting" or not plots:
                     continue
                 label = object_label(press.object)
                 if p == full:
@@ -718,14 +726,15 @@ def evaluate_objects(
     if pill_maps:
         pill_figure(pill_maps, figures / "pill_by_P.png")
     seconds = time.perf_counter() - started
+    n_models = sum(len(v) for v in replicates.values())
     logging.getLogger("threedcal").info(
         "objects: %d presses x %d models scored under both protocols in %.1f s "
         "(%.2f s per press, %.3f s per press and model, figures included)",
         len(plan),
-        len(fractions),
+        n_models,
         seconds,
         seconds / max(len(plan), 1),
-        seconds / max(len(plan) * len(fractions), 1),
+        seconds / max(len(plan) * n_models, 1),
     )
     return errors
 
@@ -860,17 +869,28 @@ SUMMARY_METRICS = ("overall_um", "type1_um", "type2_um")
 
 
 def summarise(per_press: pd.DataFrame) -> pd.DataFrame:
-    """Per object, P and protocol: the number of presses and each metric's mean with its 95 % t
-    interval over presses (`_lo`, `_hi`), and the mean depth ratio (protocol depth / true)."""
-    from threedcal.evaluate.object_errors import PROTOCOLS, mean_interval
+    """Per object, P and protocol: the number of presses and replicate models, each metric's mean
+    over both with its 95 % interval (`_lo`, `_hi`; `crossed_mean_interval`: presses and models
+    both random, a t interval over presses when there is one replicate), and the mean depth ratio
+    (protocol depth / true)."""
+    from threedcal.evaluate.object_errors import PROTOCOLS, crossed_mean_interval
 
-    columns = ["object", "P", "protocol", "presses"]
+    if "replicate" not in per_press:
+        per_press = per_press.assign(replicate=0)
+    columns = ["object", "P", "protocol", "presses", "replicates"]
     columns += [f"{m}{s}" for m in SUMMARY_METRICS for s in ("", "_lo", "_hi")] + ["depth_ratio"]
     out = []
     for (name, p, protocol), group in per_press.groupby(["object", "P", "protocol"], sort=False):
-        row = {"object": name, "P": p, "protocol": protocol, "presses": len(group)}
+        row = {
+            "object": name,
+            "P": p,
+            "protocol": protocol,
+            "presses": group["press"].nunique(),
+            "replicates": group["replicate"].nunique(),
+        }
         for m in SUMMARY_METRICS:
-            row[m], row[f"{m}_lo"], row[f"{m}_hi"] = mean_interval(group[m])
+            cells = group.pivot(index="replicate", columns="press", values=m)
+            row[m], row[f"{m}_lo"], row[f"{m}_hi"] = crossed_mean_interval(cells.to_numpy())
         row["depth_ratio"] = float(group["depth_ratio"].mean())
         out.append(row)
     table = pd.DataFrame(out, columns=columns)

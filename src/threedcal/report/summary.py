@@ -168,9 +168,16 @@ def object_table(table: pd.DataFrame) -> list[str]:
     """objects/errors.csv as markdown: the printer protocol first, then the paper's."""
     full = int(table["P"].max())
     presses = int(table["presses"].min())
+    replicates = int(table["replicates"].min()) if "replicates" in table else 1
+    spread = (
+        f"mean over the presses and the {replicates} replicate models of each P [95 % interval, "
+        "presses and models both random]"
+        if replicates > 1
+        else "mean [95 % t interval over presses]"
+    )
     lines = [
-        f"Test objects, reporting presses ({presses} or more per object): MAE in µm, mean "
-        "[95 % t interval over presses]. `printer`: the ground truth where the printer put the "
+        f"Test objects, reporting presses ({presses} or more per object): MAE in µm, {spread}. "
+        "`printer`: the ground truth where the printer put the "
         "object (registration, commanded Z), nothing fitted; `paper`: the paper's protocol "
         "(aligned by cross-correlation, depth fitted to the prediction).",
         "",
