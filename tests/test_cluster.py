@@ -12,6 +12,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -164,15 +165,15 @@ def test_resources_suggests_memory_and_time_per_rule_from_benchmark_files(tmp_pa
     resources = _load_resources()
     header = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
     jobs = {  # (wall s, max_rss MB, cpu s)
-        "a/benchmarks/train_P20.tsv": (2000.0, 563.3, 190.2),
-        "b/benchmarks/train_P80.tsv": (945.1, 380.6, 400.0),
+        "a/benchmarks/train_P20_r0.tsv": (2000.0, 563.3, 190.2),
+        "b/benchmarks/train_P80_r2.tsv": (945.1, 380.6, 400.0),
         "benchmarks/environment.tsv": (19.4, 257.3, 2.8),
     }
     for name, (wall, rss, cpu) in jobs.items():
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text(header + f"{wall}\t0:00:00\t{rss}\t0\t0\t0\t0\t0\t1\t{cpu}\n")
     table = resources.suggest(resources.measured(tmp_path))
-    assert list(table.index) == ["train", "environment"]  # P is a wildcard: one rule, two jobs
+    assert list(table.index) == ["train", "environment"]  # P, r are wildcards: one rule, two jobs
     train = table.loc["train"]
     assert train["jobs"] == 2 and train["max_rss_mb"] == 563 and train["max_cpu_s"] == 400
     assert train["mem_mb"] == 1500  # 563.3 x 1.5 + 500 = 1345 -> next 500 MB
@@ -183,3 +184,25 @@ def test_resources_suggests_memory_and_time_per_rule_from_benchmark_files(tmp_pa
     assert by_wall.loc["train", "runtime"] == 100  # 3 x 2000 s = 100 min
     with pytest.raises(SystemExit, match="no benchmarks"):
         resources.measured(tmp_path / "a/benchmarks")
+
+
+def test_resources_names_every_wildcard_job_by_its_rule():
+    """Every `benchmark:` name of rules/*.smk with its wildcards filled maps back to its rule."""
+    resources = _load_resources()
+    jobs = {
+        "train_P20_r1": "train",
+        "cv_model_fold3": "cv_train",
+        "cv_lookup_fold0": "cv_train",
+        "cv_folds": "cv_folds",
+        "sim2real_simulate_fold2": "sim2real_simulate",
+        "sim2real_pretrain_fold0": "sim2real_pretrain",
+        "sim2real_sim_real_k8_fold1": "sim2real_train",
+        "sim2real_real_only_kall_fold0": "sim2real_train",
+        "sim2real_eval": "sim2real_eval",
+        "stats_overview": "stats_overview",
+    }
+    assert {name: resources.rule_of(Path(f"x/benchmarks/{name}.tsv")) for name in jobs} == jobs
+    declared = set()
+    for smk in (REPO / "rules").glob("*.smk"):
+        declared |= set(re.findall(r"^rule (\w+):", smk.read_text(), re.MULTILINE))
+    assert set(jobs.values()) <= declared

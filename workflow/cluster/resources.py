@@ -30,9 +30,25 @@ MEMORY_FACTOR, MEMORY_EXTRA_MB, MEMORY_STEP_MB = 1.5, 500, 500
 TIME_FACTOR, TIME_STEP_MIN, TIME_MIN_MIN = 3, 5, 10
 
 
+# A job's benchmark file is its rule's name with the job's wildcards (rules/*.smk, `benchmark:`);
+# these name the rule back, so that the jobs of one rule share one suggestion.
+_RULE_OF_JOB = (
+    (
+        re.compile(r"^train_P\d+(_r\d+)?$"),
+        "train",
+    ),  # train_P{p}_r{r} (train_P{p} before replicates)
+    (re.compile(r"^cv_[a-z]+_fold\d+$"), "cv_train"),  # cv_{method}_fold{fold}
+    (re.compile(r"^sim2real_(simulate|pretrain)_fold\d+$"), r"sim2real_\1"),
+    (re.compile(r"^sim2real_[a-z_]+_k[^_]+_fold\d+$"), "sim2real_train"),  # _{condition}_k{k}_
+)
+
+
 def rule_of(path: Path) -> str:
-    """results/x/benchmarks/train_P20.tsv -> train (one file per job; P is a wildcard)."""
-    return re.sub(r"_P\d+$", "", path.stem)
+    """results/x/benchmarks/train_P20_r1.tsv -> train: the Snakemake rule whose job wrote it."""
+    for pattern, rule in _RULE_OF_JOB:
+        if pattern.match(path.stem):
+            return pattern.sub(rule, path.stem)
+    return path.stem
 
 
 def measured(results: Path) -> pd.DataFrame:
