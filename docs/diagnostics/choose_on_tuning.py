@@ -3,12 +3,14 @@ presses: how docs/labels.md chose `model.loss` and `dataset.max_depth_over_radiu
 
 Usage (from a study's folder, after its `dataset` and `object_presses` stages):
     python docs/diagnostics/choose_on_tuning.py SCENE P NAME [--model KEY=VALUE ...]
-        [--max-depth-over-radius X] [--replicate R]
+        [--max-depth-over-radius X] [--replicate R] [--seed-of R2]
 Trains replicate R (default 0; each has its own training draw and initialisation, as in rule
 `train`) into /tmp/choose_on_tuning/SCENE_NAME/P{P}/r{R}/ (reused when there), scores every press
 under both protocols (what rule `objects` does) and prints tuning.csv only: settings are chosen on
 the tuning presses, never on the reporting ones. Frames pressed
 deeper than X times R are taken out of the built training set, as the dataset stage does.
+`--seed-of R2` trains on replicate R's subset with replicate R2's seed (initialisation, patch draws
+and order; folder r{R}_seed{R2}): which of the two moves a figure between replicates.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ def main() -> None:
     parser.add_argument("--model", nargs="*", default=[], metavar="KEY=VALUE")
     parser.add_argument("--max-depth-over-radius", type=float)
     parser.add_argument("--replicate", type=int, default=0)
+    parser.add_argument("--seed-of", type=int, help="train with this replicate's seed")
     parser.add_argument("--config", type=Path, default=Path("config.yaml"))
     args = parser.parse_args()
     config = load_config(args.config)
@@ -65,7 +68,8 @@ def main() -> None:
         scene["model"][key] = yaml.safe_load(value)
     results = Path("results") / args.scene
     out = Path("/tmp/choose_on_tuning") / f"{args.scene}_{args.name}"
-    run = out / f"P{args.p}" / f"r{args.replicate}"
+    seeded = "" if args.seed_of is None else f"_seed{args.seed_of}"
+    run = out / f"P{args.p}" / f"r{args.replicate}{seeded}"
     model = run / "model.pt"
     if not model.is_file():
         ts = TrainingSet.load(results / "dataset/trainset")
@@ -79,6 +83,11 @@ def main() -> None:
         settings = TrainSettings.from_scene(
             {k: scene[k] for k in ("model", "seed", "torch_threads") if k in scene}
         )
+        if args.seed_of is not None:  # train() seeds replicate r by splits.replicate_seed
+            from threedcal.dataset import splits
+
+            own = splits.replicate_seed
+            splits.replicate_seed = lambda seed, _r: own(seed, args.seed_of)
         train(ts, run, args.p, settings, replicate=args.replicate, progress=False)
         print(f"trained in {time.perf_counter() - began:.0f} s", flush=True)
     objects = stage_config(scene, "objects")
