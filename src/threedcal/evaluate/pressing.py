@@ -624,6 +624,7 @@ def evaluate_objects(
     replicates = {p: list(m) if isinstance(m, (list, tuple)) else [m] for p, m in models.items()}
     fractions = sorted(replicates)
     full = fractions[-1]
+    drawn = ", replicate 0" if any(len(v) > 1 for v in replicates.values()) else ""
     estimators = {
         (p, r, s): estimator(model, blanks[s])
         for p in fractions
@@ -707,7 +708,7 @@ def evaluate_objects(
                             results["printer"].gt_mm,
                             figures / f"{label}_sections.png",
                             px_per_mm=est.px_per_mm,
-                            title=f"{label}: P = {p} %, {method}, printer protocol",
+                            title=f"{label}: P = {p} %{drawn}, {method}, printer protocol",
                         )
                 if label == "pill" and press.frame == first_reporting[press.object]:
                     pill_maps[p] = depth
@@ -721,7 +722,8 @@ def evaluate_objects(
         plot_error_violins(
             pd.concat(pixel_tables),
             out_dir / "violins.png",
-            title=f"pixelwise depth errors, P = {full} %, printer protocol, reporting presses",
+            title=f"pixelwise depth errors, P = {full} %{drawn}, printer protocol, "
+            "reporting presses",
         )
     if pill_maps:
         pill_figure(pill_maps, figures / "pill_by_P.png")
