@@ -187,22 +187,29 @@ def test_resources_suggests_memory_and_time_per_rule_from_benchmark_files(tmp_pa
 
 
 def test_resources_names_every_wildcard_job_by_its_rule():
-    """Every `benchmark:` name of rules/*.smk with its wildcards filled maps back to its rule."""
+    """Every `benchmark:` file of rules/*.smk, its wildcards filled as the default study fills
+    them, maps back to the rule that declares it."""
     resources = _load_resources()
-    jobs = {
-        "train_P20_r1": "train",
-        "cv_model_fold3": "cv_train",
-        "cv_lookup_fold0": "cv_train",
-        "cv_folds": "cv_folds",
-        "sim2real_simulate_fold2": "sim2real_simulate",
-        "sim2real_pretrain_fold0": "sim2real_pretrain",
-        "sim2real_sim_real_k8_fold1": "sim2real_train",
-        "sim2real_real_only_kall_fold0": "sim2real_train",
-        "sim2real_eval": "sim2real_eval",
-        "stats_overview": "stats_overview",
+    values = {  # each wildcard's values in the default study (both sim-to-real conditions)
+        "scene": ["digit_sim"],
+        "p": ["1", "20"],
+        "r": ["0", "2"],
+        "method": ["model", "lookup"],
+        "fold": ["0", "5"],
+        "k": ["8", "all"],
+        "condition": ["sim_real", "real_only"],
     }
-    assert {name: resources.rule_of(Path(f"x/benchmarks/{name}.tsv")) for name in jobs} == jobs
-    declared = set()
+    checked = {}
     for smk in (REPO / "rules").glob("*.smk"):
-        declared |= set(re.findall(r"^rule (\w+):", smk.read_text(), re.MULTILINE))
-    assert set(jobs.values()) <= declared
+        blocks = re.split(r"^(?:local)?rule (\w+):", smk.read_text(), flags=re.MULTILINE)
+        for rule, body in zip(blocks[1::2], blocks[2::2], strict=True):
+            found = re.search(r"benchmark:\s*\n\s*\"([^\"]+)\"", body)
+            if not found:
+                continue
+            for pick in (0, -1):  # the first and the last value of every wildcard
+                name = re.sub(
+                    r"\{(\w+)\}", lambda m, pick=pick: values[m.group(1)][pick], found.group(1)
+                )
+                checked[Path(name).stem] = (resources.rule_of(Path(name)), rule)
+    assert {"train_P1_r0", "cv_lookup_fold5", "sim2real_real_only_kall_fold5"} <= set(checked)
+    assert all(got == rule for got, rule in checked.values()), checked

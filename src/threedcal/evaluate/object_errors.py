@@ -245,9 +245,7 @@ def crossed_mean_interval(cells, level: float = 0.95) -> tuple[float, float, flo
 
     from threedcal.evaluate.ablation import contrast
 
-    x = np.asarray(cells, dtype=np.float64)
-    if x.ndim == 1:
-        x = x[None, :]
+    x = np.atleast_2d(np.asarray(cells, dtype=np.float64))
     x = x[:, np.isfinite(x).all(axis=0)]
     if x.shape[0] == 1 or x.shape[1] < 2:
         return mean_interval(x.mean(axis=0), level)

@@ -877,8 +877,6 @@ def summarise(per_press: pd.DataFrame) -> pd.DataFrame:
     (protocol depth / true)."""
     from threedcal.evaluate.object_errors import PROTOCOLS, crossed_mean_interval
 
-    if "replicate" not in per_press:
-        per_press = per_press.assign(replicate=0)
     columns = ["object", "P", "protocol", "presses", "replicates"]
     columns += [f"{m}{s}" for m in SUMMARY_METRICS for s in ("", "_lo", "_hi")] + ["depth_ratio"]
     out = []
