@@ -203,6 +203,68 @@ def test_a_flat_punch_wall_is_smoothed_as_an_elastic_half_space_smooths_it():
     assert abs(float(np.sum(p * np.where(np.isfinite(gap), gap, 0)))) < tol * p.sum()
 
 
+# ----------------------------------------------------------------- a skin under tension
+def test_a_skin_on_a_thin_layer_is_a_membrane_on_a_winkler_foundation():
+    # a membrane of tension T on a foundation of stiffness M / h answers a point force F with
+    # u(r) = F / (2 pi T) K0(r / l), l = sqrt(T h / M)
+    from scipy.special import k0
+
+    nu, h, T, s = 0.3, 0.01, 1.0, 0.005
+    material = GelMaterial(1.0, nu, h, T)
+    m = 1.0 * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+    ell = math.sqrt(T * h / m)
+    kernel = LayerKernel(material, s)
+    table = kernel.influence(240, 240) / s**2  # per unit force
+    lags = np.array([4, 8, 16, 24, 32, 48])
+    r = lags * s
+    expected = k0(r / ell) / (2 * math.pi * T)
+    np.testing.assert_allclose(table[0, lags], expected, rtol=0.03)
+    np.testing.assert_allclose(kernel.point(r), expected, rtol=0.03)
+
+
+def test_a_skin_adds_its_tension_times_the_laplacian_to_the_layers_pressure():
+    # u = K_T p  <=>  u = K (p + T lap(u)): the layer carries what the skin does not
+    s, T = 0.1, 0.5
+    bare = LayerKernel(GelMaterial(0.5, 0.5, 1.0), s)
+    skin = LayerKernel(GelMaterial(0.5, 0.5, 1.0, T), s)
+    X, Y = square_grid(100, s)
+    p = np.exp(-(X**2 + Y**2) / (2 * 0.4**2))
+    u = skin.convolve(p)
+    lap = np.zeros_like(u)
+    lap[1:-1, 1:-1] = (
+        u[2:, 1:-1] + u[:-2, 1:-1] + u[1:-1, 2:] + u[1:-1, :-2] - 4 * u[1:-1, 1:-1]
+    ) / s**2
+    inner = (slice(50, 151), slice(50, 151))
+    back = bare.convolve(p + T * lap)
+    np.testing.assert_allclose(back[inner], u[inner], atol=1e-6 * np.abs(u).max())
+
+
+def test_a_skin_shrinks_the_contact_and_spreads_the_dent():
+    R, d, s = 2.35, 0.6, 0.1
+    X, Y = square_grid(60, s)
+    w = d - (X**2 + Y**2) / (2 * R)
+    radii, far = [], []
+    for T in (0.0, 0.5, 2.0):
+        res = solve_contact(LayerKernel(GelMaterial(0.435, 0.5, 4.0, T), s), w, tol=1e-5)
+        assert res.converged
+        radii.append(contact_radius(res, s))
+        far.append(res.displacement[60, 60 + 40] / d)  # 4 mm from the axis, past every contact
+    assert radii[0] > radii[1] > radii[2]
+    assert far[0] < far[1] < far[2]
+
+
+def test_a_skin_needs_a_layer_and_a_tension_of_at_least_zero():
+    for bad in (
+        lambda: GelMaterial(1.0, 0.5, math.inf, 1.0),
+        lambda: GelMaterial(1.0, 0.5, 4.0, -1),
+    ):
+        with pytest.raises(ConfigError, match="skin_tension"):
+            bad()
+    gel = {"youngs_modulus_mpa": 0.4, "poisson_ratio": 0.5, "thickness_mm": 4.0}
+    assert GelMaterial.from_profile(gel).skin_tension_n_per_mm == 0.0
+    assert GelMaterial.from_profile({**gel, "skin_tension_n_per_mm": 2}).skin_tension_n_per_mm == 2
+
+
 def test_solver_edge_cases():
     k = LayerKernel(GelMaterial(0.5, 0.5, 4.0), 0.1)
     # no contact: nothing below the undeformed surface, or no surface at all

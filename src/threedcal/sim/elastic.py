@@ -21,6 +21,19 @@ a Winkler foundation of constrained modulus M = E (1 - nu) / ((1 + nu)(1 - 2nu))
 limit u = h^3 k^2 p / (3 mu) (pressure-driven flow in the layer, shear-free surface; the theory of
 Chadwick, SIAM J. Appl. Math. 62, 1520, 2002).
 
+A skin under tension. The gel's painted surface spreads a dent further than the bare layer does (real
+contacts shade the gel well past their rim: docs/simulator.md). It is modelled as a membrane of tension
+T (N/mm) on the layer: the pressure the layer carries is the applied pressure plus T times the surface's
+Laplacian, so
+
+    C_T(k) = C(k) / (1 + T k^2 C(k)).
+
+On the node lattice k^2 is the 5-point Laplacian's symbol and C(k) the bare element table's DFT; the
+skin's table is the inverse DFT of C_T on a periodic lattice wide enough (8 thicknesses past the
+largest lag, or 8 of a thin layer's membrane lengths where longer) that the images of a lag add
+nothing. T = 0 leaves the bare layer. With a skin the shape
+at a given depth depends on T / (E* h), not on the depth alone.
+
 Real-space kernel. Radially, the displacement per unit point force is
 
     G(r) = 1 / (pi E*) * [1 / r + g(r / h) / h],     g(rho) = int_0^inf (S(t) - 1) J0(rho t) dt,
@@ -61,15 +74,18 @@ _RHO_STEP = 0.01  # table spacing of g(rho), in layer thicknesses
 _RHO_MAX = 30.0
 _SPECTRA = 24  # cached kernel spectra per kernel (one per FFT shape)
 _SPARSE_UPDATES = 24  # up to this many nodes set apart from a CG step: direct sums, not an FFT
+_SKIN_REACH = 8.0  # the skin's periodic lattice runs this many thicknesses past the largest lag
 
 
 @dataclass(frozen=True)
 class GelMaterial:
-    """The gel's elastic constants: E (MPa), nu, thickness (mm; math.inf for a half-space)."""
+    """The gel's elastic constants: E (MPa), nu, thickness (mm; math.inf for a half-space) and the
+    tension of its surface skin (N/mm; 0 for a bare layer)."""
 
     youngs_modulus_mpa: float
     poisson_ratio: float
     thickness_mm: float = math.inf
+    skin_tension_n_per_mm: float = 0.0
 
     def __post_init__(self):
         if not (math.isfinite(self.youngs_modulus_mpa) and self.youngs_modulus_mpa > 0):
@@ -80,10 +96,17 @@ class GelMaterial:
             raise ConfigError(f"gel poisson_ratio must be in [0, 0.5], got {self.poisson_ratio!r}")
         if not (self.thickness_mm > 0):  # inf allowed
             raise ConfigError(f"gel thickness_mm must be > 0, got {self.thickness_mm!r}")
+        t = self.skin_tension_n_per_mm
+        if not (math.isfinite(t) and t >= 0):
+            raise ConfigError(f"gel skin_tension_n_per_mm must be >= 0, got {t!r}")
+        if t > 0 and math.isinf(self.thickness_mm):
+            # the skin's table is built on a periodic lattice: a half-space's 1/r tail never dies out
+            raise ConfigError("gel skin_tension_n_per_mm needs a finite thickness_mm (a layer)")
 
     @classmethod
     def from_profile(cls, gel: Mapping) -> GelMaterial:
-        """From a sensor profile's `gel` section (youngs_modulus_mpa, poisson_ratio, thickness_mm)."""
+        """From a sensor profile's `gel` section (youngs_modulus_mpa, poisson_ratio, thickness_mm,
+        skin_tension_n_per_mm: 0 when absent)."""
         missing = [k for k in ("youngs_modulus_mpa", "poisson_ratio") if k not in gel]
         if missing:
             raise ConfigError(
@@ -93,6 +116,7 @@ class GelMaterial:
             float(gel["youngs_modulus_mpa"]),
             float(gel["poisson_ratio"]),
             float(gel["thickness_mm"]),
+            float(gel.get("skin_tension_n_per_mm", 0.0)),
         )
 
     @property
@@ -187,12 +211,18 @@ class LayerKernel:
         self.material = material
         self.spacing_mm = float(spacing_mm)
         self._influence = np.zeros((0, 0))
+        self._row: np.ndarray | None = None
         self._spectra: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
 
     def point(self, r_mm) -> np.ndarray:
-        """G(r): displacement (mm) at distance r from a unit point force (N)."""
+        """G(r): displacement (mm) at distance r from a unit point force (N). With a skin: the
+        lattice's own response along a row (table / s^2, linear between nodes; 0 past the table)."""
         r = np.asarray(r_mm, dtype=np.float64)
         m = self.material
+        if m.skin_tension_n_per_mm > 0:
+            row = self._skin_row()
+            lags = np.arange(row.size) * self.spacing_mm
+            return np.interp(r, lags, row, right=0.0) / self.spacing_mm**2
         with np.errstate(divide="ignore"):
             out = 1.0 / r
         if not math.isinf(m.thickness_mm):
@@ -228,9 +258,46 @@ class LayerKernel:
         have = self._influence.shape
         if have[0] < ny or have[1] < nx:
             my, mx = max(ny, have[0]), max(nx, have[1])
-            iy, ix = np.mgrid[0:my, 0:mx].astype(np.float64)
-            self._influence = self._element(ix, iy)
+            if self.material.skin_tension_n_per_mm > 0:
+                self._influence = self._with_skin(max(my, mx))[:my, :mx]
+            else:
+                iy, ix = np.mgrid[0:my, 0:mx].astype(np.float64)
+                self._influence = self._element(ix, iy)
         return self._influence[:ny, :nx]
+
+    def _with_skin(self, lags: int) -> np.ndarray:
+        """The skin's table for lags 0..lags-1 on both axes (module docstring)."""
+        s, m = self.spacing_mm, self.material
+        n = sfft.next_fast_len(lags + math.ceil(_SKIN_REACH * self._skin_length() / s))
+        offset = np.abs(np.fft.fftfreq(n) * n)  # wrap-around order: lag |i|
+        bare = sfft.rfft2(self._element(offset[None, :], offset[:, None]))
+        ky = 2 * np.pi * np.fft.fftfreq(n, d=s)
+        kx = 2 * np.pi * np.fft.rfftfreq(n, d=s)
+        lap = (4 / s**2) * (np.sin(ky[:, None] * s / 2) ** 2 + np.sin(kx[None, :] * s / 2) ** 2)
+        table = sfft.irfft2(bare / (1 + m.skin_tension_n_per_mm * lap * bare), s=(n, n))
+        return table[:lags, :lags]
+
+    def _skin_length(self) -> float:
+        """How far (mm) a dent of the skin reaches, at least: the thickness, or a thin layer's own
+        length where longer (a membrane on a compressible layer's Winkler foundation, sqrt(T h / M),
+        or on an incompressible layer's lubrication flow, (T h^3 / (3 mu))^(1/4))."""
+        m, t = self.material, self.material.skin_tension_n_per_mm
+        h, nu = m.thickness_mm, m.poisson_ratio
+        out = max(h, (t * h**3 / (3 * m.shear_modulus)) ** 0.25)
+        if nu < 0.5:
+            constrained = m.youngs_modulus_mpa * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+            out = max(out, math.sqrt(t * h / constrained))
+        return out
+
+    def _skin_row(self) -> np.ndarray:
+        """The skin's table along a row out to _SKIN_REACH skin lengths, cached."""
+        if self._row is None:
+            lags = math.ceil(_SKIN_REACH * self._skin_length() / self.spacing_mm)
+            if self._influence.shape[1] >= lags:
+                self._row = self._influence[0, :lags].copy()
+            else:
+                self._row = self._with_skin(lags)[0].copy()
+        return self._row
 
     def spectrum(self, shape: tuple[int, int], single: bool = False) -> np.ndarray:
         """rfft2 of the lag table in wrap-around order for a circular convolution of `shape`.
