@@ -74,7 +74,7 @@ _RHO_STEP = 0.01  # table spacing of g(rho), in layer thicknesses
 _RHO_MAX = 30.0
 _SPECTRA = 24  # cached kernel spectra per kernel (one per FFT shape)
 _SPARSE_UPDATES = 24  # up to this many nodes set apart from a CG step: direct sums, not an FFT
-_SKIN_REACH = 8.0  # the skin's periodic lattice runs this many thicknesses past the largest lag
+_SKIN_REACH = 8.0  # a thin layer's skin table reaches at least this many membrane lengths
 
 
 @dataclass(frozen=True)
@@ -211,23 +211,25 @@ class LayerKernel:
         self.material = material
         self.spacing_mm = float(spacing_mm)
         self._influence = np.zeros((0, 0))
-        self._row: np.ndarray | None = None
+        self._skin: np.ndarray | None = None
         self._spectra: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
 
     def point(self, r_mm) -> np.ndarray:
-        """G(r): displacement (mm) at distance r from a unit point force (N). With a skin: the
-        lattice's own response along a row (table / s^2, linear between nodes; 0 past the table)."""
+        """G(r): displacement (mm) at distance r from a unit point force (N). With a skin: within the
+        skin's table, the lattice's own response along a row (table / s^2, linear between nodes)."""
         r = np.asarray(r_mm, dtype=np.float64)
         m = self.material
-        if m.skin_tension_n_per_mm > 0:
-            row = self._skin_row()
-            lags = np.arange(row.size) * self.spacing_mm
-            return np.interp(r, lags, row, right=0.0) / self.spacing_mm**2
         with np.errstate(divide="ignore"):
             out = 1.0 / r
         if not math.isinf(m.thickness_mm):
             out = out + self._g(r / m.thickness_mm) / m.thickness_mm
-        return out / (math.pi * m.plane_strain_modulus)
+        out = out / (math.pi * m.plane_strain_modulus)
+        if m.skin_tension_n_per_mm > 0:
+            row = self._skin_table()[0]
+            lags = np.arange(row.size) * self.spacing_mm
+            near = r < lags[-1]
+            out = np.where(near, np.interp(r, lags, row) / self.spacing_mm**2, out)
+        return out
 
     def _g(self, rho: np.ndarray) -> np.ndarray:
         table = _layer_correction_table(self.material.poisson_ratio)
@@ -254,50 +256,33 @@ class LayerKernel:
         return out / (math.pi * m.plane_strain_modulus)
 
     def influence(self, ny: int, nx: int) -> np.ndarray:
-        """Table K[dy, dx] for lags 0..ny-1, 0..nx-1 (symmetric in the sign of each lag)."""
+        """Table K[dy, dx] for lags 0..ny-1, 0..nx-1 (symmetric in the sign of each lag). With a
+        skin, lags within its table come from it and the rest (where the skin no longer acts) from
+        the bare layer: the same values whatever size was asked for first."""
         have = self._influence.shape
         if have[0] < ny or have[1] < nx:
             my, mx = max(ny, have[0]), max(nx, have[1])
+            iy, ix = np.mgrid[0:my, 0:mx].astype(np.float64)
+            table = self._element(ix, iy)
             if self.material.skin_tension_n_per_mm > 0:
-                self._influence = self._with_skin(max(my, mx))[:my, :mx]
-            else:
-                iy, ix = np.mgrid[0:my, 0:mx].astype(np.float64)
-                self._influence = self._element(ix, iy)
+                skin = self._skin_table()
+                ky, kx = min(my, skin.shape[0]), min(mx, skin.shape[1])
+                table[:ky, :kx] = skin[:ky, :kx]
+            self._influence = table
         return self._influence[:ny, :nx]
 
-    def _with_skin(self, lags: int) -> np.ndarray:
-        """The skin's table for lags 0..lags-1 on both axes (module docstring)."""
-        s, m = self.spacing_mm, self.material
-        n = sfft.next_fast_len(lags + math.ceil(_SKIN_REACH * self._skin_length() / s))
-        offset = np.abs(np.fft.fftfreq(n) * n)  # wrap-around order: lag |i|
-        bare = sfft.rfft2(self._element(offset[None, :], offset[:, None]))
-        ky = 2 * np.pi * np.fft.fftfreq(n, d=s)
-        kx = 2 * np.pi * np.fft.rfftfreq(n, d=s)
-        lap = (4 / s**2) * (np.sin(ky[:, None] * s / 2) ** 2 + np.sin(kx[None, :] * s / 2) ** 2)
-        table = sfft.irfft2(bare / (1 + m.skin_tension_n_per_mm * lap * bare), s=(n, n))
-        return table[:lags, :lags]
-
-    def _skin_length(self) -> float:
-        """How far (mm) a dent of the skin reaches, at least: the thickness, or a thin layer's own
-        length where longer (a membrane on a compressible layer's Winkler foundation, sqrt(T h / M),
-        or on an incompressible layer's lubrication flow, (T h^3 / (3 mu))^(1/4))."""
-        m, t = self.material, self.material.skin_tension_n_per_mm
-        h, nu = m.thickness_mm, m.poisson_ratio
-        out = max(h, (t * h**3 / (3 * m.shear_modulus)) ** 0.25)
-        if nu < 0.5:
-            constrained = m.youngs_modulus_mpa * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
-            out = max(out, math.sqrt(t * h / constrained))
-        return out
-
-    def _skin_row(self) -> np.ndarray:
-        """The skin's table along a row out to _SKIN_REACH skin lengths, cached."""
-        if self._row is None:
-            lags = math.ceil(_SKIN_REACH * self._skin_length() / self.spacing_mm)
-            if self._influence.shape[1] >= lags:
-                self._row = self._influence[0, :lags].copy()
-            else:
-                self._row = self._with_skin(lags)[0].copy()
-        return self._row
+    def _skin_table(self) -> np.ndarray:
+        """The skin's table (module docstring), shared by every kernel of the same gel and lattice."""
+        if self._skin is None:
+            m = self.material
+            self._skin = _skin_table(
+                m.youngs_modulus_mpa,
+                m.poisson_ratio,
+                m.thickness_mm,
+                m.skin_tension_n_per_mm,
+                self.spacing_mm,
+            )
+        return self._skin
 
     def spectrum(self, shape: tuple[int, int], single: bool = False) -> np.ndarray:
         """rfft2 of the lag table in wrap-around order for a circular convolution of `shape`.
@@ -335,6 +320,46 @@ class LayerKernel:
         padded = np.zeros(fft_shape, np.float32 if single else np.float64)
         padded[:ny, :nx] = pressure
         return sfft.irfft2(sfft.rfft2(padded) * spec, s=fft_shape)[:ny, :nx]
+
+
+def _skin_length(material: GelMaterial) -> float:
+    """How far (mm) a dent of the skin reaches, at least: the thickness, or a thin layer's own
+    length where longer (a membrane on a compressible layer's Winkler foundation, sqrt(T h / M),
+    or on an incompressible layer's lubrication flow, (T h^3 / (3 mu))^(1/4))."""
+    m, t = material, material.skin_tension_n_per_mm
+    h, nu = m.thickness_mm, m.poisson_ratio
+    out = max(h, (t * h**3 / (3 * m.shear_modulus)) ** 0.25)
+    if nu < 0.5:
+        constrained = m.youngs_modulus_mpa * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+        out = max(out, math.sqrt(t * h / constrained))
+    return out
+
+
+@lru_cache(maxsize=8)
+def _skin_table(e: float, nu: float, h: float, t: float, s: float) -> np.ndarray:
+    """The skin's table for lags out to the bare layer's own reach (_RHO_MAX thicknesses, where its
+    G is 0) or _SKIN_REACH skin lengths, whichever is longer, on both axes: the inverse DFT of C_T
+    on a periodic lattice twice that wide. One fixed size, so every request reads the same values."""
+    material = GelMaterial(e, nu, h, t)
+    bare_kernel = LayerKernel(GelMaterial(e, nu, h), s)
+    lags = math.ceil(max(_RHO_MAX * h, _SKIN_REACH * _skin_length(material)) / s)
+    n = sfft.next_fast_len(2 * lags)
+    # the bare table in wrap-around order (lag |i|), evaluated on one quadrant and mirrored
+    half = np.arange(n // 2 + 1, dtype=np.float64)
+    quadrant = bare_kernel._element(half[None, :], half[:, None])
+    fold = np.minimum(np.arange(n), n - np.arange(n))
+    bare = sfft.rfft2(quadrant[np.ix_(fold, fold)])
+    ky = 2 * np.pi * np.fft.fftfreq(n, d=s)
+    kx = 2 * np.pi * np.fft.rfftfreq(n, d=s)
+    lap = (4 / s**2) * (np.sin(ky[:, None] * s / 2) ** 2 + np.sin(kx[None, :] * s / 2) ** 2)
+    table = sfft.irfft2(bare / (1 + t * lap * bare), s=(n, n))
+    return _readonly_table(table[:lags, :lags])
+
+
+def _readonly_table(table: np.ndarray) -> np.ndarray:
+    out = np.ascontiguousarray(table)
+    out.setflags(write=False)
+    return out
 
 
 def _mirrored(table: np.ndarray) -> np.ndarray:
