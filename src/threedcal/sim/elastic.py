@@ -29,10 +29,11 @@ Laplacian, so
     C_T(k) = C(k) / (1 + T k^2 C(k)).
 
 On the node lattice k^2 is the 5-point Laplacian's symbol and C(k) the bare element table's DFT; the
-skin's table is the inverse DFT of C_T on a periodic lattice wide enough (8 thicknesses past the
-largest lag, or 8 of a thin layer's membrane lengths where longer) that the images of a lag add
-nothing. T = 0 leaves the bare layer. With a skin the shape
-at a given depth depends on T / (E* h), not on the depth alone.
+skin's table is the inverse DFT of C_T on a periodic lattice, built once per gel and lattice for lags
+out to the bare layer's own reach (_RHO_MAX thicknesses, where its G is 0; further where a thin
+layer's membrane reaches further) on a lattice twice that wide: a lag's images add nothing, and every
+solve reads the same values whatever was solved before. T = 0 leaves the bare layer. With a skin the
+shape at a given depth depends on T / (E* h), not on the depth alone.
 
 Real-space kernel. Radially, the displacement per unit point force is
 
