@@ -1,4 +1,4 @@
-"""How gelsight_mini.yaml's gel.skin_tension_n_per_mm was chosen: on the fitting half only.
+"""How a skin tension for the Mini (gel.skin_tension_n_per_mm) is chosen: on the fitting half only.
 
 Usage: python docs/diagnostics/skin_tension.py [REAL_FOLDER] [SENSOR] [--split-seed S] [--tensions T ...]
        python docs/diagnostics/skin_tension.py --speed [--tensions T ...]
