@@ -110,7 +110,7 @@ def measure(sensor: str, seed: int, folder: Path) -> None:
         "k1+k2, centre fixed": variant(xy, relocated, shape, False, True),
         "k1+k2": variant(xy, relocated, shape, True, True),
         "the stage, first pass (k1)": fit_lensed(xy, first, shape, kappa2=False),
-        "the stage (relocated, k1+k2)": reg.fit,
+        "the stage (relocated, k1)": reg.fit,
     }
     print(
         f"{sensor}, seed {seed}: {int(np.isfinite(relocated).all(axis=1).sum())} contacts "

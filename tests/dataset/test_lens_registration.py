@@ -110,30 +110,16 @@ def test_shallow_registration_presses_register_the_digit_within_0_3_px(tmp_path)
     assert record["error_px"] <= 0.3, record
 
 
-def test_on_the_elastic_mini_symmetric_centres_started_from_the_lattice_register_within_0_3_px(
-    tmp_path, monkeypatch
-):
-    """An elastic gel's shading halo reaches past the rim, whose centres lie 2-3 px off near the
-    frame's edges; the symmetric fit started there settles in a second minimum of its cost (1.0 px
-    over the view on this seed). Started where the first pass's affine and lens place each press,
-    it stays in the true one (0.04 px)."""
-    from threedcal.dataset import registration
-
+def test_the_elastic_mini_with_its_skin_registers_within_0_3_px_with_k1_alone(tmp_path):
+    """The skin's shading halo reaches far past the rim, and the symmetric centres' small radial
+    bias grows toward the frame's edges. A free κ₂ took that bias up and bent it into the outer
+    band where no contact lies (registration presses alone, seeds 11-14: 0.17-0.57 px over the
+    view, up to 3.8 px); κ₁ alone extrapolates it mildly (docs/registration.md, The lens)."""
     plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("gelsight_mini"), plan, 11)
-    assert record["locator"] == "symmetry" and record["symmetry_start"] == "fit", record
+    assert record["locator"] == "symmetry" and record["contacts_used"] >= 100, record
+    assert record["lens"]["kappa2_per_px4"] == 0.0
     assert record["error_px"] <= 0.3, record
-    # the same store, each symmetric fit started at its rim centre alone: the second minimum
-    monkeypatch.setattr(
-        registration, "_symmetry_from_fit", lambda *a: registration.SymmetryRefinement([], None)
-    )
-    scene = bench_scene(elastic_gel("gelsight_mini"), plan, 11)
-    paths = [tmp_path / f"rim_{n}" for n in ("ts", "splits.csv", "reg.json", "reg.png")]
-    rim_start = build_collected(
-        scene, tmp_path / "raw.zarr", *paths, tmp_path / "truth.json", progress=False
-    )
-    assert rim_start["symmetry_start"] == "rim"
-    assert rim_start["error_px"] > 0.3, rim_start
 
 
 def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_within_0_3_px(

@@ -612,7 +612,7 @@ def fit_affine(
     return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers)
 
 
-# Fewest contacts to fit the lens's four extra unknowns (principal point, κ₁, κ₂) next to the affine;
+# Fewest contacts to fit the lens's extra unknowns (principal point, κ₁) next to the affine;
 # `register` falls back to the affine alone below it (a small trial plan), with a warning.
 MIN_LENS_CONTACTS = 30
 
@@ -623,7 +623,7 @@ def fit_lensed(
     shape: tuple[int, int],
     reject_sigma: float = 4.0,
     max_rounds: int = 10,
-    kappa2: bool = True,
+    kappa2: bool = False,
 ) -> AffineFit:
     """Affine mm → ideal px and the lens's radial distortion (principal point, κ₁ and with
     `kappa2` κ₂) together, by Levenberg–Marquardt from the plain affine, with the same outlier
@@ -632,8 +632,9 @@ def fit_lensed(
     `shape` (H, W) of the frames: the principal point starts at their centre, κ is solved in
     units of the half-diagonal (well scaled); the returned lens is in pixels. Contacts lie whole
     inside the frame, so none is found in its outer band (a contact radius and a margin wide):
-    the fit extrapolates there, and a free κ₂ can extrapolate wildly (`register` fits κ₁ alone
-    on its first pass, which only rectifies the inner frame; docs/registration.md, The lens)."""
+    the fit extrapolates there. A free κ₂ takes up the locator's own radial bias, which grows
+    toward the edges, and bends it into that band by pixels: `register` fits κ₁ alone
+    (docs/registration.md, The lens)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     height, width = shape
     centre0 = np.array([(width - 1) / 2, (height - 1) / 2])
@@ -851,13 +852,11 @@ def register(
     A lens bends each contact, so its located centre is not where the lens images the press's
     axis (on the DIGIT's lens a contact 70 px across is off by up to 0.4 px near the frame's edge).
     With `lens`, a first fit (principal point and κ₁) rectifies the frames; the contacts are
-    located again there, where they are round, mapped back through it, and the lens (now with κ₂)
-    refitted to them (docs/registration.md, The lens).
+    located again there, where they are round, mapped back through it, and the lens refitted to
+    them (docs/registration.md, The lens).
     """
     shape = np.shape(blank)[:2] if lens else None
-    located = _locate_and_fit(
-        xy_mm, frames, blank, accept, flat_gel, progress, shape, kappa2=False, dome=dome
-    )
+    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, dome=dome)
     if not lens:
         return located
     first = located.fit.lens
@@ -877,9 +876,7 @@ def register(
     return again
 
 
-def _locate_and_fit(
-    xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None, kappa2=True, dome=None
-):
+def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None, dome=None):
     """One pass of `register`. `back`: the frames were rectified through this lens; the contacts
     are mapped back through it to camera pixels before the fit."""
 
@@ -905,7 +902,7 @@ def _locate_and_fit(
 
     unmixing = None
     contacts = unbent(on_axis(rim, "area"))
-    candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))}
+    candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, shape))}
     symmetry_start = None
     # the symmetric centre of a contact on a dome: where an elastic layer's pressure is centred
     by_symmetry = flat_gel if dome is None else dome.elastic
@@ -915,14 +912,14 @@ def _locate_and_fit(
         symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]
         if sum(c is not None for c in symmetric) >= 3:
             contacts = unbent(on_axis(symmetric, "pressure"))
-            candidates["symmetry"] = (contacts, _fit_contacts(xy_mm, contacts, shape, kappa2))
+            candidates["symmetry"] = (contacts, _fit_contacts(xy_mm, contacts, shape))
             symmetry_start = "rim"
             again = _symmetry_from_fit(
                 xy_mm, frames, blank, rim, candidates["symmetry"][1], accept, back, progress, dome
             )
             if sum(c is not None for c in again.contacts) >= 3:
                 contacts = unbent(on_axis(again.contacts, "pressure"))
-                fit = _fit_contacts(xy_mm, contacts, shape, kappa2)
+                fit = _fit_contacts(xy_mm, contacts, shape)
                 if fit.residual_px < candidates["symmetry"][1].residual_px:
                     candidates["symmetry"] = (contacts, fit)
                     unmixing, symmetry_start = again.unmixing, "fit"
@@ -966,9 +963,7 @@ def _symmetry_from_fit(
     )
 
 
-def _fit_contacts(
-    xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None, kappa2: bool = True
-) -> AffineFit:
+def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None) -> AffineFit:
     """fit_affine (or, given the frames' `lens_shape`, fit_lensed) over all frames; a frame without
     a contact is a non-finite point, never an inlier."""
     xy_px = np.array([(c.x_px, c.y_px) if c is not None else (np.nan, np.nan) for c in contacts])
@@ -976,7 +971,7 @@ def _fit_contacts(
     if lens_shape is not None:
         try:
             if found >= MIN_LENS_CONTACTS:
-                return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape, kappa2=kappa2)
+                return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape)
         except RegistrationError:  # outliers left too few: as too few found
             pass
         logging.getLogger(__name__).warning(
