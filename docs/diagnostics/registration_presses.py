@@ -10,7 +10,8 @@ Registration presses). Usage (about a minute per run on 2 cores):
     .venv/bin/python docs/diagnostics/registration_presses.py [--elastic] digit 11 0.4 1.0 [...]
 
 arguments in fours: sensor, seed, depth_mm, spacing_mm. `--elastic`: the bench simulates the gel as
-an elastic layer (`bench.gel_mechanics: elastic`; docs/simulator.md, Gel mechanics).
+an elastic layer (`bench.gel_mechanics: elastic`; docs/simulator.md, Gel mechanics). `--kappa2`: the
+stage's lens fit frees κ₂ too (as before the stage kept κ₁ alone; docs/registration.md, The lens).
 
 Each run also prints the rim locator's own error (camera frames, whole contacts) against where the
 camera truly images each press's axis and, on a domed gel, what is left of it once the patch's
@@ -164,7 +165,19 @@ def locator_bias(store, truth: BenchTruth, radius_mm: float) -> str:
 def main() -> None:
     args = sys.argv[1:]
     elastic = "--elastic" in args
-    args = [a for a in args if a != "--elastic"]
+    if "--kappa2" in args:  # as the stage was: κ₁ on the first pass, κ₁ + κ₂ on the relocated one
+        from threedcal.dataset import registration
+
+        plain_fit, plain_pass = registration.fit_lensed, registration._locate_and_fit
+        relocated = [False]
+
+        def one_pass(*a, **k):
+            relocated[0] = k.get("back") is not None
+            return plain_pass(*a, **k)
+
+        registration._locate_and_fit = one_pass
+        registration.fit_lensed = lambda *a, **k: plain_fit(*a, **{**k, "kappa2": relocated[0]})
+    args = [a for a in args if a not in ("--elastic", "--kappa2")]
     if not args or len(args) % 4:
         raise SystemExit(__doc__)
     for i in range(0, len(args), 4):
