@@ -43,6 +43,40 @@ def test_fit_lensed_recovers_an_exact_lens_and_affine_that_an_affine_cannot():
     assert fit_affine(xy, camera).residual_px > 0.5  # the lens is not an affine
 
 
+def test_a_free_k2_fits_a_locators_edge_bias_and_bends_it_into_the_band_without_contacts():
+    """Why the stage fits κ₁ alone: contacts lie 45 px or more inside the frame, located with a
+    radial bias that grows toward the edges (0.2 px at the outermost contact, as the skin's halo
+    gives the symmetric centres). κ₂ follows that bias more closely at the contacts (a smaller
+    residual) and carries it on into the outer band: over the whole frame it is far off where κ₁
+    alone stays within a few tenths of a pixel."""
+    lens = RadialLens(centre_px=(161.7, 118.2), kappa1=-7e-7, shape=SHAPE)
+    affine = np.array([[15.6, 0.4, -1700.0], [0.5, -15.7, 1990.0]])
+
+    def camera(xy):
+        return lens.distort(xy @ affine[:, :2].T + affine[:, 2])
+
+    gx, gy = np.meshgrid(np.arange(100.0, 125.0), np.arange(100.0, 125.0))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    px = camera(xy)
+    inside = (px >= 45).all(axis=1) & (px[:, 0] <= SHAPE[1] - 46) & (px[:, 1] <= SHAPE[0] - 46)
+    xy, px = xy[inside], px[inside]
+    outward = px - np.array(lens.centre_px)
+    reach = np.hypot(*outward.T)
+    located = px + 0.2 * outward / reach[:, None] * (reach / reach.max())[:, None] ** 8
+    fx, fy = np.meshgrid(np.arange(96.0, 130.0, 0.25), np.arange(96.0, 130.0, 0.25))
+    frame_xy = np.column_stack([fx.ravel(), fy.ravel()])
+    truth = camera(frame_xy)
+    view = (truth >= 0).all(axis=1) & (truth[:, 0] <= SHAPE[1] - 1) & (truth[:, 1] <= SHAPE[0] - 1)
+    fits = {k2: fit_lensed(xy, located, SHAPE, kappa2=k2) for k2 in (False, True)}
+    error = {
+        k2: np.linalg.norm(fit.apply(frame_xy[view]) - truth[view], axis=1)
+        for k2, fit in fits.items()
+    }
+    assert fits[True].residual_px < fits[False].residual_px
+    assert error[False].max() < 0.6 and np.sqrt(np.mean(error[False] ** 2)) < 0.15
+    assert error[True].max() > 3 * error[False].max()
+
+
 def test_lensed_gel_images_a_press_where_the_lens_puts_it_and_darkens_the_corners():
     digit = load_profile("sensor", "digit")
     lens = RadialLens(centre_px=(121.0, 157.5), kappa1=-1.2e-6, shape=(320, 240))
