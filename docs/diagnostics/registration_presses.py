@@ -74,7 +74,48 @@ def measure(
         f"{sensor}{' (elastic gel)' if elastic else ''} seed {seed}, {depth_mm:g} mm deep on a {spacing_mm:g} mm lattice: "
         f"{np.sqrt(np.mean(error**2)):.3f} / {error.max():.2f} px RMS / max "
         f"({store.registration.locator}, {int(fit.inliers.sum())} contacts of "
-        f"{len(store.rows('grid'))} presses)\n  " + locator_bias(store, truth, radius_mm=2.0)
+        f"{len(store.rows('grid'))} presses)\n  "
+        + radial_error(store, truth)
+        + "\n  "
+        + locator_bias(store, truth, radius_mm=2.0)
+    )
+
+
+def radial_error(store, truth: BenchTruth) -> str:
+    """The stage's own contacts (the fit's inliers) against where the camera truly images each
+    press, split into the part along the ray from the true lens's centre (+ outward) and the
+    part across it, by that ray's length: the pattern a radial lens term can take up."""
+    raw = store.raw
+    rows = store.rows("grid")
+    cmd = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])[store.first[rows]]
+    true_px = truth.camera_px(cmd)
+    if truth.lens is None:
+        return "no lens"
+    centre = np.asarray(truth.lens["centre_px"], dtype=float)
+    reach, along, across = [], [], []
+    for contact, where, inlier in zip(
+        store.registration.contacts, true_px, store.registration.fit.inliers, strict=True
+    ):
+        if contact is None or not inlier:
+            continue
+        ray = where - centre
+        r = float(np.hypot(*ray))
+        error = np.array([contact.x_px, contact.y_px]) - where
+        reach.append(r)
+        along.append(float(error @ ray) / r)
+        across.append(abs(float(error @ np.array([-ray[1], ray[0]])) / r))
+    reach, along, across = map(np.array, (reach, along, across))
+    bands = []
+    for low, high in ((0, 60), (60, 90), (90, 120), (120, np.inf)):
+        inside = (reach >= low) & (reach < high)
+        if inside.any():
+            bands.append(
+                f"{low:g}-{high:g} px {along[inside].mean():+.3f} / {across[inside].mean():.3f}"
+                f" (n {int(inside.sum())})"
+            )
+    return (
+        "stage's contacts, mean radial / |tangential| error by distance from the lens's centre: "
+        + (", ".join(bands))
     )
 
 

@@ -44,11 +44,11 @@ def test_fit_lensed_recovers_an_exact_lens_and_affine_that_an_affine_cannot():
 
 
 def test_a_free_k2_fits_a_locators_edge_bias_and_bends_it_into_the_band_without_contacts():
-    """Why the stage fits κ₁ alone: contacts lie 45 px or more inside the frame, located with a
-    radial bias that grows toward the edges (0.2 px at the outermost contact, as the skin's halo
-    gives the symmetric centres). κ₂ follows that bias more closely at the contacts (a smaller
-    residual) and carries it on into the outer band: over the whole frame it is far off where κ₁
-    alone stays within a few tenths of a pixel."""
+    """Why the stage fits κ₁ alone: contacts lie 45 px or more inside the frame, and the outermost
+    ones are located up to 0.2 px inward (the Mini with its skin: -0.24 px on average beyond 120 px
+    from the lens's centre, -0.05 px nearer it; docs/registration.md, The lens). κ₂ follows them
+    more closely (a smaller residual) and carries that on into the outer band: over the whole frame
+    it is far off where κ₁ alone stays within a few tenths of a pixel."""
     lens = RadialLens(centre_px=(161.7, 118.2), kappa1=-7e-7, shape=SHAPE)
     affine = np.array([[15.6, 0.4, -1700.0], [0.5, -15.7, 1990.0]])
 
@@ -62,7 +62,7 @@ def test_a_free_k2_fits_a_locators_edge_bias_and_bends_it_into_the_band_without_
     xy, px = xy[inside], px[inside]
     outward = px - np.array(lens.centre_px)
     reach = np.hypot(*outward.T)
-    located = px + 0.2 * outward / reach[:, None] * (reach / reach.max())[:, None] ** 8
+    located = px - 0.2 * outward / reach[:, None] * (reach / reach.max())[:, None] ** 8
     fx, fy = np.meshgrid(np.arange(96.0, 130.0, 0.25), np.arange(96.0, 130.0, 0.25))
     frame_xy = np.column_stack([fx.ravel(), fy.ravel()])
     truth = camera(frame_xy)
@@ -145,10 +145,10 @@ def test_shallow_registration_presses_register_the_digit_within_0_3_px(tmp_path)
 
 
 def test_the_elastic_mini_with_its_skin_registers_within_0_3_px_with_k1_alone(tmp_path):
-    """The skin's shading halo reaches far past the rim, and the symmetric centres' small radial
-    bias grows toward the frame's edges. A free κ₂ took that bias up and bent it into the outer
-    band where no contact lies (registration presses alone, seeds 11-14: 0.17-0.57 px over the
-    view, up to 3.8 px); κ₁ alone extrapolates it mildly (docs/registration.md, The lens)."""
+    """The skin's shading halo reaches far past the rim. A free κ₂ followed the few outermost
+    contacts, located a fraction of a pixel inward, and bent that into the outer band where no
+    contact lies (registration presses alone, seeds 11-14: 0.17-0.57 px over the view, up to
+    3.8 px); κ₁ alone extrapolates it mildly (docs/registration.md, The lens)."""
     plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("gelsight_mini"), plan, 11)
     assert record["locator"] == "symmetry" and record["contacts_used"] >= 100, record

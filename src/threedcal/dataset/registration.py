@@ -632,8 +632,8 @@ def fit_lensed(
     `shape` (H, W) of the frames: the principal point starts at their centre, κ is solved in
     units of the half-diagonal (well scaled); the returned lens is in pixels. Contacts lie whole
     inside the frame, so none is found in its outer band (a contact radius and a margin wide):
-    the fit extrapolates there. A free κ₂ takes up the locator's own radial bias, which grows
-    toward the edges, and bends it into that band by pixels: `register` fits κ₁ alone
+    the fit extrapolates there. A free κ₂ follows the locator's error at the few outermost
+    contacts and bends it into that band by pixels: `register` fits κ₁ alone
     (docs/registration.md, The lens)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     height, width = shape
