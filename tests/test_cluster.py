@@ -104,17 +104,55 @@ def test_slurm_profile_runs_printer_jobs_on_this_machine_without_sbatch(tmp_path
         pressing={"presses": 1, "tuning_presses": 1},
     )
     config = write_config(tmp_path, config)
-    # No Slurm to submit to (SLURM_CONF names a missing file): a printer job through the profile
-    # succeeds only because it is a local rule, run here and never given to sbatch.
-    no_slurm = dict(os.environ, SLURM_CONF=str(tmp_path / "no-slurm.conf"))
+    # No Slurm to submit to: every Slurm command on PATH is a stand-in that writes down its call
+    # and fails at once, so a printer job through the profile succeeds only because it is a local
+    # rule, run here and never given to sbatch. (A real client with no controller would fail too,
+    # after tens of seconds of DNS lookups per call.)
+    fake_bin = tmp_path / "fake-slurm"
+    fake_bin.mkdir()
+    calls = tmp_path / "slurm-calls.txt"
+    for command in (
+        "sbatch",
+        "scontrol",
+        "sacct",
+        "sacctmgr",
+        "squeue",
+        "sinfo",
+        "scancel",
+        "srun",
+    ):
+        stand_in = fake_bin / command
+        stand_in.write_text(f'#!/bin/sh\necho "{command} $*" >> "{calls}"\nexit 1\n')
+        stand_in.chmod(0o755)
+    no_slurm = dict(
+        os.environ,
+        PATH=f"{fake_bin}{os.pathsep}{os.environ.get('PATH', '')}",
+        SLURM_CONF=str(tmp_path / "no-slurm.conf"),
+    )
 
     def through_profile(target: str) -> str:
+        # The plugin's status loop sleeps this long between checks (40 s by default) and the run
+        # ends only when it wakes: 1 s, so the test does not spend its time asleep.
         result = snakemake(
-            tmp_path, config, "--profile", str(PROFILE), target, check=False, env=no_slurm
+            tmp_path,
+            config,
+            "--profile",
+            str(PROFILE),
+            "--slurm-init-seconds-before-status-checks",
+            "1",
+            target,
+            check=False,
+            env=no_slurm,
         )
         text = result.stdout + result.stderr
         assert result.returncode == 0, text
         assert "submitted with SLURM jobid" not in text
+        submitted = (
+            [c for c in calls.read_text().splitlines() if c.startswith("sbatch")]
+            if calls.exists()
+            else []
+        )
+        assert submitted == [], submitted
         return text
 
     assert "localrule collect:" in through_profile("results/one/collect/summary.json")

@@ -12,6 +12,8 @@ Registration presses). Usage (about a minute per run on 2 cores):
 arguments in fours: sensor, seed, depth_mm, spacing_mm. `--elastic`: the bench simulates the gel as
 an elastic layer (`bench.gel_mechanics: elastic`; docs/simulator.md, Gel mechanics). `--kappa2`: the
 stage's lens fit frees κ₂ too (as before the stage kept κ₁ alone; docs/registration.md, The lens).
+`--frames N`: N frames per press, the contact located in their mean (default: the plan's 3; the
+study's registration presses take `plan.registration.frames`, 1 by default).
 
 Each run also prints the rim locator's own error (camera frames, whole contacts) against where the
 camera truly images each press's axis and, on a domed gel, what is left of it once the patch's
@@ -38,7 +40,13 @@ from threedcal.sim.bench import BenchTruth
 
 
 def measure(
-    sensor: str, seed: int, depth_mm: float, spacing_mm: float, folder: Path, elastic: bool
+    sensor: str,
+    seed: int,
+    depth_mm: float,
+    spacing_mm: float,
+    folder: Path,
+    elastic: bool,
+    frames: int | None = None,
 ) -> str:
     plan = {
         "spacing_mm": spacing_mm,
@@ -46,6 +54,8 @@ def measure(
         "touch_search": {"points": 0},
         "registration": {"spacing_mm": 0},
     }
+    if frames is not None:
+        plan["frames"] = frames
     scene = {"sensor": sensor, "printer": "ender3", "plan": plan}
     if elastic:
         scene["bench"] = {"gel_mechanics": "elastic"}
@@ -218,6 +228,11 @@ def main() -> None:
 
         registration._locate_and_fit = one_pass
         registration.fit_lensed = lambda *a, **k: plain_fit(*a, **{**k, "kappa2": relocated[0]})
+    frames = None
+    if "--frames" in args:
+        at = args.index("--frames")
+        frames = int(args[at + 1])
+        del args[at : at + 2]
     args = [a for a in args if a not in ("--elastic", "--kappa2")]
     if not args or len(args) % 4:
         raise SystemExit(__doc__)
@@ -225,7 +240,9 @@ def main() -> None:
         sensor, seed, depth, spacing = args[i : i + 4]
         with tempfile.TemporaryDirectory() as folder:
             print(
-                measure(sensor, int(seed), float(depth), float(spacing), Path(folder), elastic),
+                measure(
+                    sensor, int(seed), float(depth), float(spacing), Path(folder), elastic, frames
+                ),
                 flush=True,
             )
 
