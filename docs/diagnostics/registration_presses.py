@@ -1,8 +1,8 @@
 """How well shallow registration presses register the rig, against the grid's own contacts.
 
 For each sensor, seed and (depth, spacing) variant: a plan of registration-like presses alone
-(one depth, one frame, no touch search) collected on the simulated bench, registered by the
-dataset stage (`register_store`), then the RMS / max error against the bench's hidden truth over
+(one depth, the plan's 3 frames a press unless `--frames`, no touch search) collected on the
+simulated bench, registered by the dataset stage (`register_store`), then the RMS / max error against the bench's hidden truth over
 a 0.25 mm lattice of the probe area, where it lies in view. Seeds other than the default study's
 0: the figures the study reports are not the ones this chose on (docs/registration.md,
 Registration presses). Usage (about a minute per run on 2 cores):

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import bench_scene, collect_and_register, elastic_gel
+from conftest import bench_scene, collect_and_register, elastic_gel, shared_across_workers
 
 from threedcal.collect.store import open_checked
 from threedcal.dataset.build import build_collected
@@ -114,11 +114,15 @@ def test_bench_draws_a_lens_apart_from_the_profiles_and_reports_where_it_images(
     np.testing.assert_allclose(truth.camera_px(xy), drawn[0].distort(ideal))
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def mini_with_lens(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("mini_lens")
+    """Built once for the run (read-only), whichever workers its two tests land on."""
     plan = {"spacing_mm": 1.0, "depth_mm": 1.0, "frames": 1}
-    return folder, collect_and_register(folder, "gelsight_mini", plan, 4)
+    return shared_across_workers(
+        tmp_path_factory,
+        "mini_lens",
+        lambda folder: collect_and_register(folder, "gelsight_mini", plan, 4),
+    )
 
 
 def test_registration_fits_the_lens_within_0_3_px_of_the_benchs_over_the_view(mini_with_lens):
