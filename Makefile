@@ -26,8 +26,8 @@ smoke: $(STAMP)
 setup: $(STAMP)
 
 # pip byte-compiles the dependencies here, once. Not --no-compile: where PYTHONDONTWRITEBYTECODE is
-# set (our CI machines) Python would then compile every import from source in every process, and
-# the suite's Snakemake jobs took twice as long (the end-to-end test 228 s against 113 s).
+# set (as on our development machines) Python would then compile every import from source in every
+# process, and the suite's Snakemake jobs took twice as long (the end-to-end test 228 s, not 113 s).
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e ".[dev]"
