@@ -2,8 +2,8 @@
 
 For each sensor, seed and (depth, spacing) variant: a plan of registration-like presses alone
 (one depth, the plan's 3 frames a press unless `--frames`, no touch search) collected on the
-simulated bench, registered by the dataset stage (`register_store`), then the RMS / max error against the bench's hidden truth over
-a 0.25 mm lattice of the probe area, where it lies in view. Seeds other than the default study's
+simulated bench, registered by the dataset stage (`register_store`), then the RMS / max error
+against the bench's hidden truth over a 0.25 mm lattice of the probe area, where it lies in view. Seeds other than the default study's
 0: the figures the study reports are not the ones this chose on (docs/registration.md,
 Registration presses). Usage (about a minute per run on 2 cores):
 
@@ -231,6 +231,8 @@ def main() -> None:
     frames = None
     if "--frames" in args:
         at = args.index("--frames")
+        if at + 1 >= len(args) or not args[at + 1].isdigit() or int(args[at + 1]) < 1:
+            raise SystemExit("--frames needs a whole number of frames, at least 1\n\n" + __doc__)
         frames = int(args[at + 1])
         del args[at : at + 2]
     args = [a for a in args if a not in ("--elastic", "--kappa2")]
