@@ -11,7 +11,11 @@ first-contact search, what plans use by default) and `rim` (the grid's contact r
 without a search falls back to, and what every plan used before) — against the bench's hidden
 touch height. Plans: grid (one depth, 1.0 mm: the old default), paper (2.0 mm = R, as
 config/paper.yaml), cross (the authors' cross at 1.0, 2.0, 3.0 mm), default (config.yaml's:
-1.0/2.0/3.0 mm cycled). `--spacing` thins the grids (registration is the slow part; the touch
+1.0/2.0/3.0 mm cycled), study (the default study's own scene whose sensor this is, as config.yaml
+has it — its bench, first-contact search and registration presses — with the grid thinned to
+--spacing; `--touch-frames N` sets its search's frames per step):
+
+    .venv/bin/python docs/diagnostics/touch_height.py --sensors digit_fots --plans study --seeds 21 22 23 24 `--spacing` thins the grids (registration is the slow part; the touch
 search does not depend on it). `--law elastic` swaps the simulator's rigid contact for the Hertz
 solution (a² = Rd, the surface sinking around the contact), `--law skirt` widens its skirt.
 """
@@ -94,19 +98,43 @@ def sensor_ref(sensor: str, law: str, folder: Path) -> str:
     return str(path)
 
 
-def run_case(sensor: str, kind: str, seed: int, spacing: float, law: str, folder: Path) -> dict:
-    scene = validate_config(
-        {
-            "seed": seed,
-            "scenes": {
-                "s": {
-                    "sensor": sensor_ref(sensor, law, folder),
-                    "printer": "ender3",
-                    "plan": plan_of(kind, spacing),
-                }
-            },
+def study_scene(sensor: str, spacing: float, touch_frames: int | None = None) -> dict:
+    """config.yaml's scene on `sensor`, its grid thinned to `spacing` (its ablation, objects and
+    model are not used here), its search taking `touch_frames` frames a step when given."""
+    study = yaml.safe_load(Path("config.yaml").read_text())["scenes"]
+    found = [dict(scene) for scene in study.values() if scene.get("sensor") == sensor]
+    if not found:
+        raise SystemExit(f"config.yaml has no scene on sensor {sensor!r}")
+    scene = found[0]
+    scene["plan"] = {**scene["plan"], "spacing_mm": spacing}
+    if touch_frames is not None:
+        search = scene["plan"].get("touch_search", {})
+        scene["plan"]["touch_search"] = {**search, "frames": touch_frames}
+    return scene
+
+
+def run_case(
+    sensor: str,
+    kind: str,
+    seed: int,
+    spacing: float,
+    law: str,
+    folder: Path,
+    touch_frames: int | None = None,
+) -> dict:
+    if kind == "study":
+        if law != "rigid":
+            raise SystemExit("--plans study runs the scene's own bench: leave --law rigid")
+        spec = study_scene(sensor, spacing, touch_frames)
+    elif touch_frames is not None:
+        raise SystemExit("--touch-frames applies to --plans study only")
+    else:
+        spec = {
+            "sensor": sensor_ref(sensor, law, folder),
+            "printer": "ender3",
+            "plan": plan_of(kind, spacing),
         }
-    )["scenes"]["s"]
+    scene = validate_config({"seed": seed, "scenes": {"s": spec}})["scenes"]["s"]
     store = folder / f"{sensor}_{kind}_{seed}.zarr"
     truth_path = folder / f"{sensor}_{kind}_{seed}.json"
     collect_scene("s", scene, store, truth_path=truth_path, progress=False)
@@ -132,10 +160,13 @@ def run_case(sensor: str, kind: str, seed: int, spacing: float, law: str, folder
         "locator": registered.registration.locator,
         "error_px": float(np.sqrt(np.mean(error**2))),
     }
+    row["exponent"] = math.nan
     for method in ("search", "rim"):
         try:
             estimate = touch_height(registered, float(scene["probe"]["radius_mm"]), method)
             row[method] = estimate["touch_offset_mm"] - truth["touch_offset_mm"]
+            if method == "search":
+                row["exponent"] = estimate["touch_search"]["signal_exponent"]
         except ThreedcalError as exc:
             row[method] = f"fails: {str(exc).splitlines()[0][:60]}"
     return row
@@ -148,7 +179,10 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--spacing", type=float, default=3.0)
     parser.add_argument("--law", choices=["rigid", "elastic", "skirt"], default="rigid")
+    parser.add_argument("--touch-frames", type=int, default=None)
     args = parser.parse_args()
+    if args.touch_frames is not None and args.touch_frames < 1:
+        parser.error("--touch-frames must be at least 1")
     if args.law == "elastic":
         from threedcal.sim.optics import GelSimulator
 
@@ -160,7 +194,9 @@ def main() -> None:
             for kind in args.plans:
                 for seed in args.seeds:
                     started = time.perf_counter()
-                    row = run_case(sensor, kind, seed, args.spacing, args.law, Path(tmp))
+                    row = run_case(
+                        sensor, kind, seed, args.spacing, args.law, Path(tmp), args.touch_frames
+                    )
                     rows.append(row)
                     cells = [
                         f"{row[m] * 1000:+7.1f}" if isinstance(row[m], float) else row[m]
@@ -168,7 +204,8 @@ def main() -> None:
                     ]
                     print(
                         f"{sensor:14s} {kind:8s} seed {seed}  true {row['true_mm']:+.4f} mm  "
-                        f"search {cells[0]} um  rim {cells[1]}  error_px {row['error_px']:.3f} "
+                        f"search {cells[0]} um (p {row['exponent']:.2f})  rim {cells[1]}  "
+                        f"error_px {row['error_px']:.3f} "
                         f"({row['locator']}, {time.perf_counter() - started:.0f} s)",
                         flush=True,
                     )
