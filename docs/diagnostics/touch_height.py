@@ -18,6 +18,9 @@ has it — its bench, first-contact search and registration presses — with the
     .venv/bin/python docs/diagnostics/touch_height.py --sensors digit_fots --plans study --seeds 21 22 23 24 `--spacing` thins the grids (registration is the slow part; the touch
 search does not depend on it). `--law elastic` swaps the simulator's rigid contact for the Hertz
 solution (a² = Rd, the surface sinking around the contact), `--law skirt` widens its skirt.
+Its `error_px` compares the fitted registration with the bench's affine alone: on a bench with a
+lens (the study's scenes) it holds the lens too, so read the stage's own `error_px` in
+registration.json there.
 """
 
 from __future__ import annotations
