@@ -3,9 +3,9 @@
 For each sensor, seed and (depth, spacing) variant: a plan of registration-like presses alone
 (one depth, the plan's 3 frames a press unless `--frames`, no touch search) collected on the
 simulated bench, registered by the dataset stage (`register_store`), then the RMS / max error
-against the bench's hidden truth over a 0.25 mm lattice of the probe area, where it lies in view. Seeds other than the default study's
-0: the figures the study reports are not the ones this chose on (docs/registration.md,
-Registration presses). Usage (about a minute per run on 2 cores):
+against the bench's hidden truth over a 0.25 mm lattice of the probe area, where it lies in view.
+Seeds other than the default study's 0: the figures the study reports are not the ones this chose
+on (docs/registration.md, Registration presses). Usage (about a minute per run on 2 cores):
 
     .venv/bin/python docs/diagnostics/registration_presses.py [--elastic] digit 11 0.4 1.0 [...]
 

@@ -13,14 +13,18 @@ touch height. Plans: grid (one depth, 1.0 mm: the old default), paper (2.0 mm = 
 config/paper.yaml), cross (the authors' cross at 1.0, 2.0, 3.0 mm), default (config.yaml's:
 1.0/2.0/3.0 mm cycled), study (the default study's own scene whose sensor this is, as config.yaml
 has it — its bench, first-contact search and registration presses — with the grid thinned to
---spacing; `--touch-frames N` sets its search's frames per step):
+--spacing; `--touch-frames N` sets its search's frames per step). `--spacing` thins the grids
+(registration is the slow part; the touch search does not depend on it). `--law elastic` swaps the
+simulator's rigid contact for the Hertz solution (a² = Rd, the surface sinking around the
+contact), `--law skirt` widens its skirt. The fitted DIGIT's search with 1 and with 4 frames a
+step (docs/registration.md, Four frames a step):
 
-    .venv/bin/python docs/diagnostics/touch_height.py --sensors digit_fots --plans study --seeds 21 22 23 24 `--spacing` thins the grids (registration is the slow part; the touch
-search does not depend on it). `--law elastic` swaps the simulator's rigid contact for the Hertz
-solution (a² = Rd, the surface sinking around the contact), `--law skirt` widens its skirt.
-Its `error_px` compares the fitted registration with the bench's affine alone: on a bench with a
-lens (the study's scenes) it holds the lens too, so read the stage's own `error_px` in
-registration.json there.
+    .venv/bin/python docs/diagnostics/touch_height.py --sensors digit_fots --plans study \
+        --seeds 11 12 13 14 21 22 23 24 31 32 33 34 --touch-frames 4
+
+Its `error_px` compares the fitted registration with the bench's affine alone. On a bench with a
+lens (the study's scenes) that error includes the lens's distortion, so it is not the
+registration's error there: read the stage's own `error_px` in registration.json.
 """
 
 from __future__ import annotations
@@ -162,8 +166,8 @@ def run_case(
         "true_mm": truth["touch_offset_mm"],
         "locator": registered.registration.locator,
         "error_px": float(np.sqrt(np.mean(error**2))),
+        "exponent": math.nan,  # the search's measured power, when it succeeds
     }
-    row["exponent"] = math.nan
     for method in ("search", "rim"):
         try:
             estimate = touch_height(registered, float(scene["probe"]["radius_mm"]), method)
