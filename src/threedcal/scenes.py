@@ -171,7 +171,7 @@ def model_file(name: str, percent: int, replicate: int = 0, leaf: str = "model.p
 
 
 def full_model_file(name: str, scene: Mapping) -> str:
-    """Replicate 0 of the largest fraction: the model inference_speed and ball_eval read."""
+    """Replicate 0 of the largest fraction: the model inference_speed reads."""
     return model_file(name, max(training_fractions(scene)), 0)
 
 
