@@ -33,8 +33,8 @@ from threedcal.model.presets import build_model, preferred_memory_format, preset
 from threedcal.model.train import training_autocast
 
 HEIGHT, WIDTH = 240, 320
-# The settings the accuracy table trains with: those of an imported ball scene's `model:` section
-# (README, "Choosing a preset"); chosen on an inner validation split of the training images.
+# The settings the accuracy table trains with, as an imported ball scene's `model:` section would set
+# them (docs/models.md, "Choosing a preset"); chosen on an inner validation split of the training images.
 BALL_SETTINGS = dict(
     lr=3e-3,
     lr_schedule="cosine",
