@@ -1,9 +1,10 @@
 """How a scene's models improve with the training budget: replicate 0 of each P trained at several
 `epochs_base` values on a finished study's trainset (docs/statistics.md, "The training budget").
 
-    .venv/bin/python docs/diagnostics/training_budget.py WORKDIR SCENE P[,P...] EPOCHS_BASE[,...] [--score]
+    .venv/bin/python docs/diagnostics/training_budget.py WORKDIR SCENE P[,P...] EPOCHS_BASE[,...] \
+        [--score] [--replicate R]
 
-Prints the last epoch's training loss, the validation loss the trainer logs (128 fixed patches of the
+Trains replicate 0 (or R: its own subset draw and initialisation). Prints the last epoch's training loss, the validation loss the trainer logs (128 fixed patches of the
 validation coordinates) and the wall time. With `--score`, also each model's mean validation MSE as
 the stats stage scores it (per coordinate, every validation frame) and, per budget, the paper's
 tests of every P against P = 80 % (Student's t and Mann-Whitney U, two-sided, Bonferroni x5 as in
@@ -44,7 +45,12 @@ def paper_tests(mse: dict[int, np.ndarray]) -> list[str]:
 
 
 def main(
-    workdir: str, scene: str, fractions: list[int], budgets: list[int], score: bool = False
+    workdir: str,
+    scene: str,
+    fractions: list[int],
+    budgets: list[int],
+    score: bool = False,
+    replicate: int = 0,
 ) -> None:
     record = Path(workdir) / "results" / scene / "scene.json"
     config = json.loads(record.read_text())["config"]  # the scene as the study ran it
@@ -60,7 +66,7 @@ def main(
             run = replace(settings, epochs_base=budget)
             with tempfile.TemporaryDirectory() as out:
                 began = time.perf_counter()
-                train(ts, out, percent, run, progress=False)
+                train(ts, out, percent, run, progress=False, replicate=replicate)
                 wall = time.perf_counter() - began
                 losses = pd.read_csv(Path(out) / "losses.csv")
                 if score:
@@ -80,10 +86,16 @@ def main(
 
 if __name__ == "__main__":
     args = [a for a in sys.argv[1:] if a != "--score"]
+    replicate = 0
+    if "--replicate" in args:
+        at = args.index("--replicate")
+        replicate = int(args[at + 1])
+        del args[at : at + 2]
     main(
         args[0],
         args[1],
         [int(p) for p in args[2].split(",")],
         [int(b) for b in args[3].split(",")],
         score="--score" in sys.argv[1:],
+        replicate=replicate,
     )

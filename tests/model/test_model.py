@@ -563,18 +563,25 @@ def test_predict_cli_writes_depth_and_colour_map(tmp_path):
     assert (tmp_path / "v.gif").stat().st_size > 0
 
 
-def test_epoch_lr_constant_and_cosine_end_points():
-    from threedcal.model.train import epoch_lr
+def test_scheduled_lr_constant_and_a_cosine_over_the_steps():
+    from threedcal.model.train import scheduled_lr
 
     constant = TrainSettings.of(lr=0.01)
-    assert [epoch_lr(constant, e, 5) for e in (1, 3, 5)] == [0.01] * 3
+    assert {scheduled_lr(constant, e, 5, b, 3) for e in (1, 3, 5) for b in range(3)} == {0.01}
     cosine = TrainSettings.of(lr=0.01, lr_schedule="cosine")
-    assert epoch_lr(cosine, 1, 5) == pytest.approx(0.01)
-    assert epoch_lr(cosine, 3, 5) == pytest.approx(0.01 / 100 + 0.99 * 0.01 / 2)
-    assert epoch_lr(cosine, 5, 5) == pytest.approx(0.01 / 100)
-    assert epoch_lr(cosine, 1, 1) == 0.01  # a one-epoch run keeps lr
+    floor = 0.01 / 100
+    assert scheduled_lr(cosine, 1, 4, 0, 10) == pytest.approx(0.01)
+    assert scheduled_lr(cosine, 3, 4, 0, 10) == pytest.approx(floor + 0.99 * 0.01 / 2)  # halfway
+    rates = [scheduled_lr(cosine, e, 4, b, 10) for e in range(1, 5) for b in range(10)]
+    assert all(later < earlier for earlier, later in zip(rates, rates[1:], strict=False))
+    assert rates[-1] < floor + 0.002 * 0.01  # the last step ends within a step of the floor
+    # the rate falls within an epoch: a 4-epoch run (P = 80 %) does not spend its last epoch at
+    # the floor, as a rate held per epoch did, but anneals through it as a 320-epoch run does
+    last_epoch = rates[30:]
+    assert last_epoch[0] > 10 * floor and np.mean(last_epoch) > 3 * floor
+    assert scheduled_lr(cosine, 1, 1, 1, 2) == pytest.approx(floor + 0.99 * 0.01 / 2)
     with pytest.raises(ConfigError, match="allowed: constant, cosine"):
-        epoch_lr(TrainSettings.of(lr_schedule="step"), 1, 5)
+        scheduled_lr(TrainSettings.of(lr_schedule="step"), 1, 5, 0, 1)
 
 
 def test_skirt_reach_moves_contact_patches_off_the_contact():
