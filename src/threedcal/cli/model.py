@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from threedcal.cli import Command
+from threedcal.errors import ConfigError
 
 
 def _estimator_args(parser: argparse.ArgumentParser) -> None:
@@ -27,13 +28,26 @@ def _estimator(args: argparse.Namespace):
     if args.threads:
         torch.set_num_threads(args.threads)
     blank = read_rgb(Path(args.blank)) if args.blank else None
-    return DepthEstimator.from_checkpoint(
-        args.checkpoint,
-        device=args.device,
-        blank=blank,
-        px_per_mm=args.px_per_mm,
-        camera_blank=True,  # the user's blank comes from the camera, like the frames
-    )
+    try:
+        return DepthEstimator.from_checkpoint(
+            args.checkpoint,
+            device=args.device,
+            blank=blank,
+            px_per_mm=args.px_per_mm,
+            camera_blank=True,  # the user's blank comes from the camera, like the frames
+        )
+    except ConfigError as exc:
+        if blank is None or "frame (H x W) does not fit" not in str(exc):
+            raise
+        raise ConfigError(f"{args.blank} (--blank): {exc}") from None
+
+
+def _model_frames(estimator, frames, where: str):
+    """`estimator.rectify(frames)`; a frame the model cannot take is an error naming `where`."""
+    try:
+        return estimator.rectify(frames)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def colour_map(depth_mm, vmax: float | None = None):
@@ -53,7 +67,7 @@ def _predict(args: argparse.Namespace) -> int:
     from threedcal.dataset.importers import read_rgb
 
     estimator = _estimator(args)
-    depth = estimator.depth(estimator.rectify(read_rgb(Path(args.image))))
+    depth = estimator.depth(_model_frames(estimator, read_rgb(Path(args.image)), args.image))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, depth)
@@ -79,7 +93,7 @@ def _live(args: argparse.Namespace) -> int:
         if args.frames and count >= args.frames:
             break
         began = time.perf_counter()
-        model_frame = estimator.rectify(frame)
+        model_frame = _model_frames(estimator, frame, f"live source {args.source}, frame {count}")
         depth = estimator.depth(model_frame)
         times.append(time.perf_counter() - began)
         fps = len(times) / sum(times)
