@@ -41,9 +41,8 @@ def model(tmp_path):
 
 
 def predict(model, image, out, *extra):
-    return main(
-        ["predict", "--checkpoint", model, "--image", image, "--out", out, "--device", "cpu", *extra]
-    )
+    args = ["--checkpoint", model, "--image", image, "--out", out, "--device", "cpu"]
+    return main(["predict", *args, *extra])
 
 
 @pytest.mark.parametrize("shape", [(30, 30), (48, 40), (80, 60)])
@@ -80,3 +79,41 @@ def test_live_names_the_source_of_a_frame_of_another_size(tmp_path, capsys, mode
     assert main(args) == 1
     err = capsys.readouterr().err
     assert f"live source {tmp_path / 'frames'}, frame 0: a 30 x 30 px frame" in err
+
+
+def test_predict_never_overwrites_its_input_image_with_the_colour_map(tmp_path, capsys, model):
+    """Repro: `predict --image x.png --out x.npy` wrote the colour map over x.png (the default
+    --png is --out with .png): the user's sensor image was lost."""
+    image = write_rgb(tmp_path / "x.png", SHAPE, value=123)
+    before = (tmp_path / "x.png").read_bytes()
+    assert predict(model, image, str(tmp_path / "x.npy")) == 1
+    err = capsys.readouterr().err
+    assert f"the colour map (--out with .png) {image}: is the --image file" in err
+    assert "choose another --png" in err
+    assert (tmp_path / "x.png").read_bytes() == before and not (tmp_path / "x.npy").exists()
+    assert predict(model, image, str(tmp_path / "d.npy"), "--png", image) == 1
+    assert f"--png {image}: is the --image file" in capsys.readouterr().err
+    assert (tmp_path / "x.png").read_bytes() == before
+    # with another --png it runs
+    assert predict(model, image, str(tmp_path / "x.npy"), "--png", str(tmp_path / "xd.png")) == 0
+    assert (tmp_path / "x.png").read_bytes() == before and (tmp_path / "xd.png").is_file()
+
+
+@pytest.mark.parametrize(
+    ("out", "png", "message"),
+    [
+        ("d.txt", None, "--out {tmp}/d.txt: the depth map is a NumPy file: give a path ending"),
+        ("d.npy", "d.foo", "--png {tmp}/d.foo: not an image type OpenCV writes (use .png)"),
+        ("sub.npy", None, "--out {tmp}/sub.npy: is a folder; give a file name"),
+    ],
+)
+def test_predict_checks_its_output_paths_before_running(tmp_path, capsys, model, out, png, message):
+    """Repro: --out d.txt wrote d.txt.npy but printed d.txt; --png d.foo raised cv2.error after
+    the depth map was written; an --out folder named *.npy gave IsADirectoryError."""
+    (tmp_path / "sub.npy").mkdir()
+    image = write_rgb(tmp_path / "frame.png", SHAPE)
+    extra = ["--png", str(tmp_path / png)] if png else []
+    assert predict(model, image, str(tmp_path / out), *extra) == 1
+    err = capsys.readouterr().err
+    assert message.format(tmp=tmp_path) in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.png", "model.pt", "sub.npy"]

@@ -66,15 +66,39 @@ def _predict(args: argparse.Namespace) -> int:
 
     from threedcal.dataset.importers import read_rgb
 
+    out = Path(args.out)
+    if out.suffix.lower() != ".npy":
+        raise ConfigError(f"--out {out}: the depth map is a NumPy file: give a path ending in .npy")
+    png = Path(args.png) if args.png else out.with_suffix(".png")
+    png_option = "--png" if args.png else "the colour map (--out with .png)"
+    if not cv2.haveImageWriter(str(png)):
+        raise ConfigError(f"{png_option} {png}: not an image type OpenCV writes (use .png)")
+    outputs = {"--out": out, png_option: png}
+    _refuse_overwriting_inputs(
+        outputs, {"--image": args.image, "--blank": args.blank, "--checkpoint": args.checkpoint}
+    )
     estimator = _estimator(args)
     depth = estimator.depth(_model_frames(estimator, read_rgb(Path(args.image)), args.image))
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.save(out, depth)
-    png = Path(args.png) if args.png else out.with_suffix(".png")
-    cv2.imwrite(str(png), cv2.cvtColor(colour_map(depth), cv2.COLOR_RGB2BGR))
+    if not cv2.imwrite(str(png), cv2.cvtColor(colour_map(depth), cv2.COLOR_RGB2BGR)):
+        raise ConfigError(f"{png_option} {png}: OpenCV could not write the colour map")
     print(f"{out}: depth {depth.shape} mm, max {float(depth.max()):.3f} mm; colour map {png}")
     return 0
+
+
+def _refuse_overwriting_inputs(outputs: dict[str, Path], inputs: dict[str, str | None]) -> None:
+    """Checked before anything runs: no output is a folder or one of the command's input files
+    (`predict --image x.png --out x.npy` would otherwise replace the image with its colour map)."""
+    for out_option, path in outputs.items():
+        if path.is_dir():
+            raise ConfigError(f"{out_option} {path}: is a folder; give a file name")
+        for in_option, given in inputs.items():
+            if given and path.exists() and Path(given).exists() and path.samefile(given):
+                raise ConfigError(
+                    f"{out_option} {path}: is the {in_option} file; writing there would overwrite "
+                    f"it: choose another {out_option if out_option.startswith('--') else '--png'}"
+                )
 
 
 def _live(args: argparse.Namespace) -> int:
