@@ -117,3 +117,39 @@ def test_predict_checks_its_output_paths_before_running(tmp_path, capsys, model,
     err = capsys.readouterr().err
     assert message.format(tmp=tmp_path) in err and "Traceback" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.png", "model.pt", "sub.npy"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--out", "v.gif", "--video-fps", "0"], "--video-fps must be a number > 0, got 0.0"),
+        (["--out", "v.avi"], "--out v.avi: give a .gif or .mp4 file"),
+        (["--out", "frames/0000.png"], "--out frames/0000.png: give a .gif or .mp4 file"),
+        (["--threads", "-1"], "--threads must be a whole number >= 1, got -1"),
+        (["--frames", "-2"], "--frames must be >= 0 (0: all), got -2"),
+        (["--px-per-mm", "-3"], "--px-per-mm must be a number > 0, got -3.0"),
+    ],
+)
+def test_live_checks_its_options_before_the_first_frame(
+    tmp_path, monkeypatch, capsys, model, extra, message
+):
+    """Repro: --video-fps 0 raised ZeroDivisionError after every frame was processed; --out v.avi
+    printed `wrote v.avi` and wrote nothing; --threads -1 raised torch's RuntimeError; --frames -2
+    ran nothing and said only `no frames`; --px-per-mm -3 said the checkpoint had no px_per_mm."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "frames").mkdir()
+    write_rgb(tmp_path / "frames" / "0000.png", SHAPE)
+    args = ["live", "--checkpoint", model, "--source", "frames", "--device", "cpu", *extra]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"threedcal: error: {message}") and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames", "model.pt"]
+
+
+def test_live_never_writes_its_video_over_the_source_video(tmp_path, capsys, model):
+    video = tmp_path / "press.mp4"
+    video.write_bytes(b"a recorded press")
+    args = ["live", "--checkpoint", model, "--source", str(video), "--out", str(video)]
+    assert main(args) == 1
+    assert f"--out {video}: is the --source file" in capsys.readouterr().err
+    assert video.read_bytes() == b"a recorded press"

@@ -20,6 +20,10 @@ def _estimator_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _estimator(args: argparse.Namespace):
+    if args.threads is not None and args.threads < 1:
+        raise ConfigError(f"--threads must be a whole number >= 1, got {args.threads}")
+    if args.px_per_mm is not None and not args.px_per_mm > 0:
+        raise ConfigError(f"--px-per-mm must be a number > 0, got {args.px_per_mm}")
     import torch
 
     from threedcal.dataset.importers import read_rgb
@@ -110,6 +114,20 @@ def _live(args: argparse.Namespace) -> int:
 
     from threedcal.model.sources import open_source
 
+    if args.frames < 0:
+        raise ConfigError(f"--frames must be >= 0 (0: all), got {args.frames}")
+    if args.out:
+        if not (args.video_fps > 0 and np.isfinite(args.video_fps)):
+            raise ConfigError(f"--video-fps must be a number > 0, got {args.video_fps}")
+        if Path(args.out).suffix.lower() not in VIDEO_SUFFIXES:
+            raise ConfigError(
+                f"--out {args.out}: give a {' or '.join(VIDEO_SUFFIXES)} file (the video is "
+                "written after the last frame)"
+            )
+        _refuse_overwriting_inputs(
+            {"--out": Path(args.out)},
+            {"--source": args.source, "--blank": args.blank, "--checkpoint": args.checkpoint},
+        )
     estimator = _estimator(args)
     frames_out, times = [], []
     source = open_source(args.source)
@@ -143,6 +161,9 @@ def _live(args: argparse.Namespace) -> int:
     return 0
 
 
+VIDEO_SUFFIXES = (".gif", ".mp4")
+
+
 def _write_video(path: Path, frames, fps: float) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".gif":
@@ -157,6 +178,8 @@ def _write_video(path: Path, frames, fps: float) -> None:
 
     height, width = frames[0].shape[:2]
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    if not writer.isOpened():
+        raise ConfigError(f"--out {path}: OpenCV could not open an MP4 video for writing")
     for frame in frames:
         writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     writer.release()
