@@ -48,12 +48,25 @@ def test_py3dcal_plan_csv_reads_with_hash_header(tmp_path):
         ("1,2,3", "expected 4 values"),
         ("1,2,3,2.5", "frames='2.5' must be a whole number"),
         ("1,2,3,0", "frames='0' must be a whole number >= 1"),
+        # Repro: frames nan / inf raised ValueError / OverflowError from int()
+        ("1,2,3,nan", "frames='nan' must be a whole number >= 1"),
+        ("1,2,3,inf", "frames='inf' must be a whole number >= 1"),
+        ("1,2,3,-inf", "frames='-inf' must be a whole number >= 1"),
     ],
 )
 def test_plan_csv_errors_name_the_line(tmp_path, line, message):
     path = tmp_path / "plan.csv"
     path.write_text(f"x,y,depth,frames\n0,0,1,1\n{line}\n")
     with pytest.raises(ConfigError, match=f"plan.csv, line 3: {message}"):
+        read_plan_csv(path)
+
+
+def test_a_binary_plan_file_is_refused_naming_it(tmp_path):
+    """Repro: a plan `csv` that is not text (a spreadsheet saved as .xlsx, say) raised
+    UnicodeDecodeError out of `config check`."""
+    path = tmp_path / "plan.csv"
+    path.write_bytes(b"PK\x03\x04\x14\x00\x06\x00\x08\x00\x00\x00!\x00\xd0\xff")
+    with pytest.raises(ConfigError, match=r"plan.csv: not a text file \(a plan CSV expected\)"):
         read_plan_csv(path)
 
 

@@ -82,6 +82,8 @@ def read_plan_csv(path: str | Path) -> pd.DataFrame:
         lines = path.read_text().splitlines()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read plan ({exc.strerror})") from exc
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (a plan CSV expected)") from None
     rows = []
     for number, line in enumerate(lines, start=1):
         text = line.strip().lstrip("\ufeff")
@@ -99,7 +101,7 @@ def read_plan_csv(path: str | Path) -> pd.DataFrame:
             if not _is_number(field):
                 raise ConfigError(f"{path}, line {number}: {name}={field!r} is not a number")
             values.append(float(field))
-        if values[3] != int(values[3]) or values[3] < 1:
+        if not np.isfinite(values[3]) or values[3] != int(values[3]) or values[3] < 1:
             raise ConfigError(
                 f"{path}, line {number}: frames={fields[3]!r} must be a whole number >= 1"
             )
