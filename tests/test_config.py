@@ -320,3 +320,22 @@ def test_sim_to_real_needs_an_imported_vision_scene_and_valid_k():
     assert (
         validate_config({"scenes": {"s": imported}})["scenes"]["s"]["sim_to_real"]["frames"] == 300
     )
+
+
+def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_path):
+    """Repro: `objects: [pil]` (a typo) or a missing STL passed `config check` and the Snakefile's
+    validation; the run collected and trained, then failed at the pressing stage."""
+    from threedcal.config import BUILTIN_OBJECTS
+    from threedcal.evaluate.objects import PARAMS
+
+    assert set(BUILTIN_OBJECTS) == set(PARAMS)  # one list of the built-ins the stage can build
+    mine = tmp_path / "mine.STL"
+    mine.write_text("solid x\nendsolid x\n")  # read (and refused) by the pressing stage
+    missing = tmp_path / "missing.stl"
+    message = error_of(config_with(objects=["pill", "pil", str(missing), str(mine)]))
+    assert message.splitlines()[1:] == [
+        "  scenes.s.objects[1]: test object 'pil' is neither a built-in (hemispheres, pill, pawn) "
+        "nor an .stl path",
+        f"  scenes.s.objects[2]: STL file '{missing}' does not exist",
+    ]
+    validate_config(config_with(objects=["pill", "pawn", "hemispheres", str(mine)]))

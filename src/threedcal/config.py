@@ -22,6 +22,8 @@ from threedcal.sim.marlin import parse_faults
 FULL_TRAINING_P = 80
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
 IMPORT_IRRELEVANT = ("printer", "port", "camera", "reader", "probe", "plan", "bench", "pressing")
+# The built-in test objects (threedcal.evaluate.objects builds them); any other is an STL path.
+BUILTIN_OBJECTS = ("hemispheres", "pill", "pawn")
 
 
 def validate_config(config: Mapping, source: str = "config", *, check_files: bool = False) -> dict:
@@ -100,7 +102,32 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
     except ConfigError as exc:
         text = str(exc)
         problems.append(text if text.startswith("plan") else f"plan: {text}")
-    return problems
+    return problems + _object_problems(scene, check_files)
+
+
+def _object_problems(scene: Mapping, check_files: bool) -> list[str]:
+    """Each test object is a built-in name or an STL file that exists: found now, not at the
+    pressing stage after the collection and the training. (An STL's content is read there.)"""
+    return [
+        f"objects[{i}]: {problem}"
+        for i, ref in enumerate(scene.get("objects") or [])
+        if (problem := object_problem(ref))
+    ]
+
+
+def object_problem(ref: str | Path) -> str | None:
+    """What is wrong with a test object reference (a built-in name or an STL path), or None."""
+    text = str(ref)
+    if text in BUILTIN_OBJECTS:
+        return None
+    if not text.lower().endswith(".stl"):
+        return (
+            f"test object {text!r} is neither a built-in ({', '.join(BUILTIN_OBJECTS)}) "
+            "nor an .stl path"
+        )
+    if not Path(text).is_file():
+        return f"STL file {text!r} does not exist"
+    return None
 
 
 def _scene_problems(scene: Mapping) -> list[str]:

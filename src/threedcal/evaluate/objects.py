@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from threedcal.config import BUILTIN_OBJECTS, object_problem
 from threedcal.errors import ConfigError
 from threedcal.evaluate.mesh import (
     Mesh,
@@ -23,7 +24,7 @@ from threedcal.evaluate.mesh import (
     rotation_y,
 )
 
-OBJECT_NAMES = ("hemispheres", "pill", "pawn")
+OBJECT_NAMES = BUILTIN_OBJECTS
 
 
 @dataclass(frozen=True)
@@ -209,10 +210,9 @@ def load_object(name_or_stl: str | Path) -> Mesh:
     ref = str(name_or_stl)
     if ref in PARAMS:
         return make_object(ref)
-    if not ref.lower().endswith(".stl"):
-        raise ConfigError(
-            f"test object {ref!r} is neither a built-in ({', '.join(OBJECT_NAMES)}) nor an .stl path"
-        )
+    problem = object_problem(ref)
+    if problem:
+        raise ConfigError(problem)
     mesh = read_stl(ref)
     if not mesh.is_watertight():
         raise ConfigError(
