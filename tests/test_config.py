@@ -156,6 +156,33 @@ def test_invalid_profile_names_file_and_key(tmp_path):
     assert "type: 'optical' is not allowed (allowed: vision, magnetic)" in str(exc.value)
 
 
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        ({"dome": {"kx_per_mm": 0.013}}, "gel.dome: 'ky_per_mm' is a required property"),
+        ({"dome": 3}, "gel.dome: 3 is not of type 'null' or 'object'"),
+        ({"scatter_dn": [41.4, 48.3]}, "lights[0].scatter_dn: [41.4, 48.3] is too short"),
+        ({"scatter_dn": "red"}, "lights[0].scatter_dn: 'red' is not of type 'number' or 'array'"),
+    ],
+)
+def test_a_key_with_alternatives_reports_what_is_wrong_in_the_one_it_was_meant_as(
+    tmp_path, edit, message
+):
+    """Repro: a dome missing ky_per_mm was reported as `gel.dome: {...} is not of type 'null'`,
+    three scatter levels given as two as `is not of type 'number'`: the alternative not meant."""
+    profile = load_profile("sensor", "digit")
+    profile.pop("source", None)
+    if "dome" in edit:
+        profile["gel"]["dome"] = edit["dome"]
+    else:
+        profile["lights"][0]["scatter_dn"] = edit["scatter_dn"]
+    path = tmp_path / "my_digit.yaml"
+    path.write_text(yaml.safe_dump(profile))
+    with pytest.raises(ConfigError) as exc:
+        load_profile("sensor", path)
+    assert str(exc.value) == f"{path}: invalid sensor profile\n  {message}"
+
+
 # ---- issue 22: `config check` catches what a run would ------------------------------------
 
 

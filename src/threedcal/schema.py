@@ -130,9 +130,26 @@ def _describe(error: jsonschema.ValidationError) -> str:
 def _iter_errors(instance: Any, schema: Mapping) -> Iterator[jsonschema.ValidationError]:
     validator = jsonschema.Draft202012Validator(schema)
     # Report the deepest error of each failing branch: it is the one that names the exact key.
+    # Among equally deep ones, a type mismatch is the alternative the value was not meant as (a
+    # `dome` mapping is not `null`): what is wrong inside the alternative of its type comes first.
     for error in sorted(validator.iter_errors(instance), key=lambda e: list(e.absolute_path)):
         leaves = list(error.context) if error.context else []
-        yield min(leaves, key=lambda e: -len(e.absolute_path)) if leaves else error
+        yield _best_leaf(leaves) if leaves else error
+
+
+def _best_leaf(leaves: list[jsonschema.ValidationError]) -> jsonschema.ValidationError:
+    best = min(leaves, key=lambda e: (-len(e.absolute_path), e.validator == "type"))
+    if best.validator != "type":
+        return best
+    # No alternative of the value's type: name every type allowed, not just the first.
+    types: list[str] = []
+    for leaf in leaves:
+        if leaf.validator == "type" and leaf.absolute_path == best.absolute_path:
+            value = leaf.validator_value
+            types += [t for t in (value if isinstance(value, list) else [value]) if t not in types]
+    best = copy.copy(best)
+    best.message = f"{best.instance!r} is not of type " + " or ".join(map(repr, types))
+    return best
 
 
 def schema_errors(instance: Any, schema: Mapping) -> list[str]:
