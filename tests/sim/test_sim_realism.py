@@ -24,6 +24,30 @@ def test_realism_in_sample_passes_the_figures_the_profile_was_fitted_to(real_dat
     assert code == 1
 
 
+def test_write_fitted_never_overwrites_a_file_and_is_checked_before_the_fit(
+    real_data, tmp_path, monkeypatch, capsys
+):
+    """Repro: `--write-fitted my_mini.yaml` replaced an existing (hand-tuned) profile after the
+    fit, silently; a path in a missing folder raised FileNotFoundError only after the fit."""
+    import threedcal.sim.fit
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the fit ran before the output path was checked")
+
+    monkeypatch.setattr(threedcal.sim.fit, "realism_report", no_fit)
+    mine = tmp_path / "my_mini.yaml"
+    mine.write_text("name: my_mini  # tuned by hand\n")
+    real = ["sim", "realism", "--real", str(real_data / "gelsight_ball_fots")]
+    assert main([*real, "--write-fitted", str(mine)]) == 1
+    err = capsys.readouterr().err
+    assert f"--write-fitted {mine}: already exists; refusing to overwrite it" in err
+    assert mine.read_text() == "name: my_mini  # tuned by hand\n"
+    nowhere = tmp_path / "no" / "fit.yaml"
+    assert main([*real, "--write-fitted", str(nowhere)]) == 1
+    err = capsys.readouterr().err
+    assert f"--write-fitted {nowhere}: folder {nowhere.parent} does not exist" in err
+
+
 def test_realism_with_the_elastic_gel_and_its_skin_has_the_real_halo(real_data):
     """The Mini with the elastic gel and its skin (realism.gel_mechanics, as the default study's
     bench simulates it; its contact at a given depth is smaller, so each label's depth comes from

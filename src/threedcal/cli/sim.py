@@ -48,6 +48,17 @@ def _realism(args: argparse.Namespace) -> int:
 
     if args.in_sample and args.write_fitted:
         raise ConfigError("--write-fitted needs the fit: leave out --in-sample")
+    if args.write_fitted:  # checked before the fit: it takes minutes, then writes
+        from pathlib import Path
+
+        fitted = Path(args.write_fitted)
+        if fitted.exists():
+            raise ConfigError(
+                f"--write-fitted {fitted}: already exists; refusing to overwrite it (a profile "
+                "you may have tuned): choose another path or move it away"
+            )
+        if not fitted.parent.is_dir():
+            raise ConfigError(f"--write-fitted {fitted}: folder {fitted.parent} does not exist")
     text, ok = realism_report(
         args.real,
         args.sensor,
