@@ -71,3 +71,41 @@ def test_reskin_read_count_must_be_positive(capsys, count):
     assert main(["reskin", "read", "--port", "sim", "--count", count]) == 1
     err = capsys.readouterr().err
     assert f"--count must be a whole number >= 1, got {count}" in err and "Traceback" not in err
+
+
+def test_objects_export_into_a_file_is_refused_before_writing(tmp_path, capsys):
+    """Repro: `objects export --out notes.txt` (or a folder under a file) raised FileExistsError /
+    NotADirectoryError from mkdir."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    for out in (notes, notes / "stl"):
+        assert main(["objects", "export", "--out", str(out), "--objects", "pill"]) == 1
+        err = capsys.readouterr().err
+        assert err == f"threedcal: error: --out {out}: {notes} is a file, not a folder\n"
+    assert notes.read_text() == "mine"
+
+
+def test_predict_into_a_folder_that_is_a_file_is_refused(tmp_path, capsys):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    out = notes / "d.npy"
+    args = ["predict", "--checkpoint", "m.pt", "--image", "x.png", "--out", str(out)]
+    assert main(args) == 1
+    assert (
+        capsys.readouterr().err
+        == f"threedcal: error: --out {out}: {notes} is a file, not a folder\n"
+    )
+
+
+def test_a_path_the_system_refuses_is_one_line_naming_it(monkeypatch, capsys):
+    """Any OSError a command meets (no space left, a file where a folder goes) is one line that
+    names the path, not a traceback."""
+    import threedcal.cli
+
+    def full_disk(args):
+        raise OSError(28, "No space left on device", "results/d.npy")
+
+    commands = [Command(("write",), "write something", full_disk)]
+    monkeypatch.setattr(threedcal.cli, "discover_commands", lambda: commands)
+    assert main(["write"]) == 1
+    assert capsys.readouterr().err == "threedcal: error: results/d.npy: No space left on device\n"

@@ -86,6 +86,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ThreedcalError as exc:
         print(f"threedcal: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # a path the system refuses (a file where a folder goes, no space, ...)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"threedcal: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("threedcal: interrupted", file=sys.stderr)
         return 130

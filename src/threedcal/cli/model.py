@@ -97,6 +97,9 @@ def _refuse_overwriting_inputs(outputs: dict[str, Path], inputs: dict[str, str |
     for out_option, path in outputs.items():
         if path.is_dir():
             raise ConfigError(f"{out_option} {path}: is a folder; give a file name")
+        taken = next((p for p in path.parents if p.exists()), None)
+        if taken is not None and not taken.is_dir():
+            raise ConfigError(f"{out_option} {path}: {taken} is a file, not a folder")
         for in_option, given in inputs.items():
             if given and path.exists() and Path(given).exists() and path.samefile(given):
                 raise ConfigError(

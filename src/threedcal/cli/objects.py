@@ -25,6 +25,9 @@ def _export(args: argparse.Namespace) -> int:
     refs = args.objects or list(OBJECT_NAMES)
     meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
     out = Path(args.out)
+    taken = next((p for p in [out, *out.parents] if p.exists()), None)
+    if taken is not None and not taken.is_dir():
+        raise ConfigError(f"--out {out}: {taken} is a file, not a folder")
     for name, mesh in meshes.items():
         stl = write_stl(mesh, out / f"{name}.stl")
         depth = surface_height(mesh, shape, px_per_mm).depth(args.indentation_mm)
