@@ -226,3 +226,19 @@ def test_non_numbers_in_messages_are_plain(tmp_path):
         load_ball_folder(tmp_path)
     assert "center_x_px=nan must be a finite number" in str(exc.value)
     assert "np.float64" not in str(exc.value)
+
+
+@pytest.mark.parametrize("value", [True, 0, -2.0, float("nan"), "10"])
+def test_a_scale_that_is_not_a_positive_number_names_the_file_and_key(tmp_path, value):
+    # `true` counts as 1 in Python: it passed as 1 px/mm, and the error that followed blamed the
+    # labels' radii instead of the scale.
+    make_ball_folder(tmp_path / "ball")
+    meta = {"px_per_mm": value, "ball_radius_mm": 2.0}
+    (tmp_path / "ball/dataset.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(ConfigError, match=r"dataset.yaml: px_per_mm must be a positive number"):
+        load_ball_folder(tmp_path / "ball")
+    make_py3dcal_folder(tmp_path / "p3")
+    meta = {"px_per_mm": 20.0, "probe_radius_mm": value}
+    (tmp_path / "p3/annotations/metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match=r"metadata.json: probe_radius_mm must be a positive"):
+        load_imported("py3dcal", tmp_path / "p3")

@@ -156,6 +156,18 @@ def _check_shapes(
             )
 
 
+def _positive_number(meta: dict, key: str, meta_path: Path) -> None:
+    """A finite number > 0; YAML's and JSON's `true` is not one, though Python counts it as 1."""
+    value = meta.get(key)
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or value <= 0
+    ):
+        raise ConfigError(f"{meta_path}: {key} must be a positive number, got {value!r}")
+
+
 def load_ball_folder(folder: str | Path) -> ImportedDataset:
     folder = Path(folder)
     if not folder.is_dir():
@@ -165,9 +177,7 @@ def load_ball_folder(folder: str | Path) -> ImportedDataset:
     if not isinstance(meta, dict):
         raise ConfigError(f"{meta_path}: must be a mapping")
     for key in ("px_per_mm", "ball_radius_mm"):
-        value = meta.get(key)
-        if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-            raise ConfigError(f"{meta_path}: {key} must be a positive number, got {value!r}")
+        _positive_number(meta, key, meta_path)
     px_per_mm = float(meta["px_per_mm"])
     radius_mm = float(meta["ball_radius_mm"])
     labels_path = _member(folder, meta.get("labels", "labels.csv"), f"{meta_path}: labels")
@@ -228,13 +238,10 @@ def load_py3dcal_folder(folder: str | Path) -> ImportedDataset:
             f"got a {type(meta).__name__}"
         )
     for key in ("px_per_mm", "probe_radius_mm"):
-        value = meta.get(key)
-        if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-            raise ConfigError(f"{meta_path}: {key} must be a positive number, got {value!r}")
+        _positive_number(meta, key, meta_path)
     table_path = annotations / "annotations.csv"
     columns = ("img_name", "x_mm", "y_mm", "penetration_depth_mm", "x_px", "y_px")
     table = _read_csv(table_path, columns)
-    # py3DCal writes a "---" row for a point whose capture failed: no image, skip it.
     # py3DCal writes a "---" row for a point whose capture failed: no image, skip it. Rows keep
     # their number in the file (+2: the header, and counting from 1) for messages.
     kept = table["img_name"].astype(str).str.strip() != "---"
