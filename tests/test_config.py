@@ -121,6 +121,9 @@ def test_ablation_takes_a_list_or_fractions_with_replicates():
     assert "scenes.s.ablation: 'fractions' is a required property" in error_of(
         config_with(ablation={"replicates": 3})
     )
+    # neither a list nor a mapping: both are named (was "'all' is not of type 'object'")
+    message = error_of(config_with(ablation="all"))
+    assert message.endswith("scenes.s.ablation: 'all' is not of type 'array' or 'object'")
 
 
 def test_stats_settings_default_to_the_papers_alpha_and_a_ten_percent_margin():
