@@ -242,3 +242,18 @@ def test_a_scale_that_is_not_a_positive_number_names_the_file_and_key(tmp_path, 
     (tmp_path / "p3/annotations/metadata.json").write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match=r"metadata.json: probe_radius_mm must be a positive"):
         load_imported("py3dcal", tmp_path / "p3")
+
+
+def test_a_labels_key_that_is_not_a_file_name_is_named(tmp_path):
+    # was: "ball/['a', 'b']: missing (table)", a path made of the list's text
+    make_ball_folder(tmp_path)
+    meta = {"px_per_mm": 10.0, "ball_radius_mm": 2.0, "labels": ["a.csv", "b.csv"]}
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(ConfigError, match=r"dataset.yaml: labels must be the labels table's file"):
+        load_ball_folder(tmp_path)
+    meta["labels"] = "../labels.csv"
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(
+        ConfigError, match=r"labels: file name '../labels.csv' must be a relative file name"
+    ):
+        load_ball_folder(tmp_path)

@@ -74,13 +74,13 @@ def read_rgb(path: Path) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BGR2RGB)
 
 
-def _member(folder: Path, name: object, where: str) -> Path:
+def _member(folder: Path, name: object, where: str, what: str = "image name") -> Path:
     """A file named in a table, which must lie inside `folder` (no absolute paths, no `..`)."""
     text = str(name).strip()
     parts = Path(text).parts
     if not text or Path(text).is_absolute() or ".." in parts or "\x00" in text:
         raise ConfigError(
-            f"{where}: image name {text!r} must be a relative file name inside {folder} "
+            f"{where}: {what} {text!r} must be a relative file name inside {folder} "
             "(no absolute path, no '..')"
         )
     return folder / text
@@ -180,7 +180,12 @@ def load_ball_folder(folder: str | Path) -> ImportedDataset:
         _positive_number(meta, key, meta_path)
     px_per_mm = float(meta["px_per_mm"])
     radius_mm = float(meta["ball_radius_mm"])
-    labels_path = _member(folder, meta.get("labels", "labels.csv"), f"{meta_path}: labels")
+    labels_name = meta.get("labels", "labels.csv")
+    if not isinstance(labels_name, str):
+        raise ConfigError(
+            f"{meta_path}: labels must be the labels table's file name, got {labels_name!r}"
+        )
+    labels_path = _member(folder, labels_name, f"{meta_path}: labels", "file name")
     labels = _read_csv(labels_path, BALL_LABEL_COLUMNS)
     if labels.empty:
         raise ConfigError(f"{labels_path}: no labelled image")
