@@ -342,11 +342,14 @@ def test_a_replicate_trains_on_its_own_subset_with_its_own_seed(tmp_path, monkey
         train(ts, tmp_path / "r2", 20, settings, progress=False, replicate=2)
 
 
-def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("schedule", ["constant", "cosine"])
+def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch, schedule):
     import threedcal.model.train as module
 
     ts = synthetic_set()
-    settings = TrainSettings.of(preset="compact_tiny", seed=5, **{**TINY, "epochs_base": 3})
+    settings = TrainSettings.of(
+        preset="compact_tiny", seed=5, lr_schedule=schedule, **{**TINY, "epochs_base": 3}
+    )
     train(ts, tmp_path / "full", 80, settings, progress=False)
     real = module._train_epoch
     calls = []

@@ -120,7 +120,7 @@ def scheduled_lr(
     run's steps from lr down to lr/100.
 
     Per step, not per epoch: P = 80 % trains 4 epochs, and a rate held for a whole epoch spent its
-    last quarter at lr/100 (its validation MSE 4.6 % worse, docs/statistics.md, The learning-rate
+    last quarter at lr/100 (its validation MSE about 5 % worse, docs/statistics.md, The learning-rate
     schedule), while P = 1 % (320 epochs) annealed smoothly: the fractions did not get the same
     schedule. A function of the position alone, so a resumed run uses the same rates.
     """
@@ -207,8 +207,14 @@ def configure_torch(settings: TrainSettings) -> torch.device:
     return torch.device(settings.device)
 
 
+# Bumped when the same settings train differently: a checkpoint of an interrupted run of the older
+# code is then not resumed under the newer one (2: the cosine rate per batch, no longer per epoch).
+TRAINING_SEMANTICS = 2
+
+
 def _resume_key(settings: TrainSettings, percent: int, replicate: int, ts: TrainingSet) -> str:
     described = {
+        "semantics": TRAINING_SEMANTICS,
         "settings": asdict(settings),
         "percent": percent,
         "replicate": replicate,
@@ -429,7 +435,7 @@ def _train_epoch(
         loss = gradient_loss(prediction.float() * sign, y, settings.loss)
         value = float(loss.detach())
         if not math.isfinite(value):
-            raise TrainingError(f"the loss of batch {count // settings.batch_size + 1} is {value}")
+            raise TrainingError(f"the loss of batch {batch + 1} is {value}")
         loss.backward()
         optimizer.step()
         total += value * len(x)
