@@ -102,10 +102,10 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
     except ConfigError as exc:
         text = str(exc)
         problems.append(text if text.startswith("plan") else f"plan: {text}")
-    return problems + _object_problems(scene, check_files)
+    return problems + _object_problems(scene)
 
 
-def _object_problems(scene: Mapping, check_files: bool) -> list[str]:
+def _object_problems(scene: Mapping) -> list[str]:
     """Each test object is a built-in name or an STL file that exists: found now, not at the
     pressing stage after the collection and the training. (An STL's content is read there.)"""
     return [
