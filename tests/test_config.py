@@ -15,6 +15,7 @@ from threedcal.config import (
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
+REPO = Path(__file__).resolve().parents[1]
 SIM_SCENE = {"sensor": "digit", "printer": "ender3"}
 
 
@@ -369,3 +370,18 @@ def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_p
         f"  scenes.s.objects[2]: STL file '{missing}' does not exist",
     ]
     validate_config(config_with(objects=["pill", "pawn", "hemispheres", str(mine)]))
+
+
+def test_realism_folders_and_sensors_are_named_by_config_check(tmp_path, capsys):
+    """Repro: `realism: {real: missing/}` passed `config check`; Snakemake refused it later."""
+    real = REPO / "data/gelsight_ball_fots"
+    text = (
+        "scenes:\n  s: {sensor: digit, printer: ender3}\n"
+        f"realism: {{real: {tmp_path / 'missing'}, also: [{{real: {real}, sensor: digi}}]}}\n"
+    )
+    code, err = check(tmp_path, text, capsys)
+    assert code == 1
+    assert f"realism.real: {tmp_path / 'missing'} is not a folder" in err
+    assert "realism.also[0].sensor: " in err and "digi" in err
+    good = f"scenes:\n  s: {{sensor: digit, printer: ender3}}\nrealism: {{real: {real}}}\n"
+    assert check(tmp_path, good, capsys)[0] == 0

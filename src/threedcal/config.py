@@ -62,10 +62,38 @@ def validate_config(config: Mapping, source: str = "config", *, check_files: boo
         f"scenes.{name}.{msg}"
         for name, scene in config["scenes"].items()
         for msg in _run_problems(scene, check_files)
-    ]
+    ] + _realism_problems(config)
     if problems:
         raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
     return config
+
+
+def realism_sets(config: Mapping[str, Any]) -> list[list[str | None]]:
+    """[real folder, sensor, gel mechanics or None] the realism stage fits and compares
+    (realism.real/sensor first, then realism.also); [] without a realism section."""
+    realism = config.get("realism") or {}
+    if not realism:
+        return []
+    first = {"sensor": "gelsight_mini", **realism}
+    return [
+        [str(s["real"]), str(s["sensor"]), s.get("gel_mechanics")]
+        for s in [first, *realism.get("also", [])]
+    ]
+
+
+def _realism_problems(config: Mapping) -> list[str]:
+    """The realism stage's folders and sensors, named now (Snakemake would refuse a missing folder
+    only when it parses the workflow, without naming the key)."""
+    problems = []
+    for i, (real, sensor, _) in enumerate(realism_sets(config)):
+        where = "realism" if i == 0 else f"realism.also[{i - 1}]"
+        if not Path(real).is_dir():
+            problems.append(f"{where}.real: {real} is not a folder (a ball-image dataset expected)")
+        try:
+            load_profile("sensor", sensor)
+        except ConfigError as exc:
+            problems.append(f"{where}.sensor: {exc}")
+    return problems
 
 
 def _run_problems(scene: Mapping, check_files: bool) -> list[str]:

@@ -13,7 +13,13 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from threedcal.config import FULL_TRAINING_P, is_imported, model_keys, training_fractions
+from threedcal.config import (
+    FULL_TRAINING_P,
+    is_imported,
+    model_keys,
+    realism_sets,
+    training_fractions,
+)
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
@@ -230,19 +236,6 @@ def write_scene_record(name: str, scene: Mapping, path: str | Path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(scene_record(name, scene), indent=2, sort_keys=True) + "\n")
-
-
-def realism_sets(config: Mapping[str, Any]) -> list[list[str | None]]:
-    """[real folder, sensor, gel mechanics or None] the realism stage fits and compares
-    (realism.real/sensor first, then realism.also); [] without a realism section."""
-    realism = config.get("realism") or {}
-    if not realism:
-        return []
-    first = {"sensor": "gelsight_mini", **realism}
-    return [
-        [str(s["real"]), str(s["sensor"]), s.get("gel_mechanics")]
-        for s in [first, *realism.get("also", [])]
-    ]
 
 
 def realism_files(config: Mapping[str, Any]) -> list[str]:
