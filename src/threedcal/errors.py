@@ -9,5 +9,9 @@ class ConfigError(ThreedcalError, ValueError):
     """A configuration, profile, plan or data file is invalid; the message names the file and key."""
 
 
+class FrameSizeError(ConfigError):
+    """A frame (or blank) whose size a model cannot take; the caller adds which file it was."""
+
+
 class TrainingError(ThreedcalError, ArithmeticError):
     """A training step's loss stopped being finite; the message names the job and what to change."""

@@ -14,9 +14,10 @@ import pkgutil
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from threedcal import __version__
-from threedcal.errors import ThreedcalError
+from threedcal.errors import ConfigError, ThreedcalError
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,14 @@ GROUP_HELP = {
     "objects": "test objects: CAD, STL files, ground-truth depth",
     "reskin": "the ReSkin magnetic sensor: serial check",
 }
+
+
+def refuse_file_on_path(option: str, output: Path, folder: Path) -> None:
+    """Refused before anything is written: `output` goes into `folder`, whose nearest existing
+    part is a file (makedirs would raise FileExistsError or NotADirectoryError half way)."""
+    taken = next((p for p in [folder, *folder.parents] if p.exists()), None)
+    if taken is not None and not taken.is_dir():
+        raise ConfigError(f"{option} {output}: {taken} is a file, not a folder")
 
 
 def discover_commands() -> list[Command]:

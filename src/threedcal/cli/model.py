@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from threedcal.cli import Command
-from threedcal.errors import ConfigError
+from threedcal.cli import Command, refuse_file_on_path
+from threedcal.errors import ConfigError, FrameSizeError
 
 
 def _estimator_args(parser: argparse.ArgumentParser) -> None:
@@ -40,9 +40,7 @@ def _estimator(args: argparse.Namespace):
             px_per_mm=args.px_per_mm,
             camera_blank=True,  # the user's blank comes from the camera, like the frames
         )
-    except ConfigError as exc:
-        if blank is None or "frame (H x W) does not fit" not in str(exc):
-            raise
+    except FrameSizeError as exc:  # only the user's blank is pooled here
         raise ConfigError(f"{args.blank} (--blank): {exc}") from None
 
 
@@ -50,7 +48,7 @@ def _model_frames(estimator, frames, where: str):
     """`estimator.rectify(frames)`; a frame the model cannot take is an error naming `where`."""
     try:
         return estimator.rectify(frames)
-    except ConfigError as exc:
+    except FrameSizeError as exc:
         raise ConfigError(f"{where}: {exc}") from None
 
 
@@ -97,9 +95,7 @@ def _refuse_overwriting_inputs(outputs: dict[str, Path], inputs: dict[str, str |
     for out_option, path in outputs.items():
         if path.is_dir():
             raise ConfigError(f"{out_option} {path}: is a folder; give a file name")
-        taken = next((p for p in path.parents if p.exists()), None)
-        if taken is not None and not taken.is_dir():
-            raise ConfigError(f"{out_option} {path}: {taken} is a file, not a folder")
+        refuse_file_on_path(out_option, path, path.parent)
         for in_option, given in inputs.items():
             if given and path.exists() and Path(given).exists() and path.samefile(given):
                 raise ConfigError(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from threedcal.cli import Command
+from threedcal.cli import Command, refuse_file_on_path
 
 
 def _export(args: argparse.Namespace) -> int:
@@ -25,9 +25,7 @@ def _export(args: argparse.Namespace) -> int:
     refs = args.objects or list(OBJECT_NAMES)
     meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
     out = Path(args.out)
-    taken = next((p for p in [out, *out.parents] if p.exists()), None)
-    if taken is not None and not taken.is_dir():
-        raise ConfigError(f"--out {out}: {taken} is a file, not a folder")
+    refuse_file_on_path("--out", out, out)
     for name, mesh in meshes.items():
         stl = write_stl(mesh, out / f"{name}.stl")
         depth = surface_height(mesh, shape, px_per_mm).depth(args.indentation_mm)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from threedcal.cli import Command
 
@@ -49,8 +50,6 @@ def _realism(args: argparse.Namespace) -> int:
     if args.in_sample and args.write_fitted:
         raise ConfigError("--write-fitted needs the fit: leave out --in-sample")
     if args.write_fitted:  # checked before the fit: it takes minutes, then writes
-        from pathlib import Path
-
         fitted = Path(args.write_fitted)
         if fitted.exists():
             raise ConfigError(

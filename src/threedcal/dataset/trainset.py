@@ -34,7 +34,7 @@ from threedcal.dataset.labels import (
     local_dome,
     sphere_gradients,
 )
-from threedcal.errors import ConfigError
+from threedcal.errors import ConfigError, FrameSizeError
 
 SAMPLE_COLUMNS = (
     "frame",
@@ -245,7 +245,7 @@ def pool_to(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """`image` average-pooled to a model's frame `shape` (H, W), as `downscale` pools a trainset.
 
     Only a frame a whole number of times the model's in both directions pools to it; any other
-    (a camera in another mode, a portrait/landscape mix-up) is a ConfigError giving both sizes."""
+    (a camera in another mode, a portrait/landscape mix-up) is a FrameSizeError giving both sizes."""
     if image.shape[:2] == tuple(shape):
         return image
     import cv2
@@ -253,7 +253,7 @@ def pool_to(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     height, width = shape
     factor = image.shape[0] // height
     if factor < 1 or image.shape[1] // width != factor:
-        raise ConfigError(
+        raise FrameSizeError(
             f"a {image.shape[0]} x {image.shape[1]} px frame (H x W) does not fit the model's "
             f"{height} x {width} px frames: give frames of that size or a whole multiple of it "
             f"(e.g. {2 * height} x {2 * width} px), as the sensor streamed them for calibration"
