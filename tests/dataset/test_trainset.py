@@ -38,6 +38,16 @@ def test_coordinate_channels_span_minus_one_to_one_and_follow_windows():
     np.testing.assert_array_equal(coordinate_channels(5, 4, window), full[:, 1:3, 2:4])
 
 
+def test_coordinate_channels_are_shared_and_read_only():
+    # one grid per image size, handed out as views: a caller that wrote into one would change
+    # every later frame's input, so writing raises
+    grid = coordinate_channels(6, 7, (slice(0, 3), slice(1, 4)))
+    assert np.shares_memory(grid, coordinate_channels(6, 7))
+    with pytest.raises(ValueError, match="read-only"):
+        grid[0, 0, 0] = 5.0
+    assert coordinate_channels(6, 7)[0, 0, 1] == pytest.approx(-1 + 2 / 6)
+
+
 def test_inputs_and_labels_of_a_window_equal_the_window_of_the_full_image():
     ts = small_set()
     window = (slice(5, 25), slice(3, 21))
