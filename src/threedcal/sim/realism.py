@@ -13,7 +13,9 @@ the renders):
 - ``hf_noise_std``: std (DN, mean over channels) of the frame minus its sigma-1 px blur, outside the
   contact: sensor noise plus fine texture.
 - ``dI_p1_<c>`` / ``dI_p99_<c>``: 1st / 99th percentile of (frame - background) per channel inside the
-  evaluation disc 0.9 x min(label radius, 0.98 ball radius): the contact's contrast.
+  evaluation disc 0.9 x min(label radius, 0.98 ball radius), less the frame's lighting drift (its
+  per-channel median change, as for the halo and as the optics fit removes it): the contact's
+  contrast.
 - ``r2_<c>``: R² of the per-channel linear fit of ΔI on the true sphere normals (nx, ny, nz, 1) inside
   the same disc: how photometric-stereo-like the shading is (1 = perfectly Lambertian and noiseless).
 
@@ -181,7 +183,7 @@ def image_figures(
     out["halo_width_px"] = r10 - r50
     rad = 0.9 * min(label.radius_px, 0.98 * ball_radius_px)
     disc = r2 < rad**2
-    d_i = (img - bg)[disc]
+    d_i = contact_change(img, bg)[disc]  # the contact's contrast, not the lighting's drift
     nx = (xx[disc] - cx) / ball_radius_px
     ny = (yy[disc] - cy) / ball_radius_px
     nz = np.sqrt(np.clip(1 - nx**2 - ny**2, 0, 1))
@@ -220,14 +222,19 @@ def noise_figures(img: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, float]
     return std, float(np.mean(corr))
 
 
+def contact_change(img: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """frame - background (DN, float32) less the frame's lighting drift: its per-channel median
+    change, the contact being small. Real frames drift by several DN from their background shot
+    (blue +8 DN over the FOTS GelSight frames), the simulator's by its own draws."""
+    diff = img.astype(np.float32) - background.astype(np.float32)
+    return diff - np.median(diff.reshape(-1, diff.shape[-1]), axis=0)
+
+
 def contact_magnitude(img: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """|frame - background| summed over channels (DN), after the frame's lighting drift (its
-    per-channel median change, the contact being small) is removed, smoothed by sigma 2 px."""
+    """|contact_change| summed over channels (DN), smoothed by sigma 2 px."""
     import cv2
 
-    diff = img.astype(np.float32) - background.astype(np.float32)
-    diff -= np.median(diff.reshape(-1, 3), axis=0)
-    return cv2.GaussianBlur(np.abs(diff).sum(axis=2), (0, 0), 2.0)
+    return cv2.GaussianBlur(np.abs(contact_change(img, background)).sum(axis=2), (0, 0), 2.0)
 
 
 def halo_radii(img, background, center_px, ball_radius_px: float) -> tuple[float, float]:
