@@ -2,6 +2,7 @@ import copy
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -354,20 +355,28 @@ def test_sim_to_real_needs_an_imported_vision_scene_and_valid_k():
 
 
 def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_path):
-    """Repro: `objects: [pil]` (a typo) or a missing STL passed `config check` and the Snakefile's
-    validation; the run collected and trained, then failed at the pressing stage."""
+    """Repro: `objects: [pil]` (a typo), a missing STL or one that cannot be read passed
+    `config check` and the Snakefile's validation; the run collected and trained, then failed at
+    the pressing stage."""
     from threedcal.config import BUILTIN_OBJECTS
-    from threedcal.evaluate.objects import PARAMS
+    from threedcal.evaluate.mesh import Mesh, write_stl
+    from threedcal.evaluate.objects import PARAMS, make_object
 
     assert set(BUILTIN_OBJECTS) == set(PARAMS)  # one list of the built-ins the stage can build
-    mine = tmp_path / "mine.STL"
-    mine.write_text("solid x\nendsolid x\n")  # read (and refused) by the pressing stage
+    mine = write_stl(make_object("pill"), tmp_path / "mine.STL")
+    empty = tmp_path / "empty.stl"
+    empty.write_text("solid x\nendsolid x\n")
+    sheet = write_stl(Mesh(np.eye(3), [[0, 1, 2]], "sheet"), tmp_path / "sheet.stl")
     missing = tmp_path / "missing.stl"
-    message = error_of(config_with(objects=["pill", "pil", str(missing), str(mine)]))
+    refs = ["pill", "pil", str(missing), str(empty), str(sheet), str(mine)]
+    message = error_of(config_with(objects=refs))
     assert message.splitlines()[1:] == [
         "  scenes.s.objects[1]: test object 'pil' is neither a built-in (hemispheres, pill, pawn) "
         "nor an .stl path",
         f"  scenes.s.objects[2]: STL file '{missing}' does not exist",
+        f"  scenes.s.objects[3]: {empty}: ASCII STL must list 3 vertices per facet, found 0",
+        f"  scenes.s.objects[4]: {sheet}: the STL is not a closed (watertight), consistently "
+        "wound surface; repair it (e.g. in your CAD tool or slicer) and export again",
     ]
     validate_config(config_with(objects=["pill", "pawn", "hemispheres", str(mine)]))
 

@@ -134,8 +134,8 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
 
 
 def _object_problems(scene: Mapping) -> list[str]:
-    """Each test object is a built-in name or an STL file that exists: found now, not at the
-    pressing stage after the collection and the training. (An STL's content is read there.)"""
+    """Each test object is a built-in name or a readable STL file: found now, not at the pressing
+    stage after the collection and the training."""
     return [
         f"objects[{i}]: {problem}"
         for i, ref in enumerate(scene.get("objects") or [])
@@ -155,6 +155,12 @@ def object_problem(ref: str | Path) -> str | None:
         )
     if not Path(text).is_file():
         return f"STL file {text!r} does not exist"
+    from threedcal.evaluate.mesh import read_solid_stl  # numpy only: the check stays light
+
+    try:
+        read_solid_stl(text)
+    except ConfigError as exc:
+        return str(exc)
     return None
 
 

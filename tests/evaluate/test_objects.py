@@ -100,6 +100,15 @@ def test_load_object_errors(tmp_path):
     (tmp_path / "junk.stl").write_bytes(b"\x00\xff" * 50)
     with pytest.raises(ConfigError, match="STL"):
         load_object(str(tmp_path / "junk.stl"))
+    # a NaN corner (a broken export) would rasterise to nothing, silently: refused, facet named
+    pill = make_object("pill")
+    broken = Mesh(pill.vertices.copy(), pill.faces, "broken")
+    broken.vertices[pill.faces[4, 1], 2] = np.nan
+    write_stl(broken, tmp_path / "broken.stl")
+    with pytest.raises(
+        ConfigError, match=r"broken.stl: facet \d+ has a vertex that is not a finite"
+    ):
+        load_object(str(tmp_path / "broken.stl"))
 
 
 def test_sphere_ground_truth_matches_the_analytic_cap():

@@ -228,6 +228,12 @@ def read_stl(path: str | Path, name: str | None = None) -> Mesh:
     if corners is None:
         corners = _ascii_corners(raw, path)
     corners = np.asarray(corners, dtype=np.float64).reshape(-1, 3)
+    bad = np.flatnonzero(~np.isfinite(corners).all(axis=1))
+    if bad.size:
+        raise ConfigError(
+            f"{path}: facet {bad[0] // 3 + 1} has a vertex that is not a finite number "
+            f"({bad.size} such vertices in all)"
+        )
     vertices, faces = np.unique(corners, axis=0, return_inverse=True)
     faces = faces.reshape(-1, 3)
     faces = faces[
@@ -236,6 +242,19 @@ def read_stl(path: str | Path, name: str | None = None) -> Mesh:
     if len(faces) == 0:
         raise ConfigError(f"{path}: the STL has no non-degenerate triangles")
     return Mesh(vertices, faces, name)
+
+
+def read_solid_stl(path: str | Path) -> Mesh:
+    """A test object's STL → a closed mesh wound outwards, in the press frame (`Mesh.normalised`)."""
+    mesh = read_stl(path)
+    if not mesh.is_watertight():
+        raise ConfigError(
+            f"{path}: the STL is not a closed (watertight), consistently wound surface; "
+            "repair it (e.g. in your CAD tool or slicer) and export again"
+        )
+    if mesh.volume < 0:  # wound inside out: turn the normals outwards
+        mesh = Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.name)
+    return mesh.normalised()
 
 
 def _ascii_corners(raw: bytes, path: Path) -> np.ndarray:

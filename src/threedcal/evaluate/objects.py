@@ -18,7 +18,7 @@ from threedcal.errors import ConfigError
 from threedcal.evaluate.mesh import (
     Mesh,
     height_field_solid,
-    read_stl,
+    read_solid_stl,
     revolve,
     rotation_x,
     rotation_y,
@@ -210,18 +210,9 @@ def load_object(name_or_stl: str | Path) -> Mesh:
     ref = str(name_or_stl)
     if ref in PARAMS:
         return make_object(ref)
-    problem = object_problem(ref)
-    if problem:
-        raise ConfigError(problem)
-    mesh = read_stl(ref)
-    if not mesh.is_watertight():
-        raise ConfigError(
-            f"{ref}: the STL is not a closed (watertight), consistently wound surface; "
-            "repair it (e.g. in your CAD tool or slicer) and export again"
-        )
-    if mesh.volume < 0:  # wound inside out: turn the normals outwards
-        mesh = Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.name)
-    return mesh.normalised()
+    if not (ref.lower().endswith(".stl") and Path(ref).is_file()):
+        raise ConfigError(object_problem(ref))  # a typo of a built-in name, or a missing file
+    return read_solid_stl(ref)  # what config check reads too (object_problem)
 
 
 def object_label(name_or_stl: str | Path) -> str:
