@@ -67,3 +67,28 @@ def test_cli_export_writes_printable_stls(tmp_path, capsys):
     assert "watertight=True" in capsys.readouterr().out
     assert main(["objects", "export", "--out", str(tmp_path / "x"), "--objects", "rook"]) == 1
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_export_never_replaces_files_and_never_exports_an_stl_onto_itself(tmp_path, capsys):
+    """Repro: a second export into the same folder replaced the first without a word, and the
+    README's `--objects stl/pill.stl --out stl/` replaced the user's own STL with its re-centred
+    copy."""
+    out = tmp_path / "stl"
+    assert main(["objects", "export", "--out", str(out), "--objects", "pill", "pawn"]) == 0
+    capsys.readouterr()
+    preview = (out / "pawn_depth.png").read_bytes()
+    again = ["objects", "export", "--out", str(out), "--objects", "pill", "pawn"]
+    assert main([*again, "--indentation-mm", "1.5"]) == 1
+    assert "pill.stl: already exists; refusing to overwrite it" in capsys.readouterr().err
+    assert (out / "pawn_depth.png").read_bytes() == preview
+    assert main([*again, "--indentation-mm", "1.5", "--force"]) == 0
+    assert (out / "pawn_depth.png").read_bytes() != preview
+    mine = out / "pill.stl"
+    before = mine.read_bytes()
+    for extra in ([], ["--force"]):
+        assert main(["objects", "export", "--out", str(out), "--objects", str(mine), *extra]) == 1
+        assert "is the --objects file" in capsys.readouterr().err
+        assert mine.read_bytes() == before
+    assert (
+        main(["objects", "export", "--out", str(tmp_path / "check"), "--objects", str(mine)]) == 0
+    )

@@ -153,3 +153,34 @@ def test_live_never_writes_its_video_over_the_source_video(tmp_path, capsys, mod
     assert main(args) == 1
     assert f"--out {video}: is the --source file" in capsys.readouterr().err
     assert video.read_bytes() == b"a recorded press"
+
+
+def test_predict_never_replaces_an_earlier_result_without_force(tmp_path, capsys, model):
+    """Repro: a second `predict --out depth.npy` (another image, another model) replaced the first
+    depth map and its colour map without a word."""
+    image = write_rgb(tmp_path / "frame.png", SHAPE)
+    out = tmp_path / "depth.npy"
+    assert predict(model, image, str(out)) == 0
+    first = out.read_bytes()
+    out.with_suffix(".png").write_bytes(b"kept")  # the colour map alone is guarded too
+    out.unlink()
+    assert predict(model, image, str(out)) == 1
+    err = capsys.readouterr().err
+    assert "depth.png: already exists; refusing to overwrite it" in err and "--force" in err
+    assert not out.exists() and out.with_suffix(".png").read_bytes() == b"kept"
+    assert predict(model, image, str(out), "--force") == 0
+    assert out.read_bytes() == first and out.with_suffix(".png").read_bytes() != b"kept"
+
+
+def test_live_never_replaces_an_earlier_video_without_force(tmp_path, capsys, model):
+    video = tmp_path / "live.gif"
+    video.write_bytes(b"an earlier run")
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    write_rgb(folder / "0.png", SHAPE)
+    args = ["live", "--checkpoint", model, "--source", str(folder), "--out", str(video)]
+    assert main([*args, "--device", "cpu"]) == 1
+    assert "live.gif: already exists" in capsys.readouterr().err
+    assert video.read_bytes() == b"an earlier run"
+    assert main([*args, "--device", "cpu", "--force"]) == 0
+    assert video.read_bytes() != b"an earlier run"

@@ -12,7 +12,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,6 +47,28 @@ def refuse_file_on_path(option: str, output: Path, folder: Path) -> None:
     taken = next((p for p in [folder, *folder.parents] if p.exists()), None)
     if taken is not None and not taken.is_dir():
         raise ConfigError(f"{option} {output}: {taken} is a file, not a folder")
+
+
+def refuse_existing_outputs(
+    outputs: Mapping[str, Path] | Sequence[tuple[str, Path]], force: bool
+) -> None:
+    """Refused before anything runs: an output file (option → path, or (option, path) pairs) that
+    exists already, unless `--force` (a rerun with other settings would otherwise replace a result
+    without a word)."""
+    if force:
+        return
+    for option, path in outputs.items() if isinstance(outputs, Mapping) else outputs:
+        if path.is_file():
+            raise ConfigError(
+                f"{option} {path}: already exists; refusing to overwrite it (choose another "
+                "path, or add --force to replace it)"
+            )
+
+
+def add_force_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--force", action="store_true", help="replace output files that exist already"
+    )
 
 
 def discover_commands() -> list[Command]:

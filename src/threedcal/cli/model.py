@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from threedcal.cli import Command, refuse_file_on_path
+from threedcal.cli import Command, add_force_option, refuse_existing_outputs, refuse_file_on_path
 from threedcal.errors import ConfigError, FrameSizeError
 
 
@@ -79,6 +79,7 @@ def _predict(args: argparse.Namespace) -> int:
     _refuse_overwriting_inputs(
         outputs, {"--image": args.image, "--blank": args.blank, "--checkpoint": args.checkpoint}
     )
+    refuse_existing_outputs(outputs, args.force)
     estimator = _estimator(args)
     depth = estimator.depth(_model_frames(estimator, read_rgb(Path(args.image)), args.image))
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -127,6 +128,7 @@ def _live(args: argparse.Namespace) -> int:
             {"--out": Path(args.out)},
             {"--source": args.source, "--blank": args.blank, "--checkpoint": args.checkpoint},
         )
+        refuse_existing_outputs({"--out": Path(args.out)}, args.force)
     estimator = _estimator(args)
     frames_out, times = [], []
     source = open_source(args.source)
@@ -189,6 +191,7 @@ def _configure_predict(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image", required=True, help="sensor image (PNG, RGB)")
     parser.add_argument("--out", required=True, help="depth map in mm, .npy")
     parser.add_argument("--png", help="colour map PNG (default: --out with .png)")
+    add_force_option(parser)
 
 
 def _configure_live(parser: argparse.ArgumentParser) -> None:
@@ -201,6 +204,7 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=0, help="stop after this many (0: all)")
     parser.add_argument("--out", help="write frame | depth side by side to a .gif or .mp4")
     parser.add_argument("--video-fps", type=float, default=10.0, help="playback rate of --out")
+    add_force_option(parser)
     parser.add_argument("--max-depth-mm", type=float, default=None, help="colour scale top")
     parser.add_argument("--show", action="store_true", help="show a window (needs a display)")
 

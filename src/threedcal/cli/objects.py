@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from threedcal.cli import Command, refuse_file_on_path
+from threedcal.cli import Command, add_force_option, refuse_existing_outputs, refuse_file_on_path
 
 
 def _export(args: argparse.Namespace) -> int:
@@ -26,6 +26,17 @@ def _export(args: argparse.Namespace) -> int:
     meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
     out = Path(args.out)
     refuse_file_on_path("--out", out, out)
+    for ref, name in zip(refs, meshes, strict=True):
+        stl = out / f"{name}.stl"
+        if stl.is_file() and Path(ref).is_file() and stl.samefile(ref):
+            # the export is re-centred: writing it there would replace the user's own file
+            raise ConfigError(
+                f"--out {out}: {stl} is the --objects file {ref}; export it to another folder"
+            )
+    names = list(meshes)
+    refuse_existing_outputs(
+        [("--out", out / f"{n}{end}") for n in names for end in (".stl", "_depth.png")], args.force
+    )
     for name, mesh in meshes.items():
         stl = write_stl(mesh, out / f"{name}.stl")
         depth = surface_height(mesh, shape, px_per_mm).depth(args.indentation_mm)
@@ -60,6 +71,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--indentation-mm", type=float, default=1.0, help="preview depth (default: 1.0)"
     )
+    add_force_option(parser)
 
 
 COMMANDS = [
