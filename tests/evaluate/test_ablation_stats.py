@@ -296,7 +296,7 @@ POINTS = {1: 12, 5: 61, 10: 122, 20: 244, 40: 488, 80: 976}
 def test_tests_csv_has_the_three_families_and_their_corrections():
     table, blocks = study_table({1: 3.0, 5: 1.5, 10: 1.2, 20: 1.03, 40: 1.0})
     tests = ablation_tests(table, blocks)
-    assert set(tests["family"]) == {"paper", "paired", "equivalence"}
+    assert set(tests["family"]) == {"paper", "paired", "equivalence", "placebo"}
     paired = tests[tests["family"] == "paired"].set_index("P")
     assert set(paired["correction"]) == {"holm x5"}
     np.testing.assert_allclose(
@@ -393,3 +393,36 @@ def test_power_table_grows_with_replicates_and_keeps_false_positives_near_alpha(
     assert (replicated["false_positive_rate"] <= 0.01 + 0.015).all()
     assert (replicated["false_equivalence_rate"] <= 0.05 + 0.03).all()
     assert needed_design(power, 20).startswith(("none", "2 ", "3 ", "5 ", "10 "))
+
+
+def test_placebo_runs_the_papers_tests_between_trainings_of_the_same_fraction():
+    """The paper's tests between replicates of P = 80 (no effect of P by construction): each pair
+    judged exactly as one of the paper's comparisons, so a rejection is training noise read as an
+    effect."""
+    table, blocks = study_table({1: 3.0, 5: 1.5}, replicates=3)
+    placebo = ablation_tests(table, blocks).query("family == 'placebo'")
+    assert sorted(zip(placebo["against"], placebo["replicate"], strict=True)) == [
+        (0, 1),
+        (0, 1),
+        (0, 2),
+        (0, 2),
+        (1, 2),
+        (1, 2),
+    ]
+    assert set(placebo["P"]) == {80} and set(placebo["correction"]) == {"bonferroni x2"}
+    wide = table[table["P"] == 80].pivot(index="replicate", columns="point", values="mse")
+    t = placebo.query("test == 't' and against == 0 and replicate == 2").iloc[0]
+    expected = stats.ttest_ind(wide.loc[0], wide.loc[2], equal_var=True)
+    assert t["statistic"] == pytest.approx(expected.statistic)
+    assert t["p_adjusted"] == pytest.approx(min(1.0, 2 * expected.pvalue))
+    # same distribution: no pair flagged; one replicate's model 15 % worse everywhere: flagged
+    assert not placebo["significant"].any()
+    worse = table.assign(
+        mse=np.where((table["P"] == 80) & (table["replicate"] == 2), 1.15, 1.0) * table["mse"]
+    )
+    flagged = ablation_tests(worse, blocks).query("family == 'placebo' and significant")
+    assert set(zip(flagged["against"], flagged["replicate"], strict=True)) == {(0, 2), (1, 2)}
+    assert set(flagged["conclusion"]) == {"worse"}
+    # one replicate: no pair, no row
+    single, single_blocks = study_table({1: 3.0}, replicates=1)
+    assert "placebo" not in set(ablation_tests(single, single_blocks)["family"])

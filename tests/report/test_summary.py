@@ -165,6 +165,18 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
             **common,
         },
     ]
+    rows += [  # the placebo: P = 80 % against itself, r0 with r1 flagged by U only
+        {
+            "family": "placebo",
+            "test": test,
+            "P": 80,
+            "replicate": 1,
+            "against": 0,
+            "relative_change": -0.12,
+            "significant": test == "mannwhitney",
+        }
+        for test in ("t", "mannwhitney")
+    ]
     pd.DataFrame(rows, columns=TEST_COLUMNS).to_csv(stats_dir / "tests.csv", index=False)
     pd.DataFrame(
         [
@@ -191,3 +203,8 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
         "(interval -5.0 % to +15.0 %)" in line
     )
     assert "5 replicates at 0.5 mm (160 validation points): 85%" in line
+    assert (
+        "Placebo (`family = placebo`): the paper's tests between two trainings of P = 80 % (the "
+        "same fraction: no effect of P): t significant in 0 of 1 pairs, U in 1 of 1; their mean "
+        "MSE differ by 12.0 %." in text
+    )

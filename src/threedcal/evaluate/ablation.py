@@ -18,6 +18,10 @@ equivalence  TOST on the same model: is mean MSE(P) / mean MSE(80) within 1 +- m
              one-sided test is a contrast (P - theta·80, theta = 1 +- margin), so the interval of the
              ratio is Fieller's; P is tested from the largest down (fixed sequence: no correction,
              and a P is only called equivalent when every larger one is).
+placebo      the paper's two tests, judged exactly as one of its comparisons, between two replicates
+             of P = 80 itself: the fraction is the same, so every rejection is the training run's
+             own randomness (seed, subset draw) read as an effect. Not a test of P: a check of how
+             far the paper family can be trusted on this bench.
 
 `recommend` names the smallest P equivalent to P = 80 %, or says why none is.
 """
@@ -44,6 +48,7 @@ TEST_COLUMNS = [
     "test",
     "P",
     "replicate",
+    "against",
     "replicates",
     "n",
     "blocks",
@@ -107,6 +112,38 @@ def _direction(difference: float, significant: bool) -> str:
     return "worse" if difference > 0 else "better"
 
 
+def _paper_rows(ref, sample, comparisons: int, alpha: float, **labels) -> list[dict]:
+    """Student's t and Mann-Whitney U, two-sided, (reference, sample), Bonferroni x comparisons."""
+    difference = float(sample.mean() - ref.mean())
+    rows = []
+    for name in PAPER_TESTS:
+        if name == "t":
+            result = stats.ttest_ind(ref, sample, equal_var=True)
+            df = float(ref.size + sample.size - 2)
+        else:
+            result = stats.mannwhitneyu(ref, sample, alternative="two-sided")
+            df = float("nan")
+        p_adj = min(1.0, float(result.pvalue) * comparisons)
+        rows.append(
+            {
+                **labels,
+                "test": name,
+                "replicates": 1,
+                "n": int(sample.size),
+                "estimate": difference,
+                "relative_change": difference / float(ref.mean()),
+                "statistic": float(result.statistic),
+                "df": df,
+                "p_raw": float(result.pvalue),
+                "p_adjusted": p_adj,
+                "correction": f"bonferroni x{comparisons}",
+                "significant": bool(p_adj < alpha),
+                "conclusion": _direction(difference, p_adj < alpha),
+            }
+        )
+    return rows
+
+
 def paper_family(
     table: pd.DataFrame, reference: int = REFERENCE_P, alpha: float = ALPHA
 ) -> pd.DataFrame:
@@ -122,34 +159,28 @@ def paper_family(
         ref = _finite(ref_wide.loc[replicate], reference, replicate)
         for p in others:
             sample = _finite(wide[p].loc[replicate], p, replicate)
-            difference = float(sample.mean() - ref.mean())
-            for name in PAPER_TESTS:
-                if name == "t":
-                    result = stats.ttest_ind(ref, sample, equal_var=True)
-                    df = float(ref.size + sample.size - 2)
-                else:
-                    result = stats.mannwhitneyu(ref, sample, alternative="two-sided")
-                    df = float("nan")
-                p_adj = min(1.0, float(result.pvalue) * len(others))
-                rows.append(
-                    {
-                        "family": "paper",
-                        "test": name,
-                        "P": p,
-                        "replicate": int(replicate),
-                        "replicates": 1,
-                        "n": int(sample.size),
-                        "estimate": difference,
-                        "relative_change": difference / float(ref.mean()),
-                        "statistic": float(result.statistic),
-                        "df": df,
-                        "p_raw": float(result.pvalue),
-                        "p_adjusted": p_adj,
-                        "correction": f"bonferroni x{len(others)}",
-                        "significant": bool(p_adj < alpha),
-                        "conclusion": _direction(difference, p_adj < alpha),
-                    }
-                )
+            labels = {"family": "paper", "P": p, "replicate": int(replicate)}
+            rows += _paper_rows(ref, sample, len(others), alpha, **labels, against=int(replicate))
+    return _frame(rows)
+
+
+def placebo_family(
+    table: pd.DataFrame, reference: int = REFERENCE_P, alpha: float = ALPHA
+) -> pd.DataFrame:
+    """The paper's tests between every pair of replicates of the reference fraction (replicate a
+    as the reference, b as the sample), judged as one of the paper's comparisons (the same
+    Bonferroni factor): how often they call two trainings of one fraction different."""
+    wide = _models(table)
+    ref_wide = _reference(wide, reference)
+    comparisons = max(1, len(wide) - 1)
+    replicates = list(ref_wide.index)
+    rows = []
+    for i, a in enumerate(replicates):
+        for b in replicates[i + 1 :]:
+            ref = _finite(ref_wide.loc[a], reference, a)
+            sample = _finite(ref_wide.loc[b], reference, b)
+            labels = {"family": "placebo", "P": reference, "replicate": int(b), "against": int(a)}
+            rows += _paper_rows(ref, sample, comparisons, alpha, **labels)
     return _frame(rows)
 
 
@@ -395,7 +426,7 @@ def _equivalence_conclusion(
 
 def _frame(rows: list[dict]) -> pd.DataFrame:
     frame = pd.DataFrame(rows, columns=TEST_COLUMNS)
-    for column in ("replicate", "replicates", "n", "blocks"):
+    for column in ("replicate", "against", "replicates", "n", "blocks"):
         frame[column] = frame[column].astype("Int64")
     return frame
 
@@ -408,16 +439,16 @@ def ablation_tests(
     equivalence_alpha: float = EQUIVALENCE_ALPHA,
     reference: int = REFERENCE_P,
 ) -> pd.DataFrame:
-    """tests.csv: the paper, paired and equivalence families of every P against the reference."""
+    """tests.csv: the paper, paired and equivalence families of every P against the reference,
+    and the placebo family (the paper's tests between the reference's own replicates)."""
     means = block_means(table, blocks)
     n_points = table["point"].nunique()
     paired = paired_family(means, reference, alpha)
     equivalence = equivalence_family(means, margin, equivalence_alpha, reference)
     for frame in (paired, equivalence):
         frame["n"] = pd.array([n_points] * len(frame), dtype="Int64")
-    return pd.concat(
-        [paper_family(table, reference, alpha), paired, equivalence], ignore_index=True
-    )
+    families = [paper_family(table, reference, alpha), paired, equivalence]
+    return pd.concat([*families, placebo_family(table, reference, alpha)], ignore_index=True)
 
 
 def _pct(value: float) -> str:
@@ -538,6 +569,34 @@ def family_comparison(tests: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def placebo_summary(tests: pd.DataFrame, short: bool = False) -> str | None:
+    """One line on the placebo family: how often the paper's tests call two trainings of the
+    reference fraction different, and by how much their means differ; None without replicates.
+    `short`: the figure's footnote."""
+    rows = tests[tests["family"] == "placebo"]
+    if rows.empty:
+        return None
+    pairs = len(rows.drop_duplicates(["against", "replicate"]))
+    t, u = (
+        int(rows.loc[rows["test"] == name, "significant"].astype(bool).sum())
+        for name in PAPER_TESTS
+    )
+    change = np.abs(rows["relative_change"].to_numpy(float)) * 100
+    low, high = f"{change.min():.1f}", f"{change.max():.1f}"
+    reference = int(rows["P"].iloc[0])
+    if short:
+        apart = low if low == high else f"{low}-{high}"
+        return (
+            f"placebo: the paper's tests call two trainings of P = {reference} % different in "
+            f"{t}/{pairs} (t) and {u}/{pairs} (U) pairs; means {apart} % apart"
+        )
+    return (
+        f"the paper's tests between two trainings of P = {reference} % (the same fraction: no "
+        f"effect of P): t significant in {t} of {pairs} pairs, U in {u} of {pairs}; their mean "
+        f"MSE differ by {low if low == high else f'{low} to {high}'} %"
+    )
+
+
 def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: float = MARGIN) -> None:
     """Each P against P = 80: ratio of mean validation MSE with the paired (1 - alpha) and TOST
     (1 - 2 alpha) intervals, the margin shaded, each replicate's paper-family ratio as a dot
@@ -553,7 +612,14 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     fractions = list(paired.index)
     x = np.arange(len(fractions))
     fig, ax = plt.subplots(figsize=(7, 4.6), dpi=120)
-    ax.axhspan(1 - margin, 1 + margin, color="tab:green", alpha=0.15, lw=0)
+    ax.axhspan(
+        1 - margin,
+        1 + margin,
+        color="tab:green",
+        alpha=0.15,
+        lw=0,
+        label=f"margin ±{margin * 100:.0f} %",
+    )
     ax.axhline(1.0, c="k", lw=0.6)
 
     def bars(frame, offset, colour, label, width):
@@ -590,6 +656,8 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     ax.set_yscale("log")
     low, high = ax.get_ylim()
     nice = [0.25, 0.5, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2, 3, 5, 10, 20, 50, 100]
+    if high / low > 3:  # on a wide axis the +-10 % ticks crowd the 0 %; the shaded band shows them
+        nice = [v for v in nice if v not in (0.9, 1.1)]
     ax.yaxis.set_major_locator(
         matplotlib.ticker.FixedLocator([v for v in nice if low <= v <= high])
     )
@@ -619,7 +687,10 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
                 fontsize=7,
                 color="tab:orange",
             )
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
-    fig.tight_layout()
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=4, frameon=False)
+    placebo = placebo_summary(tests, short=True)
+    if placebo:
+        fig.text(0.5, 0.01, placebo, ha="center", fontsize=7, color="tab:red")
+    fig.tight_layout(rect=(0, 0.04 if placebo else 0, 1, 1))
     fig.savefig(path)
     plt.close(fig)

@@ -132,7 +132,7 @@ def ablation_section(stats_dir: Path) -> list[str]:
     tests_path = stats_dir / "tests.csv"
     if not tests_path.is_file():
         return []
-    from threedcal.evaluate.ablation import family_comparison
+    from threedcal.evaluate.ablation import family_comparison, placebo_summary
     from threedcal.evaluate.power import needed_design
 
     tests = pd.read_csv(tests_path)
@@ -154,6 +154,9 @@ def ablation_section(stats_dir: Path) -> list[str]:
             f"| {row.P} | {row.change} | {row.paper_t} / {row.paper_u} | {row.paired} | "
             f"{row.equivalence} | {row.agreement} | {design} |"
         )
+    placebo = placebo_summary(tests)
+    if placebo:
+        lines += ["", f"Placebo (`family = placebo`): {placebo}."]
     return lines + [""]
 
 
