@@ -9,6 +9,7 @@ from threedcal.config import (
     model_keys,
     validate_config,
 )
+from threedcal.evaluate.objects import check_object_files
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
 from threedcal.model.crossval import CV_METHODS, method_settings
@@ -47,6 +48,8 @@ for _config_file in workflow.configfiles:
 # Our validation first (messages name the key and the allowed values), then Snakemake's own.
 CONFIG_SOURCE = ", ".join(map(str, workflow.overwrite_configfiles)) or "config.yaml"
 config.update(validate_config(config, source=CONFIG_SOURCE))
+# What each test-object STL holds, read before anything is collected.
+check_object_files(config, source=CONFIG_SOURCE)
 validate(config, "workflow/schemas/config.schema.yaml")
 
 # One printer: jobs that drive it hold `resources: printer=1`, so two never run at once, with or without

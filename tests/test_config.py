@@ -354,13 +354,15 @@ def test_sim_to_real_needs_an_imported_vision_scene_and_valid_k():
     )
 
 
-def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_path):
+def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_path, capsys):
     """Repro: `objects: [pil]` (a typo), a missing STL or one that cannot be read passed
     `config check` and the Snakefile's validation; the run collected and trained, then failed at
-    the pressing stage."""
+    the pressing stage. Names and files are checked by validate_config, what an STL holds by
+    check_object_files (the workflow and `config check` call both)."""
+    from threedcal.cli import main
     from threedcal.config import BUILTIN_OBJECTS
     from threedcal.evaluate.mesh import Mesh, write_stl
-    from threedcal.evaluate.objects import PARAMS, make_object
+    from threedcal.evaluate.objects import PARAMS, check_object_files, make_object
 
     assert set(BUILTIN_OBJECTS) == set(PARAMS)  # one list of the built-ins the stage can build
     mine = write_stl(make_object("pill"), tmp_path / "mine.STL")
@@ -368,17 +370,27 @@ def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_p
     empty.write_text("solid x\nendsolid x\n")
     sheet = write_stl(Mesh(np.eye(3), [[0, 1, 2]], "sheet"), tmp_path / "sheet.stl")
     missing = tmp_path / "missing.stl"
-    refs = ["pill", "pil", str(missing), str(empty), str(sheet), str(mine)]
-    message = error_of(config_with(objects=refs))
+    message = error_of(config_with(objects=["pill", "pil", str(missing), str(mine)]))
     assert message.splitlines()[1:] == [
         "  scenes.s.objects[1]: test object 'pil' is neither a built-in (hemispheres, pill, pawn) "
         "nor an .stl path",
         f"  scenes.s.objects[2]: STL file '{missing}' does not exist",
-        f"  scenes.s.objects[3]: {empty}: ASCII STL must list 3 vertices per facet, found 0",
-        f"  scenes.s.objects[4]: {sheet}: the STL is not a closed (watertight), consistently "
+    ]
+    good = validate_config(config_with(objects=["pill", "pawn", "hemispheres", str(mine)]))
+    check_object_files(good)
+    bad = validate_config(config_with(objects=["pill", str(empty), str(sheet), str(mine)]))
+    with pytest.raises(ConfigError) as info:
+        check_object_files(bad, source="my.yaml")
+    assert str(info.value).splitlines() == [
+        "my.yaml: invalid config",
+        f"  scenes.s.objects[1]: {empty}: ASCII STL must list 3 vertices per facet, found 0",
+        f"  scenes.s.objects[2]: {sheet}: the STL is not a closed (watertight), consistently "
         "wound surface; repair it (e.g. in your CAD tool or slicer) and export again",
     ]
-    validate_config(config_with(objects=["pill", "pawn", "hemispheres", str(mine)]))
+    study = tmp_path / "study.yaml"
+    study.write_text(yaml.safe_dump(bad))
+    assert main(["config", "check", str(study)]) == 1
+    assert f"scenes.s.objects[1]: {empty}: ASCII STL" in capsys.readouterr().err
 
 
 def test_realism_folders_and_sensors_are_named_by_config_check(tmp_path, capsys):

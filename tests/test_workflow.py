@@ -63,6 +63,21 @@ def test_bad_config_fails_at_parse_time_naming_the_key(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+def test_an_unreadable_test_object_stl_fails_at_parse_time_naming_the_key(tmp_path):
+    """Repro: an STL that exists but is no closed surface passed the Snakefile's validation; the
+    study collected and trained before the pressing stage read it."""
+    sheet = tmp_path / "sheet.stl"
+    sheet.write_text(
+        "solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n"
+        "endloop\nendfacet\nendsolid s\n"
+    )
+    bad = {"scenes": {"s": {"sensor": "digit", "printer": "ender3", "objects": [str(sheet)]}}}
+    result = snakemake(tmp_path, write_config(tmp_path, bad), "--dry-run", check=False)
+    assert result.returncode != 0
+    assert f"scenes.s.objects[0]: {sheet}: the STL is not a closed" in result.stdout + result.stderr
+    assert not (tmp_path / "results").exists()
+
+
 def test_config_without_scenes_is_refused(tmp_path):
     result = snakemake(tmp_path, write_config(tmp_path, {"seed": 1}), "--dry-run", check=False)
     assert result.returncode != 0
@@ -159,7 +174,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     ]
     assert validation.groupby(["P", "replicate"])["point"].apply(frozenset).nunique() == 1
     tests = pd.read_csv(stats_dir / "tests.csv")
-    assert set(tests["family"]) == {"paper", "paired", "equivalence"}
+    assert set(tests["family"]) == {"paper", "paired", "equivalence", "placebo"}
     assert "margin of mean validation MSE" in (stats_dir / "recommendation.txt").read_text()
     # `make cluster-test` compares this study's outputs with a Slurm run's byte for byte, timing
     # columns excepted: every table that times something must be named there.

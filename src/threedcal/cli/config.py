@@ -9,9 +9,11 @@ from threedcal.cli import Command
 
 def _check(args: argparse.Namespace) -> int:
     from threedcal.config import load_config
+    from threedcal.evaluate.objects import check_object_files
     from threedcal.scenes import scene_targets
 
     config = load_config(args.config, check_files=True)
+    check_object_files(config, source=args.config)
     print(f"{args.config}: valid, {len(config['scenes'])} scene(s)")
     for name, scene in config["scenes"].items():
         print(

@@ -8,6 +8,7 @@ frame (re-centred, lowest point to z = 0) but never rotated: model it with its c
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -213,6 +214,23 @@ def load_object(name_or_stl: str | Path) -> Mesh:
     if not (ref.lower().endswith(".stl") and Path(ref).is_file()):
         raise ConfigError(object_problem(ref))  # a typo of a built-in name, or a missing file
     return read_solid_stl(ref)  # what config check reads too (object_problem)
+
+
+def check_object_files(config: Mapping, source: str = "config") -> None:
+    """Read every test-object STL of a validated config as the pressing stage will (a closed
+    surface, finite corners); raise one ConfigError naming each bad one by its key, before
+    anything is collected."""
+    problems = []
+    for name, scene in config.get("scenes", {}).items():
+        for i, ref in enumerate(scene.get("objects") or []):
+            if str(ref) in PARAMS:
+                continue
+            try:
+                read_solid_stl(ref)
+            except ConfigError as exc:
+                problems.append(f"scenes.{name}.objects[{i}]: {exc}")
+    if problems:
+        raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
 
 
 def object_label(name_or_stl: str | Path) -> str:
