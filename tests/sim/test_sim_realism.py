@@ -79,16 +79,26 @@ def test_realism_fails_when_the_simulator_is_too_noisy(real_data):
     assert not rows["hf_noise_std"]["ok"]
 
 
+R_PX = 30.0
+LABEL = BallLabel("x", (50.0, 60.0), 25.0)
+
+
+def shaded_contact(red, green, blue):
+    """A 120 x 100 frame on a uniform 120 DN background, each channel changed inside the sphere
+    by a function of its normals (nx, ny, nz), and that background."""
+    nx, ny, nz = (np.nan_to_num(v) for v in sphere_normals((120, 100), LABEL.center_px, R_PX))
+    bg = np.full((120, 100, 3), 120.0)
+    img = bg.copy()
+    for c, shade in enumerate((red, green, blue)):
+        img[..., c] += shade(nx, ny, nz)
+    return img, bg
+
+
 def test_contact_contrast_leaves_out_the_frames_lighting_drift():
     # Real frames drift from their background shot by a few DN per channel (FOTS GelSight: blue
     # +8 DN); the contrast figures are the contact's, so a uniform offset must not move them.
-    h, w, R = 120, 100, 30.0
-    label = BallLabel("x", (50.0, 60.0), 25.0)
-    nx, ny, nz = (np.nan_to_num(v) for v in sphere_normals((h, w), label.center_px, R))
-    bg = np.full((h, w, 3), 120.0)
-    img = bg.copy()
-    img[..., 0] += 40 * nx
-    img[..., 2] -= 30 * nz
+    img, bg = shaded_contact(lambda x, y, z: 40 * x, lambda x, y, z: 0 * x, lambda x, y, z: -30 * z)
+    label, R = LABEL, R_PX
     plain = image_figures(img, bg, label, R)
     drifted = image_figures(img + np.array([-5.0, 3.0, 8.0]), bg, label, R)
     for c in "RGB":
@@ -98,14 +108,10 @@ def test_contact_contrast_leaves_out_the_frames_lighting_drift():
 
 
 def test_r2_is_one_for_exactly_linear_shading():
-    h, w, R = 120, 100, 30.0
-    label = BallLabel("x", (50.0, 60.0), 25.0)
-    nx, ny, nz = (np.nan_to_num(v) for v in sphere_normals((h, w), label.center_px, R))
-    bg = np.full((h, w, 3), 120.0)
-    img = bg.copy()
-    img[..., 0] += 40 * nx
-    img[..., 1] += 30 * ny - 10 * nz
-    img[..., 2] += 20 * nz
+    img, bg = shaded_contact(
+        lambda x, y, z: 40 * x, lambda x, y, z: 30 * y - 10 * z, lambda x, y, z: 20 * z
+    )
+    label, R = LABEL, R_PX
     fig = image_figures(img, bg, label, R)
     for c in "RGB":
         assert fig[f"r2_{c}"] == pytest.approx(1.0, abs=1e-9)
