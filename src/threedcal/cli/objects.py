@@ -26,8 +26,8 @@ def _export(args: argparse.Namespace) -> int:
     meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
     out = Path(args.out)
     refuse_file_on_path("--out", out, out)
-    for ref, name in zip(refs, meshes, strict=True):
-        stl = out / f"{name}.stl"
+    for ref in refs:
+        stl = out / f"{object_label(ref)}.stl"
         if stl.is_file() and Path(ref).is_file() and stl.samefile(ref):
             # the export is re-centred: writing it there would replace the user's own file
             raise ConfigError(
