@@ -10,12 +10,15 @@ import pytest
 from scipy import stats
 
 from threedcal.errors import ConfigError
+from threedcal.evaluate import ablation
 from threedcal.evaluate.ablation import (
+    AXIS_RATIO,
     ablation_tests,
     block_means,
     contrast,
     difference_test,
     holm,
+    interval_on_axis,
     paper_family,
     ratio_interval,
     recommend,
@@ -426,3 +429,55 @@ def test_placebo_runs_the_papers_tests_between_trainings_of_the_same_fraction():
     # one replicate: no pair, no row
     single, single_blocks = study_table({1: 3.0}, replicates=1)
     assert "placebo" not in set(ablation_tests(single, single_blocks)["family"])
+
+
+def test_the_tests_figure_cuts_intervals_at_its_axis_and_writes_their_true_bounds(tmp_path):
+    """A paired interval of -189 % to +4,293 % is drawn to the axis's edges with both values written
+    beside them; an interval inside the axis and a NaN bound are left as they are."""
+    cut = interval_on_axis([-1.89, -0.2, np.nan], [42.93, 0.3, 0.1])
+    assert cut["low"][0] == AXIS_RATIO[0] and cut["high"][0] == AXIS_RATIO[1]
+    assert (cut["below"][0], cut["above"][0]) == ("-189 %", "+4,293 %")
+    assert cut["low"][1] == pytest.approx(0.8) and cut["high"][1] == pytest.approx(1.3)
+    assert cut["below"][1:] == ["", ""] and cut["above"][1:] == ["", ""]
+    assert np.isnan(cut["low"][2]) and cut["high"][2] == pytest.approx(1.1)
+    rows = []
+    for p, change, low, high in ((1, 0.7, -1.89, 4.6), (5, 0.04, -0.56, 42.93)):
+        rows += [
+            {
+                "family": "paired",
+                "test": "paired",
+                "P": p,
+                "relative_change": change,
+                "ci_low": low,
+                "ci_high": high,
+                "significant": False,
+                "p_adjusted": 1.0,
+            },
+            {
+                "family": "equivalence",
+                "test": "tost",
+                "P": p,
+                "relative_change": change,
+                "ci_low": change - 0.2,
+                "ci_high": change + 0.2,
+                "significant": False,
+                "p_adjusted": 0.5,
+                "conclusion": "not equivalent",
+            },
+        ]
+        for r in range(2):
+            for test in ("t", "mannwhitney"):
+                rows.append(
+                    {
+                        "family": "paper",
+                        "test": test,
+                        "P": p,
+                        "replicate": r,
+                        "relative_change": change,
+                        "significant": True,
+                        "p_adjusted": 1e-5,
+                    }
+                )
+    out = tmp_path / "tests.png"
+    ablation.tests_figure(pd.DataFrame(rows), out, "cut", margin=0.1)
+    assert out.stat().st_size > 10_000

@@ -597,6 +597,27 @@ def placebo_summary(tests: pd.DataFrame, short: bool = False) -> str | None:
     )
 
 
+# The tests figure's ratio axis: an interval reaching past it (a paired interval with few degrees
+# of freedom can span -150 % to +5,000 %) is cut at the edge and its bound written beside it, so
+# that the intervals that matter are not squeezed into a sliver.
+AXIS_RATIO = (0.2, 20.0)
+
+
+def interval_on_axis(ci_low, ci_high, limits=AXIS_RATIO) -> dict[str, list]:
+    """Ratio bounds (1 + relative bound) cut to `limits`, and for each cut bound its true value as
+    text ("" where it lies on the axis). NaN bounds stay NaN."""
+    ci_low, ci_high = np.asarray(ci_low, dtype=float), np.asarray(ci_high, dtype=float)
+    low, high = 1 + ci_low, 1 + ci_high
+    below = [f"{v * 100:+.0f} %" if v + 1 < limits[0] else "" for v in ci_low]
+    above = [f"{v * 100:+,.0f} %" if v + 1 > limits[1] else "" for v in ci_high]
+    return {
+        "low": np.where(np.isnan(low), low, np.clip(low, limits[0], limits[1])),
+        "high": np.where(np.isnan(high), high, np.clip(high, limits[0], limits[1])),
+        "below": below,
+        "above": above,
+    }
+
+
 def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: float = MARGIN) -> None:
     """Each P against P = 80: ratio of mean validation MSE with the paired (1 - alpha) and TOST
     (1 - 2 alpha) intervals, the margin shaded, each replicate's paper-family ratio as a dot
@@ -622,20 +643,22 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     )
     ax.axhline(1.0, c="k", lw=0.6)
 
+    drawn = []
+
     def bars(frame, offset, colour, label, width):
         ratio = 1 + frame["relative_change"].to_numpy(float)
-        low = np.clip(1 + frame["ci_low"].to_numpy(float), 1e-3, None)
-        high = np.clip(1 + frame["ci_high"].to_numpy(float), None, 1e3)
+        bounds = interval_on_axis(frame["ci_low"].to_numpy(float), frame["ci_high"].to_numpy(float))
         ax.errorbar(
             x + offset,
             ratio,
-            yerr=[ratio - low, high - ratio],
+            yerr=[ratio - bounds["low"], bounds["high"] - ratio],
             fmt="o",
             c=colour,
             lw=width,
             capsize=3,
             label=label,
         )
+        drawn.append((x + offset, colour, bounds))
 
     bars(paired, -0.08, "tab:blue", "paired test, 1 - alpha interval", 1.2)
     bars(equivalence.loc[fractions], 0.08, "tab:green", "TOST, 1 - 2 alpha interval", 2.4)
@@ -646,7 +669,7 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
             filled = bool(both.get(row["replicate"], False))
             ax.plot(
                 i + 0.25,
-                1 + row["relative_change"],
+                np.clip(1 + row["relative_change"], *AXIS_RATIO),
                 "s",
                 ms=4,
                 mec="tab:red",
@@ -655,14 +678,51 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     ax.plot([], [], "s", ms=4, mec="tab:red", mfc="tab:red", label="paper's tests, a replicate")
     ax.set_yscale("log")
     low, high = ax.get_ylim()
-    nice = [0.25, 0.5, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2, 3, 5, 10, 20, 50, 100]
-    if high / low > 3:  # on a wide axis the +-10 % ticks crowd the 0 %; the shaded band shows them
-        nice = [v for v in nice if v not in (0.9, 1.1)]
+    low, high = max(low, AXIS_RATIO[0]), min(high, AXIS_RATIO[1])
+    # room above and below for the verdicts written at the panel's edges
+    low, high = min(low, 1 - 2 * margin) / 1.8, max(high, 1 + 2 * margin) * 1.8
+    ax.set_ylim(low, high)
+    for (
+        xs,
+        colour,
+        bounds,
+    ) in drawn:  # an interval past the axis: an arrow at the edge and its value
+        for xi, text in zip(xs, bounds["below"], strict=True):
+            if text:
+                ax.plot(xi, AXIS_RATIO[0], "v", c=colour, ms=5)
+                ax.annotate(
+                    text,
+                    (xi, AXIS_RATIO[0]),
+                    xytext=(-4, -2),
+                    ha="right",
+                    textcoords="offset points",
+                    fontsize=6,
+                    color=colour,
+                    va="top",
+                )
+        for xi, text in zip(xs, bounds["above"], strict=True):
+            if text:
+                ax.plot(xi, AXIS_RATIO[1], "^", c=colour, ms=5)
+                ax.annotate(
+                    text,
+                    (xi, AXIS_RATIO[1]),
+                    xytext=(-4, 2),
+                    ha="right",
+                    textcoords="offset points",
+                    fontsize=6,
+                    color=colour,
+                    va="bottom",
+                )
+    nice = [0.2, 0.25, 0.5, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2, 3, 5, 10, 20]
+    if high / low > 3:  # on a wide axis the small steps crowd the 0 %; the shaded band shows them
+        nice = [v for v in nice if v not in (0.25, 0.75, 0.9, 1.1, 1.25)]
     ax.yaxis.set_major_locator(
         matplotlib.ticker.FixedLocator([v for v in nice if low <= v <= high])
     )
     ax.yaxis.set_major_formatter(
-        matplotlib.ticker.FuncFormatter(lambda v, _: f"{(v - 1) * 100:+.0f} %")
+        matplotlib.ticker.FuncFormatter(
+            lambda v, _: f"{(v - 1) * 100:+,.0f} %" if v != 1 else "0 %"
+        )
     )
     ax.yaxis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xticks(x, [f"P = {p} %" for p in fractions])
