@@ -448,7 +448,10 @@ def ablation_tests(
     for frame in (paired, equivalence):
         frame["n"] = pd.array([n_points] * len(frame), dtype="Int64")
     families = [paper_family(table, reference, alpha), paired, equivalence]
-    return pd.concat([*families, placebo_family(table, reference, alpha)], ignore_index=True)
+    families.append(placebo_family(table, reference, alpha))
+    # an empty family (one replicate: no placebo pair) would turn every column to text in the
+    # concatenation, and tests.csv would lose its number format
+    return pd.concat([f for f in families if len(f)], ignore_index=True)
 
 
 def _pct(value: float) -> str:
