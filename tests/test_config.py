@@ -406,3 +406,20 @@ def test_realism_folders_and_sensors_are_named_by_config_check(tmp_path, capsys)
     assert "realism.also[0].sensor: " in err and "digi" in err
     good = f"scenes:\n  s: {{sensor: digit, printer: ender3}}\nrealism: {{real: {real}}}\n"
     assert check(tmp_path, good, capsys)[0] == 0
+
+
+def test_two_test_objects_of_one_name_are_refused_naming_both_keys(tmp_path):
+    """Repro: `objects: [pill, cad/pill.stl]` passed; the pressing stage keys its tables, figures
+    and mounts by the name, so one pill silently replaced the other."""
+    from threedcal.evaluate.mesh import write_stl
+    from threedcal.evaluate.objects import check_object_files, make_object
+
+    mine = write_stl(make_object("pawn"), tmp_path / "pill.stl")
+    config = validate_config(config_with(objects=["pill", "pawn", str(mine)]))
+    with pytest.raises(ConfigError) as info:
+        check_object_files(config, source="my.yaml")
+    assert str(info.value).splitlines() == [
+        "my.yaml: invalid config",
+        f"  scenes.s.objects[2]: {str(mine)!r} has the name 'pill', as objects[0] has; "
+        "rename one file",
+    ]

@@ -8,13 +8,14 @@ import pytest
 
 from threedcal.cli import main
 from threedcal.errors import ConfigError
-from threedcal.evaluate.mesh import read_stl
+from threedcal.evaluate.mesh import read_stl, write_stl
 from threedcal.evaluate.object_errors import pixel_errors_um
 from threedcal.evaluate.object_figures import (
     plot_depth_sections,
     plot_error_violins,
     table_ii_markdown,
 )
+from threedcal.evaluate.objects import make_object
 
 PNG = b"\x89PNG"
 
@@ -92,3 +93,16 @@ def test_cli_export_never_replaces_files_and_never_exports_an_stl_onto_itself(tm
     assert (
         main(["objects", "export", "--out", str(tmp_path / "check"), "--objects", str(mine)]) == 0
     )
+
+
+def test_cli_export_refuses_two_objects_of_one_name(tmp_path, capsys):
+    """Repro: `--objects pill a/pill.stl` wrote one pill.stl (the user's file, re-centred) and
+    dropped the built-in pill without a word."""
+    mine = tmp_path / "a" / "pill.stl"
+    mine.parent.mkdir()
+    write_stl(make_object("pawn"), mine)
+    out = tmp_path / "out"
+    assert main(["objects", "export", "--out", str(out), "--objects", "pill", str(mine)]) == 1
+    err = capsys.readouterr().err
+    assert "more than one object is named 'pill'" in err and str(mine) in err
+    assert not out.exists()

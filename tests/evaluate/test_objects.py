@@ -239,3 +239,31 @@ def test_on_a_domed_gel_the_truth_is_the_depth_below_the_undeformed_dome(objects
         > 0
         > right[covered & (cols < center[0] - 10)].mean()
     )
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("vertex 0 0", r"\(2 numbers, need x y z\)"),
+        ("vertex 1 2 3 4", r"\(4 numbers, need x y z\)"),
+    ],
+)
+def test_an_ascii_vertex_line_needs_exactly_three_numbers(tmp_path, line, message):
+    """Repro: `vertex 0 0` raised a bare numpy ValueError that named neither the file nor the line;
+    `vertex 1 2 3 4` was read with its fourth number dropped."""
+    lines = ["solid t", "facet normal 0 0 1", "outer loop", "vertex 0 0 0", line, "vertex 0 1 0"]
+    path = tmp_path / "t.stl"
+    path.write_text("\n".join([*lines, "endloop", "endfacet", "endsolid t"]))
+    with pytest.raises(ConfigError, match=rf"t.stl:5: malformed vertex line '{line}' {message}"):
+        read_stl(path)
+
+
+def test_a_closed_surface_that_encloses_no_volume_is_refused(tmp_path):
+    """Repro: a triangle and its reverse is closed and consistently wound, so it was taken as a
+    test object of zero volume and its 'depth map' was the indentation at every pixel."""
+    sheet = Mesh(np.array([[0, 0, 0], [4, 0, 0], [0, 4, 0]], float), [[0, 1, 2], [0, 2, 1]], "s")
+    path = write_stl(sheet, tmp_path / "sheet.stl")
+    assert read_stl(path).is_watertight()
+    with pytest.raises(ConfigError, match="sheet.stl: the STL's closed surface encloses no volume"):
+        load_object(str(path))
+    assert load_object(str(write_stl(make_object("pill"), tmp_path / "pill.stl"))).volume > 0

@@ -184,3 +184,20 @@ def test_live_never_replaces_an_earlier_video_without_force(tmp_path, capsys, mo
     assert video.read_bytes() == b"an earlier run"
     assert main([*args, "--device", "cpu", "--force"]) == 0
     assert video.read_bytes() != b"an earlier run"
+
+
+def test_predict_writes_the_depth_map_under_the_name_given_even_in_capitals(
+    tmp_path, capsys, model
+):
+    """Repro: `--out depth.NPY` wrote depth.NPY.npy (np.save appends .npy unless the name ends in
+    lowercase .npy), so the overwrite guard checked a file that was never written and a second run
+    replaced depth.NPY.npy without --force."""
+    image = write_rgb(tmp_path / "frame.png", SHAPE)
+    out = tmp_path / "depth.NPY"
+    assert predict(model, image, str(out)) == 0
+    assert out.is_file() and not (tmp_path / "depth.NPY.npy").exists()
+    assert np.load(out).shape == SHAPE
+    first = out.read_bytes()
+    assert predict(model, image, str(out)) == 1
+    assert "depth.NPY: already exists" in capsys.readouterr().err
+    assert out.read_bytes() == first

@@ -83,7 +83,8 @@ def _predict(args: argparse.Namespace) -> int:
     estimator = _estimator(args)
     depth = estimator.depth(_model_frames(estimator, read_rgb(Path(args.image)), args.image))
     out.parent.mkdir(parents=True, exist_ok=True)
-    np.save(out, depth)
+    with out.open("wb") as fh:  # np.save(path) would add .npy to a name ending in .NPY
+        np.save(fh, depth)
     if not cv2.imwrite(str(png), cv2.cvtColor(colour_map(depth), cv2.COLOR_RGB2BGR)):
         raise ConfigError(f"{png_option} {png}: OpenCV could not write the colour map")
     print(f"{out}: depth {depth.shape} mm, max {float(depth.max()):.3f} mm; colour map {png}")

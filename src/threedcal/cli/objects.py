@@ -23,6 +23,13 @@ def _export(args: argparse.Namespace) -> int:
     if args.indentation_mm <= 0:
         raise ConfigError(f"--indentation-mm must be > 0, got {args.indentation_mm}")
     refs = args.objects or list(OBJECT_NAMES)
+    labels = [object_label(ref) for ref in refs]
+    twins = sorted({label for label in labels if labels.count(label) > 1})
+    if twins:  # both would be written to one <name>.stl
+        raise ConfigError(
+            f"--objects: more than one object is named {', '.join(map(repr, twins))} "
+            f"({', '.join(r for r in refs if object_label(r) in twins)}); rename one file"
+        )
     meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
     out = Path(args.out)
     refuse_file_on_path("--out", out, out)

@@ -252,6 +252,9 @@ def read_solid_stl(path: str | Path) -> Mesh:
             f"{path}: the STL is not a closed (watertight), consistently wound surface; "
             "repair it (e.g. in your CAD tool or slicer) and export again"
         )
+    if abs(mesh.volume) <= 1e-9 * max(float(np.prod(mesh.extent)), 1e-300):
+        # e.g. a sheet and its reverse: closed, but nothing for the printer to press
+        raise ConfigError(f"{path}: the STL's closed surface encloses no volume")
     if mesh.volume < 0:  # wound inside out: turn the normals outwards
         mesh = Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.name)
     return mesh.normalised()
@@ -269,10 +272,12 @@ def _ascii_corners(raw: bytes, path: Path) -> np.ndarray:
         words = line.split()
         if words and words[0].lower() == "vertex":
             try:
-                values.append([float(w) for w in words[1:4]])
-            except (ValueError, IndexError) as exc:
+                if len(words) != 4:
+                    raise ValueError(f"{len(words) - 1} numbers, need x y z")
+                values.append([float(w) for w in words[1:]])
+            except ValueError as exc:
                 raise ConfigError(
-                    f"{path}:{number}: malformed vertex line {line.strip()!r}"
+                    f"{path}:{number}: malformed vertex line {line.strip()!r} ({exc})"
                 ) from exc
     if not values or len(values) % 3:
         raise ConfigError(f"{path}: ASCII STL must list 3 vertices per facet, found {len(values)}")

@@ -213,7 +213,7 @@ def load_object(name_or_stl: str | Path) -> Mesh:
         return make_object(ref)
     if not (ref.lower().endswith(".stl") and Path(ref).is_file()):
         raise ConfigError(object_problem(ref))  # a typo of a built-in name, or a missing file
-    return read_solid_stl(ref)  # what config check reads too (object_problem)
+    return read_solid_stl(ref)  # what config check reads too (check_object_files)
 
 
 def check_object_files(config: Mapping, source: str = "config") -> None:
@@ -222,13 +222,23 @@ def check_object_files(config: Mapping, source: str = "config") -> None:
     anything is collected."""
     problems = []
     for name, scene in config.get("scenes", {}).items():
+        seen: dict[str, int] = {}
         for i, ref in enumerate(scene.get("objects") or []):
+            label = object_label(ref)
+            if label in seen:  # tables, figures and mounts are keyed by the label
+                problems.append(
+                    f"scenes.{name}.objects[{i}]: {str(ref)!r} has the name {label!r}, as "
+                    f"objects[{seen[label]}] has; rename one file"
+                )
+            seen.setdefault(label, i)
             if str(ref) in PARAMS:
                 continue
             try:
                 read_solid_stl(ref)
             except ConfigError as exc:
                 problems.append(f"scenes.{name}.objects[{i}]: {exc}")
+            except (OSError, ValueError) as exc:
+                problems.append(f"scenes.{name}.objects[{i}]: {ref}: cannot read ({exc})")
     if problems:
         raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
 
