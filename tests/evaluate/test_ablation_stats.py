@@ -444,44 +444,10 @@ def test_the_tests_figure_cuts_intervals_at_its_axis_and_writes_their_true_bound
     assert cut["low"][1] == pytest.approx(0.8) and cut["high"][1] == pytest.approx(1.3)
     assert cut["below"][1:] == ["", ""] and cut["above"][1:] == ["", ""]
     assert np.isnan(cut["low"][2]) and cut["high"][2] == pytest.approx(1.1)
-    rows = []
-    for p, change, low, high in ((1, 0.7, -1.89, 4.6), (5, 0.04, -0.56, 42.93)):
-        rows += [
-            {
-                "family": "paired",
-                "test": "paired",
-                "P": p,
-                "relative_change": change,
-                "ci_low": low,
-                "ci_high": high,
-                "significant": False,
-                "p_adjusted": 1.0,
-            },
-            {
-                "family": "equivalence",
-                "test": "tost",
-                "P": p,
-                "relative_change": change,
-                "ci_low": change - 0.2,
-                "ci_high": change + 0.2,
-                "significant": False,
-                "p_adjusted": 0.5,
-                "conclusion": "not equivalent",
-            },
-        ]
-        for r in range(2):
-            for test in ("t", "mannwhitney"):
-                rows.append(
-                    {
-                        "family": "paper",
-                        "test": test,
-                        "P": p,
-                        "replicate": r,
-                        "relative_change": change,
-                        "significant": True,
-                        "p_adjusted": 1e-5,
-                    }
-                )
+    table, blocks = study_table({1: 3.0, 5: 1.5}, replicates=3)
+    tests = ablation_tests(table, blocks)
+    paired = tests.index[tests["family"] == "paired"]
+    tests.loc[paired, ["ci_low", "ci_high"]] = [-1.89, 42.93]  # as wide as the Mini's were
     out = tmp_path / "tests.png"
-    ablation.tests_figure(pd.DataFrame(rows), out, "cut", margin=0.1)
+    ablation.tests_figure(tests, out, "cut", margin=0.1)
     assert out.stat().st_size > 10_000

@@ -685,37 +685,22 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     # room above and below for the verdicts written at the panel's edges
     low, high = min(low, 1 - 2 * margin) / 1.8, max(high, 1 + 2 * margin) * 1.8
     ax.set_ylim(low, high)
-    for (
-        xs,
-        colour,
-        bounds,
-    ) in drawn:  # an interval past the axis: an arrow at the edge and its value
-        for xi, text in zip(xs, bounds["below"], strict=True):
-            if text:
-                ax.plot(xi, AXIS_RATIO[0], "v", c=colour, ms=5)
-                ax.annotate(
-                    text,
-                    (xi, AXIS_RATIO[0]),
-                    xytext=(-4, -2),
-                    ha="right",
-                    textcoords="offset points",
-                    fontsize=6,
-                    color=colour,
-                    va="top",
-                )
-        for xi, text in zip(xs, bounds["above"], strict=True):
-            if text:
-                ax.plot(xi, AXIS_RATIO[1], "^", c=colour, ms=5)
-                ax.annotate(
-                    text,
-                    (xi, AXIS_RATIO[1]),
-                    xytext=(-4, 2),
-                    ha="right",
-                    textcoords="offset points",
-                    fontsize=6,
-                    color=colour,
-                    va="bottom",
-                )
+    edges = (("below", 0, "v", -2, "top"), ("above", 1, "^", 2, "bottom"))
+    for xs, colour, bounds in drawn:  # an interval past the axis: an arrow at the edge, its value
+        for side, end, marker, dy, va in edges:
+            for xi, text in zip(xs, bounds[side], strict=True):
+                if text:
+                    ax.plot(xi, AXIS_RATIO[end], marker, c=colour, ms=5)
+                    ax.annotate(
+                        text,
+                        (xi, AXIS_RATIO[end]),
+                        xytext=(-4, dy),
+                        textcoords="offset points",
+                        ha="right",
+                        va=va,
+                        fontsize=6,
+                        color=colour,
+                    )
     nice = [0.2, 0.25, 0.5, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2, 3, 5, 10, 20]
     if high / low > 3:  # on a wide axis the small steps crowd the 0 %; the shaded band shows them
         nice = [v for v in nice if v not in (0.25, 0.75, 0.9, 1.1, 1.25)]
