@@ -15,7 +15,7 @@ the renders):
 - ``dI_p1_<c>`` / ``dI_p99_<c>``: 1st / 99th percentile of (frame - background) per channel inside the
   evaluation disc 0.9 x min(label radius, 0.98 ball radius), less the frame's lighting drift (its
   per-channel median change over the whole frame, as for the halo; the optics fit takes the
-  median outside 2 ball radii, within 1 DN of this on the real frames): the contact's contrast.
+  median outside 2 ball radii, within 1 DN of this on the real Mini frames): the contact's contrast.
 - ``r2_<c>``: R² of the per-channel linear fit of ΔI on the true sphere normals (nx, ny, nz, 1) inside
   the same disc: how photometric-stereo-like the shading is (1 = perfectly Lambertian and noiseless).
 
