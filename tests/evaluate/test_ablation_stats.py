@@ -398,6 +398,29 @@ def test_power_table_grows_with_replicates_and_keeps_false_positives_near_alpha(
     assert needed_design(power, 20).startswith(("none", "2 ", "3 ", "5 ", "10 "))
 
 
+def test_the_design_named_is_never_one_replicate_whose_test_is_too_liberal():
+    """Repro: the summary named "best: 8% with 1 replicates" for the Mini's P = 40 %, a design whose
+    test rejected 45 % of true nulls; one replicate cannot see the replicate variance."""
+    rows = [
+        {
+            "P": 40,
+            "replicates": r,
+            "spacing_mm": 0.38,
+            "validation_points": 408,
+            "power_equivalence": power,
+            "false_positive_rate": fp,
+        }
+        for r, power, fp in ((1, 0.9, 0.45), (2, 0.3, 0.01), (3, 0.5, 0.01), (5, 0.85, 0.01))
+    ]
+    power = pd.DataFrame(rows)
+    assert needed_design(power, 40) == "5 replicates at 0.38 mm (408 validation points): 85%"
+    weak = power[power["replicates"] < 5]
+    assert needed_design(weak, 40) == (
+        "none of the simulated designs (best: 50% with 3 replicates at 0.38 mm)"
+    )
+    assert needed_design(power[power["replicates"] == 1], 40) == "—"
+
+
 def test_placebo_runs_the_papers_tests_between_trainings_of_the_same_fraction():
     """The paper's tests between replicates of P = 80 (no effect of P by construction): each pair
     judged exactly as one of the paper's comparisons, so a rejection is training noise read as an

@@ -338,12 +338,15 @@ def power_table(
 
 
 def needed_design(power: pd.DataFrame, p: int, column: str = "power_equivalence") -> str:
-    """The cheapest simulated design (fewest replicates, then widest spacing) reaching 80 % power."""
-    if not (power["P"] == p).any():
+    """The cheapest simulated design (fewest replicates, then widest spacing) reaching 80 % power.
+    One replicate is never named: its test cannot see the replicate variance, so what it rejects
+    is not power (its false-positive rate is far above alpha; power_figure draws it apart)."""
+    candidates = power[(power["P"] == p) & (power["replicates"] >= 2)]
+    if candidates.empty:
         return "—"
-    part = power[(power["P"] == p) & (power[column] >= POWER_TARGET)]
+    part = candidates[candidates[column] >= POWER_TARGET]
     if part.empty:
-        best = power[power["P"] == p].sort_values(column).iloc[-1]
+        best = candidates.sort_values(column).iloc[-1]
         return (
             f"none of the simulated designs (best: {best[column]:.0%} with "
             f"{int(best['replicates'])} replicates at {best['spacing_mm']:g} mm)"
