@@ -14,7 +14,7 @@ def _export(args: argparse.Namespace) -> int:
     from threedcal.evaluate.groundtruth import surface_height
     from threedcal.evaluate.mesh import write_stl
     from threedcal.evaluate.object_figures import plot_depth_preview
-    from threedcal.evaluate.objects import OBJECT_NAMES, load_object, object_label
+    from threedcal.evaluate.objects import OBJECT_NAMES, load_object, name_clashes, object_label
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", args.sensor)
@@ -23,12 +23,12 @@ def _export(args: argparse.Namespace) -> int:
     if args.indentation_mm <= 0:
         raise ConfigError(f"--indentation-mm must be > 0, got {args.indentation_mm}")
     refs = args.objects or list(OBJECT_NAMES)
-    labels = [object_label(ref) for ref in refs]
-    twins = sorted({label for label in labels if labels.count(label) > 1})
-    if twins:  # both would be written to one <name>.stl
+    clashes = name_clashes(refs)
+    if clashes:  # both would be written to one <name>.stl
+        i, first = clashes[0]
         raise ConfigError(
-            f"--objects: more than one object is named {', '.join(map(repr, twins))} "
-            f"({', '.join(r for r in refs if object_label(r) in twins)}); rename one file"
+            f"--objects: more than one object is named {object_label(refs[i])!r} "
+            f"({refs[first]}, {refs[i]}); rename one file"
         )
     meshes = {object_label(ref): load_object(ref) for ref in refs}  # all checked before writing
     out = Path(args.out)

@@ -606,7 +606,7 @@ def placebo_summary(tests: pd.DataFrame, short: bool = False) -> str | None:
 AXIS_RATIO = (0.2, 20.0)
 
 
-def interval_on_axis(ci_low, ci_high, limits=AXIS_RATIO) -> dict[str, list]:
+def interval_on_axis(ci_low, ci_high, limits=AXIS_RATIO) -> dict:
     """Ratio bounds (1 + relative bound) cut to `limits`, and for each cut bound its true value as
     text ("" where it lies on the axis). NaN bounds stay NaN."""
     ci_low, ci_high = np.asarray(ci_low, dtype=float), np.asarray(ci_high, dtype=float)

@@ -218,29 +218,38 @@ def load_object(name_or_stl: str | Path) -> Mesh:
 
 def check_object_files(config: Mapping, source: str = "config") -> None:
     """Read every test-object STL of a validated config as the pressing stage will (a closed
-    surface, finite corners); raise one ConfigError naming each bad one by its key, before
-    anything is collected."""
+    surface around a volume, finite corners) and check that no two objects of a scene share a
+    name; raise one ConfigError naming each bad one by its key, before anything is collected."""
     problems = []
     for name, scene in config.get("scenes", {}).items():
-        seen: dict[str, int] = {}
-        for i, ref in enumerate(scene.get("objects") or []):
-            label = object_label(ref)
-            if label in seen:  # tables, figures and mounts are keyed by the label
-                problems.append(
-                    f"scenes.{name}.objects[{i}]: {str(ref)!r} has the name {label!r}, as "
-                    f"objects[{seen[label]}] has; rename one file"
-                )
-            seen.setdefault(label, i)
+        refs = scene.get("objects") or []
+        for i, first in name_clashes(refs):
+            problems.append(
+                f"scenes.{name}.objects[{i}]: {str(refs[i])!r} has the name "
+                f"{object_label(refs[i])!r}, as objects[{first}] has; rename one file"
+            )
+        for i, ref in enumerate(refs):
             if str(ref) in PARAMS:
                 continue
             try:
                 read_solid_stl(ref)
             except ConfigError as exc:
                 problems.append(f"scenes.{name}.objects[{i}]: {exc}")
-            except (OSError, ValueError) as exc:
-                problems.append(f"scenes.{name}.objects[{i}]: {ref}: cannot read ({exc})")
     if problems:
         raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
+
+
+def name_clashes(refs) -> list[tuple[int, int]]:
+    """(index, index of the first with that name) for every object whose name (`object_label`)
+    an earlier one has: tables, figures, mounts and exported files are keyed by the name."""
+    first: dict[str, int] = {}
+    clashes = []
+    for i, ref in enumerate(refs):
+        label = object_label(ref)
+        if label in first:
+            clashes.append((i, first[label]))
+        first.setdefault(label, i)
+    return clashes
 
 
 def object_label(name_or_stl: str | Path) -> str:
