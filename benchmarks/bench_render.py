@@ -9,6 +9,9 @@ baseline, and the elastic gel (gel.mechanics: elastic) against the geometric one
 - A test object (the pawn, vertical walls) pressed at varied poses, both gels.
 - The camera's lens (profile `lens`: threedcal.sim.camera.LensedGel) on top of each gel, against the
   same gel without it. Goal with the elastic gel and the lens: >= 50 frames/s.
+- The profiles the default study renders, as its benches render them (elastic gel, lens): the
+  DIGIT fitted to real frames (`digit_fots`) and the GelSight Mini with its painted skin, against
+  the `digit` profile's elastic gel and lens of this run. Goal: >= 50 frames/s each.
 
 Wall-clock frames/s on this machine, and frames per CPU-second of this process (the machine is
 shared: under load the wall clock counts other people's work too).
@@ -28,7 +31,7 @@ import numpy as np  # noqa: E402
 from threedcal.evaluate.objects import load_object  # noqa: E402
 from threedcal.evaluate.pressing import relief_indenter  # noqa: E402
 from threedcal.profiles import load_profile  # noqa: E402
-from threedcal.sim.camera import LensedGel  # noqa: E402
+from threedcal.sim.camera import LensedGel, make_gel  # noqa: E402
 from threedcal.sim.indenters import Sphere  # noqa: E402
 from threedcal.sim.optics import GelSimulator  # noqa: E402
 
@@ -110,6 +113,26 @@ def main() -> None:
         f"elastic {soft_lens[0] / soft[0]:.2f}x   goal elastic + lens >= 50 frames/s: "
         f"{'met' if soft_lens[0] >= 50 else 'NOT met'}"
     )
+
+    print("the default study's sensors, elastic gel + lens, a new pose every frame:")
+    for name in ("digit_fots", "gelsight_mini"):
+        profile = copy.deepcopy(load_profile("sensor", name))
+        profile["gel"]["mechanics"] = "elastic"  # the study's bench.gel_mechanics
+        simulator = make_gel(profile, seed=0)
+        height, width = profile["image"]["height_px"], profile["image"]["width_px"]
+        # the same poses, scaled to this frame (the Mini's is landscape)
+        scaled = [(x * width / 240, y * height / 320, d) for x, y, d in poses]
+
+        def render(i, simulator=simulator, scaled=scaled):
+            x, y, d = scaled[i]
+            return simulator.render(ball, (x, y), 0.0, d, frame_index=i)
+
+        study = rate(render, 400)
+        show(f"  {name} ({width}x{height})", study)
+        print(
+            f"  ratio {name} / digit elastic + lens: {study[0] / soft_lens[0]:.2f}x   "
+            f"goal >= 50 frames/s: {'met' if study[0] >= 50 else 'NOT met'}"
+        )
 
     pawn = load_object("pawn")
     presses = [

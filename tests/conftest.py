@@ -262,6 +262,20 @@ def paper_digit_calibration(tmp_path_factory):
     return bench_scene(lens_free("digit"), plan, 3, dataset=PAPER_DATASET), folder, record
 
 
+@pytest.fixture(scope="session")
+def paper_mini_calibration(tmp_path_factory):
+    """paper_digit_calibration's GelSight Mini (flat gel, landscape): d = 2.0 mm = R, the default
+    first-contact search, the same coarse grid."""
+    plan = {"spacing_mm": 3.0, "depth_mm": 2.0, "frames": 1}
+    sensor = lens_free("gelsight_mini")
+    folder, record = shared_across_workers(
+        tmp_path_factory,
+        "paper_mini",
+        lambda folder: collect_and_register(folder, sensor, plan, 3, PAPER_DATASET),
+    )
+    return bench_scene(sensor, plan, 3, dataset=PAPER_DATASET), folder, record
+
+
 def load_file_module(relative: str, name: str):
     """A repository script that is not a package module (workflow/cluster/*.py, docs/diagnostics)."""
     import importlib.util

@@ -244,11 +244,11 @@ def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_pa
     assert 0.02 < record["rim_edge_offset_mm"] < 0.1, record
 
 
-def assert_search_found_the_touch(record, folder):
-    """Within 0.01 mm of the hidden touch height (target 0.02; measured 2-3 um in
+def assert_search_found_the_touch(record, folder, within_mm=0.01):
+    """Within `within_mm` of the hidden touch height (target 0.02; measured 2-3 um in
     docs/registration.md), the affine from the grid rows, and no touch frame in the training set."""
     assert record["touch_method"] == "search"
-    assert abs(record["touch_offset_error_mm"]) <= 0.01, record
+    assert abs(record["touch_offset_error_mm"]) <= within_mm, record
     assert len(record["touch_search"]["offset_mm_by_place"]) == 3
     assert record["error_px"] < 0.5, record
     # touch frames only locate the gel: the training set holds grid frames alone
@@ -259,12 +259,17 @@ def assert_search_found_the_touch(record, folder):
     assert record["frames_in_view"] <= raw.sizes["frame"] - record["touch_search"]["frames"]
 
 
-def test_touch_search_finds_the_hidden_touch_height_at_d_equal_r(paper_digit_calibration):
-    """config/paper.yaml's depth, d = R: the rim's radii tell nothing there (a = R), the default
-    first-contact search does (the GelSight Mini's is checked in
-    test_registration_recovers_the_hidden_seating)."""
-    _, folder, record = paper_digit_calibration
-    assert_search_found_the_touch(record, folder)
+@pytest.mark.parametrize(
+    "calibration, within_mm",
+    # the Mini's touch is found less closely: 8.8 um mean, 14.2 at worst over the seeds of
+    # docs/registration.md (its table of touch-height errors), 10.4 on this one; held to 0.02 mm
+    [("paper_digit_calibration", 0.01), ("paper_mini_calibration", 0.02)],
+)
+def test_touch_search_finds_the_hidden_touch_height_at_d_equal_r(calibration, within_mm, request):
+    """config/paper.yaml's depth, d = R, on both vision sensors: the rim's radii tell nothing there
+    (a = R), the default first-contact search does."""
+    _, folder, record = request.getfixturevalue(calibration)
+    assert_search_found_the_touch(record, folder, within_mm)
 
 
 def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path):
