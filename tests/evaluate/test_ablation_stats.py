@@ -13,6 +13,7 @@ from threedcal.errors import ConfigError
 from threedcal.evaluate import ablation
 from threedcal.evaluate.ablation import (
     AXIS_RATIO,
+    _equivalence_conclusion,
     ablation_tests,
     block_means,
     contrast,
@@ -341,6 +342,37 @@ def test_recommendation_when_the_design_lacks_power_says_so():
     line = recommend(ablation_tests(table, blocks), POINTS)
     assert line.startswith("probe at least 976 points (P = 80 %): no smaller fraction")
     assert "lacks the power to show equivalence (stats/power.csv" in line
+
+
+@pytest.mark.parametrize(
+    "low, high, reason",
+    [
+        (-0.13, -0.012, "reaches past the margin on the better side (not worse"),
+        (0.02, 0.14, "reaches past the margin on the worse side"),
+        (-0.12, 0.12, "wider than the margin allows (too little power)"),
+        (0.11, 0.2, "worse by more than the margin"),
+        (-0.3, -0.12, "better by more than the margin"),
+    ],
+)
+def test_a_not_equivalent_conclusion_names_the_side_and_blames_power_only_for_a_wide_interval(
+    low, high, reason
+):
+    """An interval narrower than the margin's width that crosses one bound (the Mini's P = 40 % of
+    one default study: -13.0 % to -1.2 %) is not a lack of power: it says which bound it crosses."""
+    conclusion = _equivalence_conclusion(False, False, low, high, 0.10)
+    assert conclusion == f"not equivalent: {conclusion.split(': ', 1)[1]}"
+    assert reason in conclusion
+    assert ("power" in conclusion) == (high - low > 0.2)
+
+
+def test_recommendation_does_not_blame_power_for_a_fraction_better_than_the_margin():
+    table, blocks = study_table({20: 1.2, 40: 0.92}, noise=0.1)
+    tests = ablation_tests(table, blocks)
+    forty = tests[(tests["family"] == "equivalence") & (tests["P"] == 40)].iloc[0]
+    assert forty["ci_low"] < -0.10 < forty["ci_high"] < 0.10
+    line = recommend(tests, POINTS)
+    assert line.startswith("probe at least 976 points (P = 80 %): no smaller fraction")
+    assert "better side" in line and "lacks the power" not in line
 
 
 def test_missing_reference_non_finite_and_unpaired_models_are_refused():

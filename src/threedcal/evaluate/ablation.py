@@ -421,7 +421,15 @@ def _equivalence_conclusion(
         return "not equivalent: worse by more than the margin"
     if high < -margin:
         return "not equivalent: better by more than the margin"
-    return "not equivalent: the interval is wider than the margin allows (too little power)"
+    if high - low > 2 * margin:
+        return "not equivalent: the interval is wider than the margin allows (too little power)"
+    # narrow enough to fit, but it crosses one bound: the data place P near that bound
+    if high > margin:
+        return "not equivalent: the interval reaches past the margin on the worse side"
+    return (
+        "not equivalent: the interval reaches past the margin on the better side "
+        "(not worse by more than the margin)"
+    )
 
 
 def _frame(rows: list[dict]) -> pd.DataFrame:
