@@ -168,6 +168,23 @@ def score_exact_gradients(scene, registration, folder):
     return errors, pd.read_csv(folder / "objects/presses.csv")
 
 
+def mounted_on_calibration(sensor, calibration, mount):
+    """One press per object near the centre (a contact across the frame's edge is the
+    integrator's failure, not ours), the object at `mount` with no hidden mounting error, on the
+    calibration's bench: the same hidden seating and touch height."""
+    hidden = {"mount_offset_mm": 0.0, "mount_z_mm": 0.0, "mount_rotation_deg": 0.0}
+    scene = scene_config(
+        lens_free(sensor),
+        mount=mount,
+        bench=hidden,
+        presses=1,
+        tuning_presses=0,
+        offset_fraction=0.03,
+    )
+    scene.update(seed=calibration["seed"], bench=calibration["bench"])
+    return scene
+
+
 def test_printer_protocol_scores_exact_gradients_within_a_few_um(tmp_path, paper_digit_calibration):
     """The DIGIT (domed gel, portrait), the object mounted off the probe axis and turned, no hidden
     mounting error: a perfect model scores <= 5 um Type 2 under the printer protocol on the
@@ -176,18 +193,7 @@ def test_printer_protocol_scores_exact_gradients_within_a_few_um(tmp_path, paper
     first-contact search's touch height, config/paper.yaml's d = R)."""
     calibration, folder, record = paper_digit_calibration
     mount = {"x_mm": 0.2, "y_mm": -0.3, "z_mm": -1.5, "rotation_deg": 30.0}
-    hidden = {"mount_offset_mm": 0.0, "mount_z_mm": 0.0, "mount_rotation_deg": 0.0}
-    # near the centre: a contact across the frame's edge is the integrator's failure, not ours
-    scene = scene_config(
-        lens_free("digit"),
-        mount=mount,
-        bench=hidden,
-        presses=1,
-        tuning_presses=0,
-        offset_fraction=0.03,
-    )
-    # the calibration's bench: the same hidden seating and touch height
-    scene.update(seed=calibration["seed"], bench=calibration["bench"])
+    scene = mounted_on_calibration("digit", calibration, mount)
     perfect = perfect_registration(scene, tmp_path / "registration.json")
     errors, presses = score_exact_gradients(scene, perfect, tmp_path / "perfect")
     printer = errors[errors["protocol"] == "printer"].set_index("object")
@@ -227,16 +233,7 @@ def test_printer_protocol_scores_exact_gradients_within_a_few_um_on_the_mini(
     the first-contact search is held to), carried into every press's depth."""
     calibration, folder, record = paper_mini_calibration
     mount = {"x_mm": -0.2, "y_mm": 0.3, "z_mm": -1.5, "rotation_deg": -20.0}
-    hidden = {"mount_offset_mm": 0.0, "mount_z_mm": 0.0, "mount_rotation_deg": 0.0}
-    scene = scene_config(
-        lens_free("gelsight_mini"),
-        mount=mount,
-        bench=hidden,
-        presses=1,
-        tuning_presses=0,
-        offset_fraction=0.03,
-    )
-    scene.update(seed=calibration["seed"], bench=calibration["bench"])
+    scene = mounted_on_calibration("gelsight_mini", calibration, mount)
     perfect = perfect_registration(scene, tmp_path / "registration.json")
     errors, _ = score_exact_gradients(scene, perfect, tmp_path / "perfect")
     printer = errors[errors["protocol"] == "printer"].set_index("object")
