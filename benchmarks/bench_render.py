@@ -1,5 +1,6 @@
-"""Frames/s of renders at 240x320 (DIGIT profile): the geometric gel against a naive full-frame
-baseline, and the elastic gel (gel.mechanics: elastic) against the geometric one, all in this run.
+"""Frames/s of renders at 240x320 (the `digit` profile, and the default study's two sensors): the
+geometric gel against a naive full-frame baseline, and the elastic gel (gel.mechanics: elastic)
+against the geometric one, all in this run.
 
 - The geometric baseline shades every pixel of the frame and blurs the whole frame, as a direct
   implementation would; the simulator re-shades only a window around the contact on a precomputed
@@ -9,7 +10,7 @@ baseline, and the elastic gel (gel.mechanics: elastic) against the geometric one
 - A test object (the pawn, vertical walls) pressed at varied poses, both gels.
 - The camera's lens (profile `lens`: threedcal.sim.camera.LensedGel) on top of each gel, against the
   same gel without it. Goal with the elastic gel and the lens: >= 50 frames/s.
-- The profiles the default study renders, as its benches render them (elastic gel, lens): the
+- The profiles the default study renders, with the elastic gel and each profile's own lens: the
   DIGIT fitted to real frames (`digit_fots`) and the GelSight Mini with its painted skin, against
   the `digit` profile's elastic gel and lens of this run. Goal: >= 50 frames/s each.
 

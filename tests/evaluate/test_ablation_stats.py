@@ -341,38 +341,47 @@ def test_recommendation_when_the_design_lacks_power_says_so():
     table, blocks = study_table({20: 1.2, 40: 1.02}, noise=0.6, replicates=2)
     line = recommend(ablation_tests(table, blocks), POINTS)
     assert line.startswith("probe at least 976 points (P = 80 %): no smaller fraction")
-    assert "lacks the power to show equivalence (stats/power.csv" in line
+    assert "lacks the power to show equivalence (the interval reaches past the margin" in line
+    assert "stats/power.csv: the replicates and validation points it needs" in line
+
+
+NARROW = "the interval reaches past the margin on the {} side (too little power)"
 
 
 @pytest.mark.parametrize(
-    "low, high, reason",
+    "change, low, high, reason",
     [
-        (-0.13, -0.012, "reaches past the margin on the better side (not worse"),
-        (0.02, 0.14, "reaches past the margin on the worse side"),
-        (-0.12, 0.12, "wider than the margin allows (too little power)"),
-        (0.11, 0.2, "worse by more than the margin"),
-        (-0.3, -0.12, "better by more than the margin"),
+        # the Mini's P = 40 % of one default study: inside the margin, crossing its lower bound
+        (-0.076, -0.13, -0.012, NARROW.format("better")),
+        (0.06, 0.02, 0.14, NARROW.format("worse")),
+        (0.0, -0.12, 0.12, "the interval is wider than the margin allows (too little power)"),
+        (-0.12, -0.15, -0.05, "the estimate lies past the margin on the better side"),
+        (0.12, 0.05, 0.16, "the estimate lies past the margin on the worse side"),
+        (0.15, 0.11, 0.2, "worse by more than the margin"),
+        (-0.2, -0.3, -0.12, "better by more than the margin"),
     ],
 )
-def test_a_not_equivalent_conclusion_names_the_side_and_blames_power_only_for_a_wide_interval(
-    low, high, reason
-):
-    """An interval narrower than the margin's width that crosses one bound (the Mini's P = 40 % of
-    one default study: -13.0 % to -1.2 %) is not a lack of power: it says which bound it crosses."""
-    conclusion = _equivalence_conclusion(False, False, low, high, 0.10)
-    assert conclusion == f"not equivalent: {conclusion.split(': ', 1)[1]}"
-    assert reason in conclusion
-    assert ("power" in conclusion) == (high - low > 0.2)
+def test_a_not_equivalent_conclusion_names_the_bound_crossed(change, low, high, reason):
+    """Not equivalent, and why: which bound the interval crosses, and power only where the
+    estimate lies inside the margin (more replicates or points would narrow the interval)."""
+    conclusion = _equivalence_conclusion(False, False, change, low, high, 0.10)
+    assert conclusion == f"not equivalent: {reason}"
 
 
-def test_recommendation_does_not_blame_power_for_a_fraction_better_than_the_margin():
+def test_recommendation_names_the_bound_a_narrow_interval_crosses():
+    """An estimate 8 % better than P = 80 %, its interval crossing the lower bound only: the
+    line says which bound beside the lack of power (before: power alone)."""
     table, blocks = study_table({20: 1.2, 40: 0.92}, noise=0.1)
     tests = ablation_tests(table, blocks)
     forty = tests[(tests["family"] == "equivalence") & (tests["P"] == 40)].iloc[0]
     assert forty["ci_low"] < -0.10 < forty["ci_high"] < 0.10
+    assert -0.10 < forty["relative_change"] < 0
     line = recommend(tests, POINTS)
     assert line.startswith("probe at least 976 points (P = 80 %): no smaller fraction")
-    assert "better side" in line and "lacks the power" not in line
+    assert (
+        "the design lacks the power to show equivalence (the interval reaches past the margin "
+        "on the better side; stats/power.csv" in line
+    )
 
 
 def test_missing_reference_non_finite_and_unpaired_models_are_refused():

@@ -403,7 +403,7 @@ def equivalence_family(
             correction="fixed sequence (largest P first)",
             significant=bool(equivalent),
             conclusion=_equivalence_conclusion(
-                equivalent, p_tost < alpha, low - 1.0, high - 1.0, margin
+                equivalent, p_tost < alpha, row["relative_change"], low - 1.0, high - 1.0, margin
             ),
         )
         rows.append(row)
@@ -411,8 +411,11 @@ def equivalence_family(
 
 
 def _equivalence_conclusion(
-    equivalent: bool, own: bool, low: float, high: float, margin: float
+    equivalent: bool, own: bool, change: float, low: float, high: float, margin: float
 ) -> str:
+    """Why P is not equivalent: wholly past a bound; an estimate past a bound (the interval
+    reaching back inside); or an estimate inside the margin with an interval that crosses one or
+    both bounds, which more replicates or points would narrow (power)."""
     if equivalent:
         return "equivalent"
     if own:
@@ -421,15 +424,14 @@ def _equivalence_conclusion(
         return "not equivalent: worse by more than the margin"
     if high < -margin:
         return "not equivalent: better by more than the margin"
-    if high - low > 2 * margin:
+    past_low, past_high = low < -margin, high > margin
+    if past_low and past_high or not (past_low or past_high):
+        # (the second only where the interval and its tests part by rounding at a bound)
         return "not equivalent: the interval is wider than the margin allows (too little power)"
-    # narrow enough to fit, but it crosses one bound: the data place P near that bound
-    if high > margin:
-        return "not equivalent: the interval reaches past the margin on the worse side"
-    return (
-        "not equivalent: the interval reaches past the margin on the better side "
-        "(not worse by more than the margin)"
-    )
+    side = "worse" if past_high else "better"
+    if abs(change) > margin:
+        return f"not equivalent: the estimate lies past the margin on the {side} side"
+    return f"not equivalent: the interval reaches past the margin on the {side} side (too little power)"
 
 
 def _frame(rows: list[dict]) -> pd.DataFrame:
@@ -510,12 +512,13 @@ def recommend(
     largest = rows.iloc[-1]
     p = int(rows.index[-1])
     reason = largest["conclusion"].removeprefix("not equivalent: ")
-    why = (
-        "the design lacks the power to show equivalence (stats/power.csv: the replicates and "
-        "validation points it needs)"
-        if "power" in reason
-        else reason
-    )
+    why = reason
+    if "power" in reason:
+        where = "" if "wider" in reason else reason.removesuffix(" (too little power)") + "; "
+        why = (
+            f"the design lacks the power to show equivalence ({where}stats/power.csv: the "
+            "replicates and validation points it needs)"
+        )
     return (
         f"probe at least {n_points_by_p[reference]} points (P = {reference} %): no smaller fraction "
         f"is shown equivalent within a {margin * 100:.0f} % margin of mean validation MSE; "
