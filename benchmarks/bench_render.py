@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from threedcal.evaluate.objects import load_object  # noqa: E402
 from threedcal.evaluate.pressing import relief_indenter  # noqa: E402
-from threedcal.profiles import load_profile  # noqa: E402
+from threedcal.profiles import load_profile, with_gel_mechanics  # noqa: E402
 from threedcal.sim.camera import LensedGel, make_gel  # noqa: E402
 from threedcal.sim.indenters import Sphere  # noqa: E402
 from threedcal.sim.optics import GelSimulator  # noqa: E402
@@ -117,8 +117,8 @@ def main() -> None:
 
     print("the default study's sensors, elastic gel + lens, a new pose every frame:")
     for name in ("digit_fots", "gelsight_mini"):
-        profile = copy.deepcopy(load_profile("sensor", name))
-        profile["gel"]["mechanics"] = "elastic"  # the study's bench.gel_mechanics
+        # as the study's benches render it (bench.gel_mechanics: elastic)
+        profile = with_gel_mechanics(load_profile("sensor", name), "elastic")
         simulator = make_gel(profile, seed=0)
         height, width = profile["image"]["height_px"], profile["image"]["width_px"]
         # the same poses, scaled to this frame (the Mini's is landscape)

@@ -355,6 +355,7 @@ NARROW = "the interval reaches past the margin on the {} side (too little power)
         (-0.076, -0.13, -0.012, NARROW.format("better")),
         (0.06, 0.02, 0.14, NARROW.format("worse")),
         (0.0, -0.12, 0.12, "the interval is wider than the margin allows (too little power)"),
+        (0.0, -0.10, 0.05, "the interval ends on the margin (too little power)"),
         (-0.12, -0.15, -0.05, "the estimate lies past the margin on the better side"),
         (0.12, 0.05, 0.16, "the estimate lies past the margin on the worse side"),
         (0.15, 0.11, 0.2, "worse by more than the margin"),

@@ -425,8 +425,9 @@ def _equivalence_conclusion(
     if high < -margin:
         return "not equivalent: better by more than the margin"
     past_low, past_high = low < -margin, high > margin
-    if past_low and past_high or not (past_low or past_high):
-        # (the second only where the interval and its tests part by rounding at a bound)
+    if not (past_low or past_high):  # the interval ends on a bound: its tests part by rounding
+        return "not equivalent: the interval ends on the margin (too little power)"
+    if past_low and past_high:
         return "not equivalent: the interval is wider than the margin allows (too little power)"
     side = "worse" if past_high else "better"
     if abs(change) > margin:
