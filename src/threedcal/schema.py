@@ -47,7 +47,7 @@ _SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class _UniqueKeyLoader(_SAFE_LOADER):
-    """yaml.SafeLoader that refuses a key given twice in one mapping (e.g. two scenes of one name)."""
+    """The safe loader that refuses a key given twice in one mapping (e.g. two scenes of one name)."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -73,7 +73,7 @@ def parse_yaml(text: str, source: str = "YAML") -> Any:
     """Parse YAML text like yaml.safe_load, but refuse duplicate keys; errors name `source`.
 
     Each call gets its own copy; a text is parsed once per process (a Snakefile parse reads the
-    schemas and profiles dozens of times, ~1 s of pure-Python YAML each `snakemake` call)."""
+    schemas and profiles dozens of times: ~1 s each `snakemake` call with pure-Python YAML)."""
     return copy.deepcopy(_parse_yaml(text, source))
 
 
