@@ -10,7 +10,7 @@ CORES  ?= 2
 # The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: all smoke setup test lint bench report clean cluster-test cluster-clean
+.PHONY: all smoke setup test lint bench report clean cluster-test cluster-clean pretrained
 
 all: $(STAMP)
 	@start=$$(date +%s); \
@@ -24,6 +24,12 @@ smoke: $(STAMP)
 	$(BIN)/snakemake all --profile workflow/profiles/default --cores $(CORES) --configfile config/first_scene.yaml
 
 setup: $(STAMP)
+
+# The weights shipped for `model.init: pretrained` (src/threedcal/pretrained/), rebuilt from simulated
+# presses of many units and installed into the package: about an hour on 2 cores, not part of `all`.
+pretrained: $(STAMP)
+	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) pretrained
+	$(BIN)/threedcal pretrained install results/pretrained
 
 # The installer is uv (pinned, from the package registry): it installs the same versions as pip in
 # less than half the time (a fresh clone's set-up 65 s -> 27 s here; uv's own step 20 s with its

@@ -5,6 +5,7 @@ from pathlib import Path
 from snakemake.utils import min_version, validate
 
 from threedcal.config import (
+    convergence_fractions,
     is_imported,
     model_keys,
     validate_config,
@@ -85,6 +86,7 @@ include: "rules/objects.smk"
 include: "rules/presets.smk"
 include: "rules/report.smk"
 include: "rules/reskin.smk"
+include: "rules/pretrained.smk"
 
 
 rule all:

@@ -68,3 +68,19 @@ def sim2real_init(wildcards):
 def sim2real_models(wildcards):
     """{"sim_real_k4": [fold models ...], ..., "scene": [cv/model fold models]}: what sim2real_eval scores."""
     return sim2real_inputs(wildcards.scene, config["scenes"][wildcards.scene])
+
+
+def pretrained_input(wildcards):
+    """The shipped weights a scene's training starts from (model.init: pretrained): rebuilt
+    weights retrain the scene's models."""
+    scene = config["scenes"][wildcards.scene]
+    if (scene.get("model") or {}).get("init") != "pretrained":
+        return {}
+    from threedcal.model.pretrained import SHIPPED_DIR
+    from threedcal.profiles import load_profile
+
+    return {
+        "pretrained": str(
+            SHIPPED_DIR / f"{load_profile('sensor', scene['sensor'])['name']}.pt"
+        )
+    }

@@ -96,3 +96,41 @@ rule stats_overview:
         code=code_digest("stats_overview.py"),
     script:
         "../scripts/stats_overview.py"
+
+
+rule convergence:
+    input:
+        study=lambda wildcards: [
+            f"results/{wildcards.scene}/models/P{p}/r0/model.pt"
+            for p in convergence_fractions(config["scenes"][wildcards.scene])
+        ],
+        twice=lambda wildcards: [
+            f"results/{wildcards.scene}/convergence/P{p}/snapshots"
+            for p in convergence_fractions(config["scenes"][wildcards.scene])
+        ],
+        trainset="results/{scene}/dataset/trainset",
+    output:
+        convergence="results/{scene}/stats/convergence.csv",
+        curve="results/{scene}/stats/error_vs_time.csv",
+        figure=report(
+            "results/{scene}/stats/error_vs_time.png",
+            caption="../workflow/report/stats_error_vs_time.rst",
+            category="{scene}",
+            subcategory="3 training",
+        ),
+    log:
+        "results/{scene}/logs/convergence.log",
+    benchmark:
+        "results/{scene}/benchmarks/convergence.tsv"
+    wildcard_constraints:
+        scene=one_of(ABLATION_SCENES),
+    conda:
+        CONDA_ENV
+    params:
+        fractions=lambda wildcards: convergence_fractions(
+            config["scenes"][wildcards.scene]
+        ),
+        threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
+        code=code_digest("convergence.py"),
+    script:
+        "../scripts/convergence.py"

@@ -4,6 +4,7 @@
 
 rule train:
     input:
+        unpack(pretrained_input),
         trainset="results/{scene}/dataset/trainset",
     output:
         model="results/{scene}/models/P{p}/r{r}/model.pt",
@@ -27,3 +28,34 @@ rule train:
         code=code_digest("train.py"),
     script:
         "../scripts/train.py"
+
+
+# The convergence check (ablation.convergence): replicate 0 of P = 80 and of the smallest P trained
+# again with twice the stopping rule's budget, a snapshot of the best weights at every check.
+rule train_twice:
+    input:
+        unpack(pretrained_input),
+        trainset="results/{scene}/dataset/trainset",
+        study="results/{scene}/models/P{p}/r0/model.pt",
+    output:
+        model="results/{scene}/convergence/P{p}/model.pt",
+        losses="results/{scene}/convergence/P{p}/losses.csv",
+        figure="results/{scene}/convergence/P{p}/losses.png",
+        snapshots=directory("results/{scene}/convergence/P{p}/snapshots"),
+    log:
+        "results/{scene}/logs/train_twice_P{p}.log",
+    benchmark:
+        "results/{scene}/benchmarks/train_twice_P{p}.tsv"
+    wildcard_constraints:
+        p=r"\d+",
+    conda:
+        CONDA_ENV
+    threads: scene_threads
+    params:
+        settings=lambda wildcards: {
+            key: config["scenes"][wildcards.scene][key]
+            for key in ("model", "seed", "torch_threads")
+        },
+        code=code_digest("train_twice.py"),
+    script:
+        "../scripts/train_twice.py"

@@ -103,6 +103,13 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         printer = load_profile("printer", scene["printer"]) if scene.get("printer") else None
     except ConfigError as exc:
         return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
+    if (scene.get("model") or {}).get("init") == "pretrained":
+        from threedcal.model.pretrained import shipped_weights
+
+        try:
+            shipped_weights(sensor.get("name"))
+        except ConfigError as exc:
+            return [f"model.init: {exc}".replace("model.init: model.init: ", "model.init: ")]
     if (scene.get("sim_to_real") or {}).get("enabled") and not (
         is_imported(scene) and sensor.get("type") == "vision"
     ):
@@ -231,18 +238,19 @@ def scene_config(config: Mapping, scene: str) -> dict:
 
 
 def normalise_ablation(ablation: Any) -> dict:
-    """`ablation` in its full form {fractions: [...], replicates: R}.
+    """`ablation` in its full form {fractions: [...], replicates: R, convergence: bool}.
 
     The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate.
     """
     if not ablation:
-        return {"fractions": [], "replicates": 1}
+        return {"fractions": [], "replicates": 1, "convergence": False}
     if isinstance(ablation, Mapping):
         return {
             "fractions": list(ablation.get("fractions") or []),
             "replicates": int(ablation.get("replicates", 1)),
+            "convergence": bool(ablation.get("convergence", False)),
         }
-    return {"fractions": list(ablation), "replicates": 1}
+    return {"fractions": list(ablation), "replicates": 1, "convergence": False}
 
 
 def training_fractions(scene: Mapping) -> list[int]:
@@ -253,6 +261,16 @@ def training_fractions(scene: Mapping) -> list[int]:
 def ablation_replicates(scene: Mapping) -> int:
     """R: models per fraction, each a fresh nested subset draw and a fresh initialisation."""
     return normalise_ablation(scene.get("ablation"))["replicates"]
+
+
+def convergence_fractions(scene: Mapping) -> list[int]:
+    """The fractions trained again at twice the budget (ablation.convergence): P = 80 and the
+    smallest; none without the option or an ablation."""
+    ablation = normalise_ablation(scene.get("ablation"))
+    fractions = training_fractions(scene)
+    if not ablation["convergence"] or len(fractions) < 2 or FULL_TRAINING_P not in fractions:
+        return []
+    return sorted({min(fractions), FULL_TRAINING_P})
 
 
 def model_keys(scene: Mapping) -> list[tuple[int, int]]:

@@ -15,6 +15,7 @@ from typing import Any
 
 from threedcal.config import (
     FULL_TRAINING_P,
+    convergence_fractions,
     is_imported,
     model_keys,
     realism_sets,
@@ -44,6 +45,8 @@ STATS_FILES = (
     "mse_kde.png",
     "error_vs_cost.png",
 )
+# Outputs of the convergence check (rules/stats.smk, ablation.convergence).
+CONVERGENCE_FILES = ("convergence.csv", "error_vs_time.csv", "error_vs_time.png")
 # Outputs of the objects stage (rules/objects.smk): the presses, then their scores.
 OBJECT_FILES = (
     "pressing/frames.npz",
@@ -148,6 +151,8 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
         targets += [f"{root}/objects/{leaf}" for leaf in OBJECT_FILES]
     if has_ablation(scene):
         targets += [f"{root}/stats/{name}" for name in STATS_FILES]
+    if convergence_fractions(scene):
+        targets += [f"{root}/stats/{name}" for name in CONVERGENCE_FILES]
     return targets
 
 

@@ -218,7 +218,7 @@ def test_training_is_deterministic_to_the_byte_and_writes_losses(tmp_path):
     train(ts, tmp_path / "b", 80, settings, progress=False)
     assert (tmp_path / "a/model.pt").read_bytes() == (tmp_path / "b/model.pt").read_bytes()
     losses = pd.read_csv(tmp_path / "a/losses.csv")
-    assert list(losses.columns) == ["epoch", "train_loss", "val_loss", "seconds"]
+    assert list(losses.columns) == ["epoch", "step", "train_loss", "val_loss", "seconds", "lr"]
     assert len(losses) == 1 and np.isfinite(losses[["train_loss", "val_loss"]]).all().all()
     assert (tmp_path / "a/losses.png").stat().st_size > 1000
     assert not (tmp_path / "a/checkpoint.pt").exists()

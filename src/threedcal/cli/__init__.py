@@ -38,6 +38,7 @@ GROUP_HELP = {
     "sim": "the simulated bench: fake firmware, optical simulator",
     "objects": "test objects: CAD, STL files, ground-truth depth",
     "reskin": "the ReSkin magnetic sensor: serial check",
+    "pretrained": "the weights shipped for model.init: pretrained",
 }
 
 

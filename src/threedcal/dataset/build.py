@@ -40,6 +40,10 @@ def build_imported(
         replicates=ablation_replicates(scene),
     )
     trainset.max_slope_deg = check_max_slope(scene["dataset"]["max_slope_deg"])
+    if scene.get("sensor"):
+        from threedcal.profiles import load_profile
+
+        trainset.meta["sensor"] = load_profile("sensor", scene["sensor"]).get("name")
     if scene["dataset"].get("refine_labels"):
         from threedcal.dataset.refine import refine_labels
 
@@ -300,6 +304,7 @@ def build_collected(
             "lens": None if fit.lens is None else fit.lens.record(),
             # labels are the depth below the undeformed gel: on a domed gel, its dome's
             "dome": sensor["gel"].get("dome"),
+            "sensor": sensor.get("name"),
         },
     )
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))

@@ -8,7 +8,9 @@ On disk (``results/{scene}/dataset/``)::
                   eval_radius_px, split (train/val), min_p (and min_p_r1 ... for replicates
                   1 .. R-1, threedcal.dataset.splits) — parsed once, into arrays
     meta.json     px_per_mm, sphere_radius_mm, max_slope_deg (null: no clamp), downscale, source,
-                  dome (the profile's gel.dome the labels are measured from; null: flat)
+                  dome (the profile's gel.dome the labels are measured from; null: flat), sensor
+    unit_blanks.npy  (U, H, W, 3) float32, only in a set of several sensor units (pretraining):
+                  each unit's own blank, and samples.csv's `unit` column says whose each frame is
 
 Labels are not stored: they are the exact sphere gradients (each pixel's mean slope) of
 (centre, depth, radius; the dome's on a domed gel) computed on demand, once per frame over the box
@@ -111,6 +113,7 @@ class TrainingSet:
     sphere_radius_mm: float
     max_slope_deg: float | None = DEFAULT_MAX_SLOPE_DEG  # None: physical labels, no clamp
     meta: dict | None = None
+    unit_blanks: np.ndarray | None = None  # (U, H, W, 3) float32: frames of several units
 
     def __post_init__(self) -> None:
         self.center_px = self.samples[["center_x_px", "center_y_px"]].to_numpy(float)
@@ -124,6 +127,18 @@ class TrainingSet:
             key=lambda c: int(c.removeprefix("min_p_r")),
         )
         self._label_boxes: dict[int, tuple[int, int, np.ndarray]] = {}
+        self.unit = None
+        if self.unit_blanks is not None:
+            if "unit" not in self.samples.columns:
+                raise ConfigError("a set with unit_blanks needs samples' `unit` column")
+            self.unit = self.samples["unit"].to_numpy(int)
+            if self.unit.size and not 0 <= self.unit.min() <= self.unit.max() < len(
+                self.unit_blanks
+            ):
+                raise ConfigError(
+                    f"samples' `unit` must lie in 0..{len(self.unit_blanks) - 1}, "
+                    f"got {self.unit.min()}..{self.unit.max()}"
+                )
 
     @property
     def replicates(self) -> int:
@@ -147,8 +162,12 @@ class TrainingSet:
             chosen &= (min_p > 0) & (min_p <= percent)
         return np.flatnonzero(chosen)
 
+    def blank_of(self, i: int) -> np.ndarray:
+        """Frame i's blank: its unit's in a set of several units, else the set's."""
+        return self.blank if self.unit is None else self.unit_blanks[self.unit[i]]
+
     def inputs(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
-        return model_inputs(self.frames[i], self.blank, window)
+        return model_inputs(self.frames[i], self.blank_of(i), window)
 
     def labels(self, i: int, window: tuple[slice, slice] | None = None) -> np.ndarray:
         """(2, h, w) float32 gradient labels (∂z/∂x, ∂z/∂y) of frame i in `window`.
@@ -217,6 +236,9 @@ class TrainingSet:
         np.save(directory / "frames.npy", np.ascontiguousarray(self.frames, dtype=np.uint8))
         np.save(directory / "blank.npy", self.blank.astype(np.float32))
         columns = list(SAMPLE_COLUMNS) + self.replicate_columns[1:]
+        if self.unit_blanks is not None:
+            columns.append("unit")
+            np.save(directory / "unit_blanks.npy", self.unit_blanks.astype(np.float32))
         self.samples.loc[:, columns].to_csv(directory / "samples.csv", index=False)
         meta = {
             **(self.meta or {}),
@@ -249,6 +271,9 @@ class TrainingSet:
             sphere_radius_mm=float(meta["sphere_radius_mm"]),
             max_slope_deg=check_max_slope(meta.get("max_slope_deg", DEFAULT_MAX_SLOPE_DEG)),
             meta=meta,
+            unit_blanks=np.load(units)
+            if (units := directory / "unit_blanks.npy").is_file()
+            else None,
         )
 
 
@@ -283,17 +308,16 @@ def downscale(trainset: TrainingSet, factor: int) -> TrainingSet:
 
     n, height, width, _ = trainset.frames.shape
     h, w = height // factor, width // factor
-    frames = np.stack(
-        [
-            cv2.resize(
-                np.asarray(f[: h * factor, : w * factor]), (w, h), interpolation=cv2.INTER_AREA
-            )
-            for f in trainset.frames
-        ]
-    )
-    blank = cv2.resize(
-        trainset.blank[: h * factor, : w * factor], (w, h), interpolation=cv2.INTER_AREA
-    )
+
+    def pooled(image: np.ndarray) -> np.ndarray:
+        return cv2.resize(
+            np.asarray(image[: h * factor, : w * factor]), (w, h), interpolation=cv2.INTER_AREA
+        )
+
+    frames = np.stack([pooled(f) for f in trainset.frames])
+    blank = pooled(trainset.blank)
+    units = trainset.unit_blanks
+    units = None if units is None else np.stack([pooled(b) for b in units]).astype(np.float32)
     samples = trainset.samples.copy()
     # A pixel centre c in the full image maps to (c + 0.5) / f − 0.5 in the pooled one.
     for column in ("center_x_px", "center_y_px"):
@@ -310,6 +334,7 @@ def downscale(trainset: TrainingSet, factor: int) -> TrainingSet:
             **(trainset.meta or {}),
             "downscale": factor * (trainset.meta or {}).get("downscale", 1),
         },
+        unit_blanks=units,
     )
 
 

@@ -5,7 +5,15 @@ Heavy imports (torch) happen inside the submodules; `threedcal.model` itself sta
 
 from __future__ import annotations
 
-PRESET_NAMES = ("touchnet", "compact", "compact_tiny", "context", "multiscale", "lookup")
+PRESET_NAMES = (
+    "touchnet",
+    "compact",
+    "compact_tiny",
+    "context",
+    "context_half",
+    "multiscale",
+    "lookup",
+)
 DEFAULT_PRESET = "compact"
 
 __all__ = ["PRESET_NAMES", "DEFAULT_PRESET"]

@@ -4,7 +4,9 @@ The paper trains TouchNet on full frames; on a CPU that is out of reach, so each
 training frame, a few patches around the contact (where the labels vary) plus a few anywhere (so the
 background is learnt to be flat). Patch positions come from a generator seeded by (seed, epoch) and
 torch is reseeded per epoch, so a resumed run continues exactly as an uninterrupted one and the same
-settings give the same bytes of model.pt.
+settings give the same bytes of model.pt. How long it trains is the stopping rule's
+(threedcal.model.stopping): the paper's fixed epochs, or until the error on a holdout of its own
+training coordinates stops falling.
 """
 
 from __future__ import annotations
@@ -38,12 +40,15 @@ from threedcal.model.checkpoint import (
 )
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.losses import gradient_loss
+from threedcal.model.machine import describe as describe_machine
+from threedcal.model.machine import resolve_precision
 from threedcal.model.presets import (
     build_model,
     is_learned,
     preferred_memory_format,
     preset_args,
 )
+from threedcal.model.stopping import Plateau, check_rule, holdout_split
 from threedcal.schema import load_schema, section
 
 RESUME_NAME = "checkpoint.pt"
@@ -51,7 +56,7 @@ RESUME_NAME = "checkpoint.pt"
 # a P = 1 % job runs 320 short epochs, and saving after each cost 5 % of its time. An interrupted
 # job redoes at most this much, and ends with the same bytes either way.
 RESUME_EVERY_S = 20.0
-LOSS_COLUMNS = ("epoch", "train_loss", "val_loss", "seconds")
+LOSS_COLUMNS = ("epoch", "step", "train_loss", "val_loss", "seconds", "lr")
 
 
 def _or(value, default):
@@ -82,7 +87,8 @@ class TrainSettings:
     seed: int
     torch_threads: int
     device: str  # auto = CUDA when present, else CPU
-    precision: str  # float32, or bfloat16 autocast of the training steps
+    precision: str  # auto (threedcal.model.machine), float32, or bfloat16 autocast of the steps
+    stopping: dict  # the stopping rule (threedcal.model.stopping)
 
     @classmethod
     def from_scene(cls, scene: Mapping) -> TrainSettings:
@@ -208,11 +214,12 @@ def configure_torch(settings: TrainSettings) -> torch.device:
 
 
 # Bumped when the same settings train differently: a checkpoint of an interrupted run of the older
-# code is then not resumed under the newer one (2: the cosine rate per batch, no longer per epoch).
-TRAINING_SEMANTICS = 2
+# code is then not resumed under the newer one (2: the cosine rate per batch, no longer per epoch;
+# 3: the stopping rules and the precision resolved per machine).
+TRAINING_SEMANTICS = 3
 
 
-def _resume_key(settings: TrainSettings, percent: int, replicate: int, ts: TrainingSet) -> str:
+def _resume_key(settings: TrainSettings, percent: int, replicate: int, ts: TrainingSet, run) -> str:
     described = {
         "semantics": TRAINING_SEMANTICS,
         "settings": asdict(settings),
@@ -220,6 +227,7 @@ def _resume_key(settings: TrainSettings, percent: int, replicate: int, ts: Train
         "replicate": replicate,
         "frames": list(ts.frames.shape),
         "meta": ts.meta or {},
+        "run": run,
     }
     return hashlib.sha256(json.dumps(described, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -232,7 +240,7 @@ def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.M
     torch.manual_seed(settings.seed)
     if settings.init is None:
         return build_model(settings.preset), {**OUR_NORMALISATION, "drift": settings.drift}
-    source = read_checkpoint(settings.init)
+    source = read_checkpoint(init_path(settings.init, ts))
     if source["preset"] != settings.preset:
         raise ConfigError(
             f"model.init: {settings.init} holds a {source['preset']!r} model, "
@@ -247,6 +255,16 @@ def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.M
     # Fine-tuning keeps the normalisation the source network was trained with.
     normalisation = {"drift": "none", **source.get("normalisation", OUR_NORMALISATION)}
     return model_from_checkpoint(source), normalisation
+
+
+def init_path(init: str, ts: TrainingSet) -> str | Path:
+    """`model.init`'s checkpoint: a path, or `pretrained` — the weights this package ships for
+    the dataset's sensor (threedcal.model.pretrained)."""
+    if init != "pretrained":
+        return init
+    from threedcal.model.pretrained import shipped_weights
+
+    return shipped_weights((ts.meta or {}).get("sensor"), ts.image_shape)
 
 
 def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
@@ -266,6 +284,46 @@ def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
     return total / count
 
 
+@dataclass
+class _Job:
+    """One training's fixed inputs: the data it fits, the windows it checks, the device."""
+
+    ts: TrainingSet
+    fit_idx: np.ndarray  # frames the optimiser sees
+    check_idx: np.ndarray  # frames whose windows are checked (holdout, or the paper's val)
+    check_windows: list
+    settings: TrainSettings
+    device: torch.device
+    precision: str  # resolved: float32 or bfloat16
+    name: str  # "P80 r0": what errors name
+    inputs: _Inputs | None = None
+    normalisation: dict | None = None
+
+
+def _plan_job(ts, percent, replicate, settings, device, precision) -> _Job:
+    """Which frames train and which are checked: under `plateau` a holdout of the model's own
+    training frames; under `epochs` (the paper's) the trainer logs the validation split's loss."""
+    train_idx = ts.indices("train", percent=percent, replicate=replicate)
+    if len(train_idx) == 0:
+        raise ConfigError(
+            f"P={percent}, replicate {replicate}: no training frames in this dataset's split"
+        )
+    check_rule(settings.stopping)
+    if settings.stopping["rule"] == "plateau":
+        fit_idx, check_idx = holdout_split(train_idx, settings.stopping["holdout"], settings.seed)
+        if len(check_idx) == 0:  # too few frames to hold any out: judged on what it fits
+            check_idx = fit_idx
+    else:
+        fit_idx, check_idx = train_idx, ts.indices("val")
+    check_rng = np.random.default_rng([settings.seed, 1 << 20])
+    windows = sample_windows(ts, check_idx, _val_settings(settings), check_rng)
+    if len(windows) > VALIDATION_WINDOWS:  # a fixed, seeded subset: checks stay cheap
+        keep = np.sort(check_rng.choice(len(windows), VALIDATION_WINDOWS, replace=False))
+        windows = [windows[k] for k in keep]
+    name = f"P={percent} r{replicate}"
+    return _Job(ts, fit_idx, check_idx, windows, settings, device, precision, name)
+
+
 def train(
     ts: TrainingSet | str | Path,
     out_dir: str | Path,
@@ -273,11 +331,18 @@ def train(
     settings: TrainSettings,
     progress: bool = True,
     replicate: int = 0,
+    *,
+    budget_scale: float = 1.0,
+    min_steps: int = 0,
+    snapshot_every: int = 0,
 ) -> dict:
     """Train replicate r at fraction `percent` into out_dir/{model.pt, losses.csv, losses.png}.
 
     Replicate r trains on its own nested subset (TrainingSet.indices) with the seed
-    replicate_seed(settings.seed, r): replicate 0 is the scene seed itself. Returns the checkpoint.
+    replicate_seed(settings.seed, r): replicate 0 is the scene seed itself. `budget_scale` and
+    `min_steps` lengthen a `plateau` rule (the convergence check trains twice the budget), and
+    `snapshot_every` > 0 writes the best weights so far to out_dir/snapshots/ every that many
+    checks (the error-against-time curve). Returns the checkpoint.
     """
     from threedcal.dataset.splits import replicate_seed
 
@@ -287,39 +352,103 @@ def train(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     device = configure_torch(settings)
+    precision = resolve_precision(settings.precision, device)
     # Where it trains: on a cluster, whether the job's GPU was usable (else the CPU).
-    logging.getLogger(__name__).info("training P=%d r%d on %s", percent, replicate, device)
-    train_idx = ts.indices("train", percent=percent, replicate=replicate)
-    if len(train_idx) == 0:
-        raise ConfigError(
-            f"P={percent}, replicate {replicate}: no training frames in this dataset's split"
-        )
-    val_idx = ts.indices("val")
-    val_rng = np.random.default_rng([settings.seed, 1 << 20])
-    val_windows = sample_windows(ts, val_idx, _val_settings(settings), val_rng)
-    if len(val_windows) > VALIDATION_WINDOWS:  # a fixed, seeded subset: validation stays cheap
-        keep = np.sort(val_rng.choice(len(val_windows), VALIDATION_WINDOWS, replace=False))
-        val_windows = [val_windows[k] for k in keep]
-    model, normalisation = _initial_model(settings, ts)
+    logging.getLogger(__name__).info(
+        "training P=%d r%d on %s in %s", percent, replicate, device, precision
+    )
+    job = _plan_job(ts, percent, replicate, settings, device, precision)
+    model, job.normalisation = _initial_model(settings, ts)
     model.to(device=device, memory_format=preferred_memory_format(model))
-    inputs = _Inputs(ts, normalisation["drift"])
-    epochs = settings.epochs(percent) if is_learned(settings.preset) else 1
-    checked = validation_epochs(epochs)
-    key = _resume_key(settings, percent, replicate, ts)
-    resume_path = out_dir / RESUME_NAME
-    rows: list[dict] = []
-    start = 1
-    if is_learned(settings.preset):
-        optimizer = torch.optim.AdamW(
-            model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay
+    job.inputs = _Inputs(ts, job.normalisation["drift"])
+    run = {"precision": precision, "budget_scale": budget_scale, "min_steps": min_steps}
+    key = _resume_key(settings, percent, replicate, ts, run)
+    if not is_learned(settings.preset):
+        rows, stopped = _fit_lookup(model, job), {"epochs": 1, "steps": 0, "reason": "fitted"}
+    elif settings.stopping["rule"] == "plateau":
+        rule = Plateau.of(settings.stopping, settings.lr, budget_scale, min_steps)
+        rows, stopped = _run_plateau(
+            model, job, rule, out_dir, key, progress, (percent, replicate), snapshot_every
         )
-        if resume_path.is_file():
-            state = read_checkpoint(resume_path)
-            if state.get("resume_key") == key:
-                model.load_state_dict(state["state_dict"])
-                optimizer.load_state_dict(state["optimizer"])
-                rows = list(state["losses"])
-                start = int(state["epoch"]) + 1
+    else:
+        epochs = max(1, round(settings.epochs(percent) * budget_scale))
+        rows, stopped = _run_epochs(
+            model, job, epochs, out_dir, key, progress, (percent, replicate), snapshot_every
+        )
+    final = _checkpoint(
+        model, settings, ts, percent, replicate, stopped["epochs"], job.normalisation
+    )
+    final["training"].update(
+        steps=int(stopped["steps"]),
+        seconds=round(float(sum(r["seconds"] for r in rows)), 3),
+        stopped=stopped["reason"],
+        precision=precision,
+        machine=describe_machine(),
+        fit_frames=int(len(job.fit_idx)),
+        holdout_frames=int(len(job.check_idx)) if settings.stopping["rule"] == "plateau" else 0,
+    )
+    save_checkpoint(out_dir / "model.pt", final)
+    write_losses(out_dir / "losses.csv", rows)
+    plot_losses(
+        out_dir / "losses.png", rows, title=f"{settings.preset}, P={percent}, replicate {replicate}"
+    )
+    (out_dir / RESUME_NAME).unlink(missing_ok=True)
+    return final
+
+
+def _fit_lookup(model, job: _Job) -> list[dict]:
+    """The lookup table is fitted by binning, once: one row of losses."""
+    began = time.perf_counter()
+    rng = np.random.default_rng([job.settings.seed, 1])
+    model.fit(_Pairs(job.ts, job.fit_idx, job.inputs))
+    windows = sample_windows(job.ts, job.fit_idx, job.settings, rng)
+    args = (job.ts, windows, job.settings, job.device, job.normalisation, job.inputs)
+    train_loss = _mse(model, *args)
+    val_loss = _mse(model, job.ts, job.check_windows, *args[2:])
+    return [_row(1, 0, train_loss, val_loss, _since(began), 0.0)]
+
+
+def _row(epoch, step, train_loss, val_loss, seconds, lr) -> dict:
+    return {
+        "epoch": epoch,
+        "step": int(step),
+        "train_loss": train_loss,
+        "val_loss": val_loss,
+        "seconds": seconds,
+        "lr": lr,
+    }
+
+
+def _optimizer(model, settings: TrainSettings):
+    return torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
+
+
+def _resume(out_dir: Path, key: str, model, optimizer) -> dict | None:
+    """The state of an interrupted run of this very job (same key), restored into model and
+    optimizer; None when there is none to resume."""
+    path = out_dir / RESUME_NAME
+    if not path.is_file():
+        return None
+    state = read_checkpoint(path)
+    if state.get("resume_key") != key:
+        return None
+    model.load_state_dict(state["state_dict"])
+    optimizer.load_state_dict(state["optimizer"])
+    return state
+
+
+def _run_epochs(model, job: _Job, epochs, out_dir, key, progress, job_id, snapshot_every):
+    """The paper's rule: epochs_base · 80 / P epochs, the rate scheduled over them."""
+    settings = job.settings
+    percent, replicate = job_id
+    checked = validation_epochs(epochs)
+    optimizer = _optimizer(model, settings)
+    rows: list[dict] = []
+    start, steps = 1, 0
+    state = _resume(out_dir, key, model, optimizer)
+    if state is not None:
+        rows, start = list(state["losses"]), int(state["epoch"]) + 1
+        steps = int(state.get("steps", 0))
     bar = tqdm(
         range(start, epochs + 1),
         desc=f"train P{percent} r{replicate}",
@@ -331,66 +460,127 @@ def train(
         began = time.perf_counter()
         rng = np.random.default_rng([settings.seed, epoch])
         torch.manual_seed(settings.seed * 1_000_003 + epoch)
-        if is_learned(settings.preset):
-            try:
-                train_loss = _train_epoch(
-                    model,
-                    ts,
-                    train_idx,
-                    settings,
-                    rng,
-                    device,
-                    optimizer,
-                    normalisation,
-                    inputs,
-                    (epoch, epochs),
-                )
-            except TrainingError as exc:
-                raise TrainingError(
-                    f"training P={percent} r{replicate} ({settings.preset}), epoch {epoch}: {exc}; "
-                    + _divergence_hint(settings)
-                ) from None
-        else:
-            model.fit(_Pairs(ts, train_idx, inputs))
-            train_loss = _mse(
-                model,
-                ts,
-                sample_windows(ts, train_idx, settings, rng),
-                settings,
-                device,
-                normalisation,
-                inputs,
-            )
-        val_loss = (
-            _mse(model, ts, val_windows, settings, device, normalisation, inputs)
-            if epoch in checked
-            else float("nan")
-        )
-        rows.append(
-            {
-                "epoch": epoch,
-                "train_loss": train_loss,
-                "val_loss": val_loss,
-                "seconds": round(time.perf_counter() - began, 3),
-            }
-        )
+        train_loss, batches = _guarded_epoch(model, job, rng, optimizer, (epoch, epochs), epoch)
+        steps += batches
+        val_loss = _check_loss(model, job) if epoch in checked else float("nan")
+        lr = scheduled_lr(settings, epoch, epochs, 0, 1)
+        rows.append(_row(epoch, steps, train_loss, val_loss, _since(began), lr))
         bar.set_postfix(train=f"{train_loss:.4g}", val=f"{val_loss:.4g}")
-        due = time.monotonic() - last_saved >= RESUME_EVERY_S
-        if is_learned(settings.preset) and epoch < epochs and due:
-            checkpoint = _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation)
-            checkpoint.update(
-                epoch=epoch, optimizer=optimizer.state_dict(), losses=rows, resume_key=key
-            )
-            save_checkpoint(resume_path, checkpoint)
+        if snapshot_every and epoch in checked:
+            _snapshot(out_dir, job, model, _cpu_state(model), (job_id, epoch, steps), rows)
+        if epoch < epochs and time.monotonic() - last_saved >= RESUME_EVERY_S:
+            extra = {"epoch": epoch, "steps": steps}
+            _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra)
             last_saved = time.monotonic()
-    final = _checkpoint(model, settings, ts, percent, replicate, epochs, normalisation)
-    save_checkpoint(out_dir / "model.pt", final)
-    write_losses(out_dir / "losses.csv", rows)
-    plot_losses(
-        out_dir / "losses.png", rows, title=f"{settings.preset}, P={percent}, replicate {replicate}"
+    return rows, {"epochs": epochs, "steps": steps, "reason": f"{epochs} epochs (the budget)"}
+
+
+def _run_plateau(model, job: _Job, rule: Plateau, out_dir, key, progress, job_id, snapshot_every):
+    """Epochs until the rule stops; the best weights on the holdout are the model."""
+    settings = job.settings
+    percent, replicate = job_id
+    optimizer = _optimizer(model, settings)
+    rows: list[dict] = []
+    epoch, steps = 0, 0
+    best = _cpu_state(model)
+    state = _resume(out_dir, key, model, optimizer)
+    if state is not None:
+        rows, epoch, steps = list(state["losses"]), int(state["epoch"]), int(state["steps"])
+        rule, best = Plateau.from_state(state["rule"]), dict(state["best"])
+    else:  # where it starts: the initial (pretrained or fresh) weights' own error
+        rule.best = _check_loss(model, job)
+        rows.append(_row(0, 0, float("nan"), rule.best, 0.0, rule.current_lr))
+    bar = tqdm(
+        total=rule.max_steps,
+        initial=min(steps, rule.max_steps),
+        desc=f"train P{percent} r{replicate}",
+        unit="step",
+        disable=not progress,
     )
-    resume_path.unlink(missing_ok=True)
-    return final
+    last_saved = time.monotonic()
+    began = time.perf_counter()
+    while not rule.done:
+        epoch += 1
+        rng = np.random.default_rng([settings.seed, epoch])
+        torch.manual_seed(settings.seed * 1_000_003 + epoch)
+        for group in optimizer.param_groups:
+            group["lr"] = rule.current_lr
+        train_loss, batches = _guarded_epoch(model, job, rng, optimizer, None, epoch)
+        steps += batches
+        bar.update(min(steps, rule.max_steps) - bar.n)
+        if not rule.due(steps):
+            continue
+        error = _check_loss(model, job)
+        improved, dropped = rule.observe(steps, error)
+        if improved:
+            best = _cpu_state(model)
+        if dropped:  # go on from the best weights at the lower rate
+            model.load_state_dict(best)
+        rows.append(_row(epoch, steps, train_loss, error, _since(began), rule.current_lr))
+        began = time.perf_counter()
+        bar.set_postfix(check=f"{error:.4g}", best=f"{rule.best:.4g}", drops=rule.drops)
+        if snapshot_every and len(rule.history) % snapshot_every == 0:
+            _snapshot(out_dir, job, model, best, (job_id, epoch, steps), rows)
+        if not rule.done and time.monotonic() - last_saved >= RESUME_EVERY_S:
+            extra = {"epoch": epoch, "steps": steps, "rule": rule.state(), "best": best}
+            _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra)
+            last_saved = time.monotonic()
+    bar.close()
+    model.load_state_dict(best)
+    if snapshot_every:
+        _snapshot(out_dir, job, model, best, (job_id, epoch, steps), rows)
+    return rows, {"epochs": epoch, "steps": steps, "reason": rule.reason}
+
+
+def _since(began: float) -> float:
+    return round(time.perf_counter() - began, 3)
+
+
+def _check_loss(model, job: _Job) -> float:
+    args = (job.ts, job.check_windows, job.settings, job.device, job.normalisation, job.inputs)
+    return _mse(model, *args)
+
+
+def _guarded_epoch(model, job: _Job, rng, optimizer, position, epoch) -> tuple[float, int]:
+    try:
+        return _train_epoch(
+            model,
+            job.ts,
+            job.fit_idx,
+            job.settings,
+            rng,
+            job.device,
+            optimizer,
+            job.normalisation,
+            job.inputs,
+            position,
+            job.precision,
+        )
+    except TrainingError as exc:
+        raise TrainingError(
+            f"training {job.name} ({job.settings.preset}), epoch {epoch}: {exc}; "
+            + _divergence_hint(job.precision)
+        ) from None
+
+
+def _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra) -> None:
+    state = _checkpoint(
+        model, job.settings, job.ts, percent, replicate, extra["epoch"], job.normalisation
+    )
+    state.update(optimizer=optimizer.state_dict(), losses=rows, resume_key=key, **extra)
+    save_checkpoint(out_dir / RESUME_NAME, state)
+
+
+def _snapshot(out_dir: Path, job: _Job, model, weights: dict, position, rows: list[dict]) -> None:
+    """A usable checkpoint of `weights` (the best so far) after `steps`, with the training seconds
+    spent to reach them: one point of the error-against-time curve."""
+    (percent, replicate), epoch, steps = position
+    snapshot = _checkpoint(
+        model, job.settings, job.ts, percent, replicate, epoch, job.normalisation
+    )
+    snapshot["state_dict"] = weights
+    snapshot["training"].update(steps=int(steps), seconds=float(sum(r["seconds"] for r in rows)))
+    save_checkpoint(out_dir / "snapshots" / f"step{steps:07d}.pt", snapshot)
 
 
 # Validation runs on at most this many patches and at most this many epochs (spread evenly, the
@@ -413,8 +603,20 @@ def _val_settings(settings: TrainSettings) -> TrainSettings:
 
 
 def _train_epoch(
-    model, ts, train_idx, settings, rng, device, optimizer, normalisation, inputs, position
-) -> float:
+    model,
+    ts,
+    train_idx,
+    settings,
+    rng,
+    device,
+    optimizer,
+    normalisation,
+    inputs,
+    position,
+    precision="float32",
+) -> tuple[float, int]:
+    """One pass over patches of the training frames: (mean loss, optimiser steps). `position`
+    (epoch, epochs) schedules the rate per batch (the `epochs` rule); None keeps the optimiser's."""
     windows = sample_windows(ts, train_idx, settings, rng)
     order = rng.permutation(len(windows))
     windows = [windows[k] for k in order]
@@ -424,13 +626,14 @@ def _train_epoch(
     layout = preferred_memory_format(model)
     batches = -(-len(windows) // settings.batch_size)
     for batch, (x, y) in enumerate(_batches(ts, windows, settings.batch_size, inputs)):
-        for group in optimizer.param_groups:
-            group["lr"] = scheduled_lr(settings, *position, batch, batches)
+        if position is not None:
+            for group in optimizer.param_groups:
+                group["lr"] = scheduled_lr(settings, *position, batch, batches)
         x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
         x = x.contiguous(memory_format=layout)
         y = y.to(device)
         optimizer.zero_grad(set_to_none=True)
-        with training_autocast(settings.precision, device):
+        with training_autocast(precision, device):
             prediction = model(x)
         loss = gradient_loss(prediction.float() * sign, y, settings.loss)
         value = float(loss.detach())
@@ -440,11 +643,11 @@ def _train_epoch(
         optimizer.step()
         total += value * len(x)
         count += len(x)
-    return total / count
+    return total / count, batches
 
 
-def _divergence_hint(settings: TrainSettings) -> str:
-    if settings.precision == "bfloat16":
+def _divergence_hint(precision: str) -> str:
+    if precision == "bfloat16":
         return (
             "model.precision is bfloat16, whose gradients are not finite for some networks on "
             "some CPUs (multiscale's 24-channel dilated convolutions in channels-last, torch "
@@ -454,7 +657,7 @@ def _divergence_hint(settings: TrainSettings) -> str:
 
 
 def training_autocast(precision: str, device: torch.device):
-    """Mixed precision for `precision: bfloat16`: convolutions in bfloat16, weights stay float32."""
+    """Mixed precision for a resolved `bfloat16`: convolutions in bfloat16, weights stay float32."""
     return torch.autocast(
         device_type=device.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"
     )
@@ -478,7 +681,7 @@ def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -
         "preset": settings.preset,
         "preset_args": preset_args(settings.preset)
         if settings.init is None
-        else _init_args(settings),
+        else _init_args(settings, ts),
         "state_dict": _cpu_state(model),
         "normalisation": normalisation,
         "blank": torch.from_numpy(np.ascontiguousarray(ts.blank, dtype=np.float32)),
@@ -498,8 +701,8 @@ def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -
     }
 
 
-def _init_args(settings: TrainSettings) -> dict:
-    return dict(read_checkpoint(settings.init).get("preset_args", {}))
+def _init_args(settings: TrainSettings, ts: TrainingSet) -> dict:
+    return dict(read_checkpoint(init_path(settings.init, ts)).get("preset_args", {}))
 
 
 def write_losses(path: Path, rows: list[dict]) -> None:

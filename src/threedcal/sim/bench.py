@@ -191,8 +191,12 @@ class SimBench(FirmwareBench):
         from threedcal.profiles import with_gel_mechanics
         from threedcal.sim.camera import make_gel
         from threedcal.sim.indenters import Sphere
+        from threedcal.sim.units import draw_unit
 
-        self.sensor = with_gel_mechanics(sensor, settings.get("gel_mechanics"))
+        # the unit as built: its constants drawn around the profile's (hidden, like the seating)
+        self.sensor = draw_unit(
+            with_gel_mechanics(sensor, settings.get("gel_mechanics")), settings.get("unit")
+        )
         self.seed = int(seed)
         self.truth = draw_truth(sensor, settings, seed)
         self._affine = np.asarray(self.truth.affine_px_per_mm)

@@ -1,0 +1,33 @@
+# Target `pretrained` (not part of `all`; `make pretrained` runs it and installs the result): the
+# weights the package ships for `model.init: pretrained`, one network per built-in vision sensor,
+# trained on simulated presses of many units (docs/models.md, Pretrained weights).
+
+
+rule pretrain:
+    output:
+        model="results/pretrained/{sensor}/model.pt",
+        provenance="results/pretrained/{sensor}/provenance.json",
+        losses="results/pretrained/{sensor}/losses.csv",
+        figure="results/pretrained/{sensor}/losses.png",
+    log:
+        "results/pretrained/logs/{sensor}.log",
+    benchmark:
+        "results/pretrained/benchmarks/{sensor}.tsv"
+    wildcard_constraints:
+        sensor=one_of(config["pretraining"]["sensors"]),
+    conda:
+        CONDA_ENV
+    threads: config["pretraining"]["torch_threads"]
+    params:
+        pretraining=config["pretraining"],
+        code=code_digest("pretrain.py"),
+    script:
+        "../scripts/pretrain.py"
+
+
+rule pretrained:
+    input:
+        expand(
+            "results/pretrained/{sensor}/model.pt",
+            sensor=config["pretraining"]["sensors"],
+        ),

@@ -1,0 +1,112 @@
+"""Simulated ball presses on many units of one sensor, labelled exactly: what pretraining learns from.
+
+Each unit (threedcal.sim.units) is rendered as the bench renders it — its gel and lights, seen
+through its own lens (drawn as the bench draws it) — and its frames are then rectified through
+that lens and pooled to the working resolution, as the dataset stage prepares a calibration's
+frames. Presses fall uniformly over the whole frame (contacts may leave it at the edges) at depths
+uniform in `depth_mm`, measured below the undeformed gel under the ball (on a domed gel, the
+dome's), as the labels are. The result is one TrainingSet whose frames know their unit's blank.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from threedcal.dataset.labels import check_max_slope, contact_radius_mm
+from threedcal.dataset.trainset import TrainingSet, downscale, samples_table
+from threedcal.errors import ConfigError
+
+# Blank frames averaged per unit (a calibration averages the profile's probing.n_blank).
+BLANK_FRAMES = 10
+
+
+def simulate_units(
+    profile: Mapping,
+    units: Sequence[int],
+    presses_per_unit: int,
+    depth_mm: tuple[float, float],
+    probe_radius_mm: float,
+    factor: int = 1,
+    gel_mechanics: str | None = None,
+    val_units: int = 1,
+    progress: bool = True,
+) -> TrainingSet:
+    """Presses of every unit in `units` (the last `val_units` of them split 'val'), pooled by
+    `factor`; blank per unit (TrainingSet.unit_blanks)."""
+    from tqdm import tqdm
+
+    lo, hi = (float(v) for v in depth_mm)
+    if not 0 < lo <= hi <= probe_radius_mm:
+        raise ConfigError(
+            f"pretraining depth_mm: [{lo}, {hi}] must lie within (0, {probe_radius_mm}] "
+            "(the probe's radius)"
+        )
+    if presses_per_unit < 1 or len(units) < 1:
+        raise ConfigError("pretraining needs at least one unit and one press per unit")
+    if not 0 <= val_units < len(units):
+        raise ConfigError(f"val_units must lie in 0..{len(units) - 1}, got {val_units}")
+    rendered = [
+        _unit_presses(profile, int(u), presses_per_unit, (lo, hi), probe_radius_mm, gel_mechanics)
+        for u in tqdm(units, desc="simulate units", unit="unit", disable=not progress)
+    ]
+    frames = np.concatenate([r[0] for r in rendered])
+    centres = np.concatenate([r[2] for r in rendered])
+    depths = np.concatenate([r[3] for r in rendered])
+    unit_index = np.repeat(np.arange(len(units)), presses_per_unit)
+    px_per_mm = float(profile["px_per_mm"])
+    split = np.where(unit_index >= len(units) - val_units, "val", "train")
+    samples = samples_table(
+        np.arange(len(frames)),
+        centres,
+        depths,
+        [contact_radius_mm(probe_radius_mm, float(d)) * px_per_mm for d in depths],
+        split,
+        np.where(split == "train", 80, 0),
+    ).assign(unit=unit_index)
+    trainset = TrainingSet(
+        frames=frames,
+        blank=rendered[0][1],
+        samples=samples,
+        px_per_mm=px_per_mm,
+        sphere_radius_mm=float(probe_radius_mm),
+        max_slope_deg=check_max_slope(None),
+        meta={
+            "source": f"simulated presses of {len(units)} units of {profile.get('name')}",
+            "sensor": profile.get("name"),
+            "units": [int(u) for u in units],
+            "dome": profile["gel"].get("dome"),
+        },
+        unit_blanks=np.stack([r[1] for r in rendered]),
+    )
+    return downscale(trainset, int(factor))
+
+
+def _unit_presses(profile, unit, n, depth_mm, radius_mm, gel_mechanics):
+    """(frames, blank, centres, depths) of one unit, rectified through its own lens."""
+    from threedcal.profiles import with_gel_mechanics
+    from threedcal.sim.bench import draw_lens
+    from threedcal.sim.camera import make_gel
+    from threedcal.sim.indenters import Sphere
+    from threedcal.sim.units import draw_unit
+
+    sensor = draw_unit(with_gel_mechanics(profile, gel_mechanics), unit)
+    lens = draw_lens(profile, unit)
+    gel = make_gel(sensor, seed=unit, lens=lens)
+    width, height = int(profile["image"]["width_px"]), int(profile["image"]["height_px"])
+    rng = np.random.default_rng([unit, 0x9E55])
+    centres = rng.uniform([0.0, 0.0], [width - 1.0, height - 1.0], (n, 2))
+    depths = rng.uniform(*depth_mm, n)
+    ball = Sphere(radius_mm)
+    frames = np.stack(
+        [
+            gel.render(ball, tuple(c), 0.0, float(d), frame_index=i + 1)
+            for i, (c, d) in enumerate(zip(centres, depths, strict=True))
+        ]
+    )
+    blanks = [gel.blank(frame_index=n + 1 + k).astype(np.float32) for k in range(BLANK_FRAMES)]
+    blank = np.mean(blanks, axis=0)
+    if lens is not None:
+        frames, blank = lens.rectify(frames), lens.rectify(blank[None])[0]
+    return frames, blank.astype(np.float32), centres, depths

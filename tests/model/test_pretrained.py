@@ -1,0 +1,92 @@
+"""The weights shipped for `model.init: pretrained` (threedcal.model.pretrained) and their command."""
+
+import json
+
+import pytest
+from test_model import TINY, synthetic_set
+
+from threedcal.cli import main
+from threedcal.config import load_config
+from threedcal.errors import ConfigError
+from threedcal.model.checkpoint import read_checkpoint
+from threedcal.model.pretrained import (
+    SHIPPED_DIR,
+    provenance,
+    settings_digest,
+    shipped_sensors,
+    shipped_weights,
+)
+from threedcal.model.train import TrainSettings, train
+from threedcal.profiles import load_profile
+
+
+def fake_shipped(directory, sensor="mini", shape=(40, 48)):
+    directory.mkdir(parents=True, exist_ok=True)
+    ts = synthetic_set()
+    train(
+        ts, directory / "build", 80, TrainSettings.of(preset="compact_tiny", **TINY), progress=False
+    )
+    (directory / "build" / "model.pt").rename(directory / f"{sensor}.pt")
+    record = {"image_shape": list(shape), "downscale": 2, "sensor": sensor}
+    (directory / f"{sensor}.json").write_text(json.dumps(record))
+    return directory
+
+
+def test_weights_are_found_by_sensor_and_refused_for_another_frame(tmp_path):
+    shipped = fake_shipped(tmp_path / "p")
+    assert shipped_weights("mini", (40, 48), shipped) == shipped / "mini.pt"
+    with pytest.raises(
+        ConfigError, match=r"no pretrained weights for sensor 'digit' \(shipped: mini\)"
+    ):
+        shipped_weights("digit", (40, 48), shipped)
+    with pytest.raises(ConfigError, match=r"made for 40 x 48 px frames \(dataset.downscale: 2\)"):
+        shipped_weights("mini", (80, 96), shipped)
+
+
+def test_init_pretrained_starts_from_the_shipped_weights_of_the_sets_sensor(tmp_path, monkeypatch):
+    import threedcal.model.pretrained as pretrained
+
+    shipped = fake_shipped(tmp_path / "p")
+    monkeypatch.setattr(pretrained, "SHIPPED_DIR", shipped)
+    ts = synthetic_set()
+    settings = TrainSettings.of(preset="compact_tiny", init="pretrained", **{**TINY, "lr": 1e-12})
+    with pytest.raises(ConfigError, match="sensor None"):
+        train(ts, tmp_path / "a", 80, settings, progress=False)
+    ts.meta = {"sensor": "mini"}
+    tuned = train(ts, tmp_path / "b", 80, settings, progress=False)
+    start = read_checkpoint(shipped / "mini.pt")["state_dict"]
+    for name, value in start.items():  # a rate of 1e-12 leaves the start where it was
+        assert (tuned["state_dict"][name] - value).abs().max() < 1e-6
+
+
+@pytest.mark.parametrize("sensor", load_config("config.yaml")["pretraining"]["sensors"])
+def test_the_shipped_weights_are_what_the_repositorys_recipe_makes(sensor):
+    # A changed recipe (config.yaml's pretraining, the sensor profile) needs `make pretrained`.
+    assert sensor in shipped_sensors()
+    record = provenance(sensor)
+    recipe = load_config("config.yaml")["pretraining"]
+    assert record["settings_digest"] == settings_digest(recipe, load_profile("sensor", sensor))
+    checkpoint = read_checkpoint(SHIPPED_DIR / f"{sensor}.pt")
+    assert checkpoint["preset"] == record["preset"] == recipe["model"]["preset"]
+    assert list(checkpoint["image_shape"]) == record["image_shape"]
+    assert (SHIPPED_DIR / f"{sensor}.pt").stat().st_size < 200_000  # small enough to ship
+
+
+def test_the_command_installs_rebuilt_weights_and_says_whether_they_changed(
+    tmp_path, monkeypatch, capsys
+):
+    import threedcal.model.pretrained as pretrained
+
+    built = fake_shipped(tmp_path / "built_flat")
+    results = tmp_path / "results"
+    (results / "mini").mkdir(parents=True)
+    (built / "mini.pt").rename(results / "mini" / "model.pt")
+    (built / "mini.json").rename(results / "mini" / "provenance.json")
+    target = tmp_path / "package"
+    monkeypatch.setattr(pretrained, "SHIPPED_DIR", target)
+    assert main(["pretrained", "install", str(results)]) == 0
+    assert "mini.pt: installed" in capsys.readouterr().out
+    assert main(["pretrained", "install", str(results)]) == 0
+    assert "mini.pt: unchanged (the same bytes)" in capsys.readouterr().out
+    assert main(["pretrained", "install", str(tmp_path / "nothing")]) == 1
+    assert "no */model.pt to install" in capsys.readouterr().err
