@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+import pandas as pd
 
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet, downscale, samples_table
@@ -47,29 +48,29 @@ def simulate_units(
         raise ConfigError("pretraining needs at least one unit and one press per unit")
     if not 0 <= val_units < len(units):
         raise ConfigError(f"val_units must lie in 0..{len(units) - 1}, got {val_units}")
-    rendered = [
-        _unit_presses(profile, int(u), presses_per_unit, (lo, hi), probe_radius_mm, gel_mechanics)
+    px_per_mm = float(profile["px_per_mm"])
+    pooled = [
+        downscale(
+            _unit_set(profile, int(u), presses_per_unit, (lo, hi), probe_radius_mm, gel_mechanics),
+            int(factor),
+        )
         for u in tqdm(units, desc="simulate units", unit="unit", disable=not progress)
     ]
-    frames = np.concatenate([r[0] for r in rendered])
-    centres = np.concatenate([r[2] for r in rendered])
-    depths = np.concatenate([r[3] for r in rendered])
     unit_index = np.repeat(np.arange(len(units)), presses_per_unit)
-    px_per_mm = float(profile["px_per_mm"])
     split = np.where(unit_index >= len(units) - val_units, "val", "train")
-    samples = samples_table(
-        np.arange(len(frames)),
-        centres,
-        depths,
-        [contact_radius_mm(probe_radius_mm, float(d)) * px_per_mm for d in depths],
-        split,
-        np.where(split == "train", 80, 0),
-    ).assign(unit=unit_index)
-    trainset = TrainingSet(
-        frames=frames,
-        blank=rendered[0][1],
+    samples = pd.concat([ts.samples for ts in pooled], ignore_index=True)
+    samples = samples.assign(
+        frame=np.arange(len(samples)),
+        point=np.arange(len(samples)),
+        split=split,
+        min_p=np.where(split == "train", 80, 0),
+        unit=unit_index,
+    )
+    return TrainingSet(
+        frames=np.concatenate([ts.frames for ts in pooled]),
+        blank=pooled[0].blank,
         samples=samples,
-        px_per_mm=px_per_mm,
+        px_per_mm=pooled[0].px_per_mm,
         sphere_radius_mm=float(probe_radius_mm),
         max_slope_deg=check_max_slope(None),
         meta={
@@ -77,14 +78,14 @@ def simulate_units(
             "sensor": profile.get("name"),
             "units": [int(u) for u in units],
             "dome": profile["gel"].get("dome"),
+            "downscale": int(factor),
         },
-        unit_blanks=np.stack([r[1] for r in rendered]),
+        unit_blanks=np.stack([ts.blank for ts in pooled]),
     )
-    return downscale(trainset, int(factor))
 
 
-def _unit_presses(profile, unit, n, depth_mm, radius_mm, gel_mechanics):
-    """(frames, blank, centres, depths) of one unit, rectified through its own lens."""
+def _unit_set(profile, unit, n, depth_mm, radius_mm, gel_mechanics) -> TrainingSet:
+    """One unit's presses at full resolution, rectified through its own lens."""
     from threedcal.profiles import with_gel_mechanics
     from threedcal.sim.bench import draw_lens
     from threedcal.sim.camera import make_gel
@@ -95,6 +96,7 @@ def _unit_presses(profile, unit, n, depth_mm, radius_mm, gel_mechanics):
     lens = draw_lens(profile, unit)
     gel = make_gel(sensor, seed=unit, lens=lens)
     width, height = int(profile["image"]["width_px"]), int(profile["image"]["height_px"])
+    px_per_mm = float(profile["px_per_mm"])
     rng = np.random.default_rng([unit, 0x9E55])
     centres = rng.uniform([0.0, 0.0], [width - 1.0, height - 1.0], (n, 2))
     depths = rng.uniform(*depth_mm, n)
@@ -109,4 +111,19 @@ def _unit_presses(profile, unit, n, depth_mm, radius_mm, gel_mechanics):
     blank = np.mean(blanks, axis=0)
     if lens is not None:
         frames, blank = lens.rectify(frames), lens.rectify(blank[None])[0]
-    return frames, blank.astype(np.float32), centres, depths
+    samples = samples_table(
+        np.arange(n),
+        centres,
+        depths,
+        [contact_radius_mm(radius_mm, float(d)) * px_per_mm for d in depths],
+        np.full(n, "train"),
+        np.full(n, 80),
+    )
+    return TrainingSet(
+        frames=frames,
+        blank=blank.astype(np.float32),
+        samples=samples,
+        px_per_mm=px_per_mm,
+        sphere_radius_mm=float(radius_mm),
+        max_slope_deg=check_max_slope(None),
+    )
