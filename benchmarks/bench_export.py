@@ -1,0 +1,100 @@
+"""Frames/s of an exported model in onnxruntime against the same model in torch, at 240×320.
+
+For the presets the default study trains (`compact`, `context`, `multiscale`; freshly initialised
+weights: speed does not depend on their values), the ONNX graph of `threedcal export` runs in
+onnxruntime and `DepthEstimator.gradients` in torch (channels-last), on the same real DIGIT frame
+(data/digit_frames_fots, pooled to 240×320 is not needed: it is 320×240) with the same thread count.
+Both compute the same thing: frame in, gradients out (blank, drift, coordinate channels, network). The two
+are timed in alternating blocks of calls, so a busy shared machine disturbs both alike; each figure
+is the median time of single-frame calls. The baseline is torch, in the same run.
+
+Usage: python benchmarks/bench_export.py [--threads N] [--rounds R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from threedcal.dataset.importers import read_rgb
+from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION
+from threedcal.model.export import export_onnx, onnx_gradients, onnx_session
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.presets import build_model, preset_args
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "digit_frames_fots"
+PRESETS = ("compact", "context", "multiscale")
+BLOCK = 10  # calls per block; torch and onnxruntime alternate block by block
+
+
+def estimator(preset: str, blank: np.ndarray) -> DepthEstimator:
+    torch.manual_seed(0)
+    checkpoint = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "preset": preset,
+        "preset_args": preset_args(preset),
+        "state_dict": build_model(preset).state_dict(),
+        "normalisation": dict(OUR_NORMALISATION),
+        "blank": torch.from_numpy(blank.astype(np.float32)),
+        "px_per_mm": 19.58,
+        "image_shape": list(blank.shape[:2]),
+    }
+    return DepthEstimator(checkpoint, device="cpu", batch_size=1)
+
+
+def median_ms(runs: dict, rounds: int) -> dict[str, float]:
+    """Median ms per call of each callable, timed in alternating blocks of BLOCK calls."""
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    for run in runs.values():
+        run()  # warm-up
+    for _ in range(rounds):
+        for name, run in runs.items():
+            for _ in range(BLOCK):
+                began = time.perf_counter()
+                run()
+                times[name].append(time.perf_counter() - began)
+    return {name: 1000.0 * float(np.median(t)) for name, t in times.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=5)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    blank = read_rgb(DATA / "background.png")
+    frame = read_rgb(DATA / "0010.png")
+    height, width = frame.shape[:2]
+    print(f"{height}x{width} frame, {args.threads} threads, torch {torch.__version__}", end="")
+    import onnxruntime
+
+    print(f", onnxruntime {onnxruntime.__version__}")
+    print(f"{'preset':<12}{'torch f/s':>10}{'onnx f/s':>10}{'onnx/torch':>12}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for preset in PRESETS:
+            est = estimator(preset, blank)
+            path = Path(tmp) / f"{preset}.onnx"
+            export_onnx(est, path)
+            session = onnx_session(path, threads=args.threads)
+            batch = frame[None]
+            ms = median_ms(
+                {
+                    "torch": lambda est=est: est.gradients(frame),
+                    "onnx": lambda session=session: onnx_gradients(session, batch),
+                },
+                args.rounds,
+            )
+            print(
+                f"{preset:<12}{1000 / ms['torch']:>10.1f}{1000 / ms['onnx']:>10.1f}"
+                f"{ms['torch'] / ms['onnx']:>11.2f}x"
+            )
+
+
+if __name__ == "__main__":
+    main()
