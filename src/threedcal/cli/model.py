@@ -34,7 +34,7 @@ def _points_args(parser: argparse.ArgumentParser, what: str) -> None:
         choices=POINT_FRAMES,
         default="sensor",
         help="the points' frame: sensor (gel plane, x right, y down the image, z into the gel) "
-        "or printer (G-code axes); docs/points.md",
+        "or printer (G-code axes); docs/deploy.md",
     )
     parser.add_argument(
         "--contact-mm",
@@ -82,13 +82,14 @@ def _model_frames(estimator, frames, where: str):
 
 
 def colour_map(depth_mm, vmax: float | None = None):
-    """uint8 RGB image of a depth map (viridis; 0 mm dark, vmax bright)."""
-    import matplotlib
+    """uint8 RGB image of a depth map (viridis, OpenCV's table; 0 mm dark, vmax bright; NaN dark)."""
+    import cv2
     import numpy as np
 
-    top = vmax or max(float(np.percentile(depth_mm, 99.5)), 1e-6)
-    rgba = matplotlib.colormaps["viridis"](np.clip(depth_mm / top, 0.0, 1.0))
-    return (rgba[..., :3] * 255).astype(np.uint8)
+    top = vmax or max(float(np.nanpercentile(depth_mm, 99.5)), 1e-6)
+    levels = np.nan_to_num(np.clip(np.asarray(depth_mm, np.float64) / top, 0.0, 1.0), nan=0.0)
+    bgr = cv2.applyColorMap(np.round(levels * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def _predict(args: argparse.Namespace) -> int:
