@@ -1,9 +1,9 @@
-"""Frames/s of an exported model in onnxruntime against the same model in torch, at 240×320.
+"""Frames/s of an exported model in onnxruntime against the same model in torch, at 320×240.
 
 For the presets the default study trains (`compact`, `context`, `multiscale`; freshly initialised
 weights: speed does not depend on their values), the ONNX graph of `threedcal export` runs in
 onnxruntime and `DepthEstimator.gradients` in torch (channels-last), on the same real DIGIT frame
-(data/digit_frames_fots, pooled to 240×320 is not needed: it is 320×240) with the same thread count.
+(data/digit_frames_fots, 320×240) with the same thread count.
 Both compute the same thing: frame in, gradients out (blank, drift, coordinate channels, network). The two
 are timed in alternating blocks of calls, so a busy shared machine disturbs both alike; each figure
 is the median time of single-frame calls. The baseline is torch, in the same run.
@@ -48,6 +48,26 @@ def estimator(preset: str, blank: np.ndarray) -> DepthEstimator:
     return DepthEstimator(checkpoint, device="cpu", batch_size=1)
 
 
+def host_flags() -> str:
+    """The CPU's AVX-512 flags and the ISA limits set for torch (onnxruntime's MLAS picks its
+    kernels from CPUID alone: ONEDNN_MAX_CPU_ISA / ATEN_CPU_CAPABILITY do not limit it)."""
+    import os
+    import re
+
+    try:
+        flags = sorted(set(re.findall(r"avx512\w*", Path("/proc/cpuinfo").read_text())))
+    except OSError:
+        flags = []
+    limits = [
+        f"{k}={os.environ[k]}"
+        for k in ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY")
+        if k in os.environ
+    ]
+    return (" ".join(flags) or "no avx512") + (
+        f"; torch limited: {', '.join(limits)}" if limits else ""
+    )
+
+
 def median_ms(runs: dict, rounds: int) -> dict[str, float]:
     """Median ms per call of each callable, timed in alternating blocks of BLOCK calls."""
     times: dict[str, list[float]] = {name: [] for name in runs}
@@ -71,10 +91,12 @@ def main() -> None:
     blank = read_rgb(DATA / "background.png")
     frame = read_rgb(DATA / "0010.png")
     height, width = frame.shape[:2]
+    batch = frame[None]
     print(f"{height}x{width} frame, {args.threads} threads, torch {torch.__version__}", end="")
     import onnxruntime
 
     print(f", onnxruntime {onnxruntime.__version__}")
+    print(f"host: {host_flags()}")
     print(f"{'preset':<12}{'torch f/s':>10}{'onnx f/s':>10}{'onnx/torch':>12}")
     with tempfile.TemporaryDirectory() as tmp:
         for preset in PRESETS:
@@ -82,7 +104,6 @@ def main() -> None:
             path = Path(tmp) / f"{preset}.onnx"
             export_onnx(est, path)
             session = onnx_session(path, threads=args.threads)
-            batch = frame[None]
             ms = median_ms(
                 {
                     "torch": lambda est=est: est.gradients(frame),

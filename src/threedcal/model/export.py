@@ -7,7 +7,7 @@ subtracted and scaled by 1/255, the lighting drift removed (the per-channel medi
 pixel in both directions), the coordinate channels, the network and the gradients' sign. The
 integration to depth (DST Poisson, depth 0 on the border ring) and the geometry stay outside: the
 sidecar gives px/mm, the camera (lens, downscale), the registration and the first-touch height, the
-gel's dome (docs/export.md).
+gel's dome (docs/deploy.md).
 """
 
 from __future__ import annotations
@@ -169,16 +169,18 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def onnx_session(path: str | Path, threads: int | None = None):
-    """An onnxruntime session on the CPU (the `export` extra), `threads` intra-op threads."""
+def onnx_session(path: str | Path, threads: int | None = None, spin: bool = True):
+    """An onnxruntime session on the CPU (the `export` extra), `threads` intra-op threads.
+
+    `spin`: idle workers spin for a while before sleeping (onnxruntime's default: the fastest
+    alone, 93 against 72 frames/s for `multiscale` here); False when other work shares the cores
+    right after each run (a spinning worker took torch from 150 to 7 frames/s in one process)."""
     try:
         import onnxruntime
     except ImportError:
         raise ConfigError("onnxruntime is not installed: pip install 'threedcal[export]'") from None
     options = onnxruntime.SessionOptions()
-    # idle workers sleep instead of spinning: the depth integration, or torch, runs right after on
-    # the same cores (spinning cost torch 3-10x its speed when both ran in one process)
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.intra_op.allow_spinning", "1" if spin else "0")
     if threads:
         options.intra_op_num_threads = int(threads)
         options.inter_op_num_threads = 1
