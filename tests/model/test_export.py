@@ -7,21 +7,18 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import DATA
+from conftest import DATA, write_untrained_model
 
 from threedcal.cli import main
 from threedcal.dataset.importers import read_rgb
 from threedcal.depth import integrate
 from threedcal.model.checkpoint import (
     AUTHORS_NORMALISATION,
-    FORMAT,
-    FORMAT_VERSION,
     OUR_NORMALISATION,
-    save_checkpoint,
 )
 from threedcal.model.export import OPSET, export_onnx, onnx_gradients, onnx_session
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.presets import build_model, preset_args
+from threedcal.model.presets import build_model
 
 REGISTRATION = {
     "affine_px_per_mm": [[19.5, 0.4, -2250.0], [0.4, -19.5, 2457.0]],
@@ -45,22 +42,15 @@ def write_model(path, preset, blank, normalisation=OUR_NORMALISATION):
     with torch.no_grad():  # weights far from their initialisation, so every layer matters
         for parameter in model.parameters():
             parameter.add_(0.05 * torch.randn_like(parameter))
-    save_checkpoint(
+    write_untrained_model(
         path,
-        {
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
-            "preset": preset,
-            "preset_args": preset_args(preset),
-            "state_dict": model.state_dict(),
-            "normalisation": dict(normalisation),
-            "blank": torch.from_numpy(blank.astype(np.float32)),
-            "px_per_mm": 19.58,
-            "image_shape": list(blank.shape[:2]),
-            "camera": {"lens": None, "downscale": 1},
-            "registration": REGISTRATION,
-            "dome": DOME,
-        },
+        preset,
+        blank,
+        model,
+        normalisation=dict(normalisation),
+        camera={"lens": None, "downscale": 1},
+        registration=REGISTRATION,
+        dome=DOME,
     )
     return path
 

@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import DATA
+from conftest import DATA, write_untrained_model
 
 from threedcal.cli import main
 from threedcal.dataset.importers import read_rgb
 from threedcal.model import BACKGROUND_DRIFT_WARN_DN
-from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION, save_checkpoint
 from threedcal.model.drift import DRIFT_CELL_PX, background_drift_dn
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.presets import build_model
@@ -66,22 +65,7 @@ def flat_model(tmp_path):
     with torch.no_grad():
         for parameter in model.parameters():
             parameter.zero_()
-    path = tmp_path / "model.pt"
-    save_checkpoint(
-        path,
-        {
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
-            "preset": "compact_tiny",
-            "preset_args": {},
-            "state_dict": model.state_dict(),
-            "normalisation": dict(OUR_NORMALISATION),
-            "blank": torch.from_numpy(BLANK.astype(np.float32)),
-            "px_per_mm": 19.58,
-            "image_shape": list(BLANK.shape[:2]),
-        },
-    )
-    return str(path)
+    return write_untrained_model(tmp_path / "model.pt", "compact_tiny", BLANK, model)
 
 
 def test_retake_blank_compares_later_frames_with_the_new_one(flat_model):

@@ -5,9 +5,14 @@ import json
 
 import numpy as np
 import pytest
-import torch
 import trimesh
-from conftest import bench_scene, collect_and_register, lens_free
+from conftest import (
+    bench_scene,
+    collect_and_register,
+    lens_free,
+    shared_across_workers,
+    write_untrained_model,
+)
 from scipy.optimize import least_squares
 
 from threedcal.cli import main
@@ -16,9 +21,6 @@ from threedcal.dataset.trainset import TrainingSet
 from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import (
-    FORMAT,
-    FORMAT_VERSION,
-    OUR_NORMALISATION,
     CheckpointError,
     read_checkpoint,
     save_checkpoint,
@@ -32,7 +34,6 @@ from threedcal.model.points import (
     contact_mask,
     write_ply,
 )
-from threedcal.model.presets import build_model
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench, plan_centre_printer_mm
 
@@ -146,13 +147,17 @@ SEED = 3
 @pytest.fixture(scope="module")
 def bench_model(tmp_path_factory):
     """A DIGIT calibrated on the bench (2 mm grid, 1 mm presses) and a `lookup` model trained on it
-    (the classic calibration: seconds, and good at the presses it saw): (folder, model.pt)."""
-    from threedcal.model.train import TrainSettings, train
+    (the classic calibration: seconds, and good at the presses it saw), built once for both
+    workers: (folder, model.pt)."""
 
-    folder = tmp_path_factory.mktemp("bench_points")
-    collect_and_register(folder, lens_free("digit"), PLAN, SEED)
-    settings = TrainSettings.of(preset="lookup", epochs_base=1, torch_threads=2)
-    train(TrainingSet.load(folder / "ts"), folder / "model", 80, settings, progress=False)
+    def build(folder):
+        from threedcal.model.train import TrainSettings, train
+
+        collect_and_register(folder, lens_free("digit"), PLAN, SEED)
+        settings = TrainSettings.of(preset="lookup", epochs_base=1, torch_threads=2)
+        train(TrainingSet.load(folder / "ts"), folder / "model", 80, settings, progress=False)
+
+    folder, _ = shared_across_workers(tmp_path_factory, "bench_points_model", build)
     return folder, folder / "model" / "model.pt"
 
 
@@ -280,19 +285,9 @@ def test_a_checkpoint_without_registration_names_what_to_pass(tmp_path, capsys, 
 
 
 def test_a_damaged_registration_in_a_checkpoint_is_refused_on_load(tmp_path):
-    torch.manual_seed(0)
-    checkpoint = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "preset": "compact_tiny",
-        "preset_args": {},
-        "state_dict": build_model("compact_tiny").state_dict(),
-        "normalisation": dict(OUR_NORMALISATION),
-        "blank": torch.full((8, 8, 3), 100.0),
-        "px_per_mm": 8.0,
-        "registration": {"affine_px_per_mm": [[1, 0]], "contact_z_mm": 3.0},
-    }
-    save_checkpoint(tmp_path / "m.pt", checkpoint)
+    damaged = {"affine_px_per_mm": [[1, 0]], "contact_z_mm": 3.0}
+    blank = np.full((8, 8, 3), 100.0)
+    write_untrained_model(tmp_path / "m.pt", "compact_tiny", blank, registration=damaged)
     with pytest.raises(
         CheckpointError, match="m.pt: 'registration': affine_px_per_mm must be a fin"
     ):

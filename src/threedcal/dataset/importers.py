@@ -23,7 +23,8 @@ import numpy as np
 from threedcal.errors import ConfigError
 from threedcal.schema import load_yaml, plain
 
-if TYPE_CHECKING:  # pandas (the workflow extra) loads where a table is read: read_rgb needs none
+# pandas (the workflow extra) loads where a table is read: read_rgb needs none
+if TYPE_CHECKING:
     import pandas as pd
 
 BALL_LABEL_COLUMNS = ("image", "center_x_px", "center_y_px", "radius_px")

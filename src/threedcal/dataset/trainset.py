@@ -37,9 +37,8 @@ from threedcal.dataset.labels import (
 )
 from threedcal.errors import ConfigError, FrameSizeError
 
-if (
-    TYPE_CHECKING
-):  # pandas (the workflow extra) loads where a table is made or read: pool_to needs none
+# pandas (the workflow extra) loads where a table is made or read: pool_to needs none
+if TYPE_CHECKING:
     import pandas as pd
 
 SAMPLE_COLUMNS = (
