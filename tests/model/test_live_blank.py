@@ -144,3 +144,17 @@ def test_live_checks_its_new_options_before_the_first_frame(
     assert main([*args, "--device", "cpu", *extra]) == 1
     assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_live_reads_a_datasets_frames_with_numpy_alone(tmp_path, capsys, flat_model):
+    """A model-ready dataset's frames.npy is a source (no pandas: the core reads it); anything but
+    (N, H, W, 3) uint8 there is refused, naming the file."""
+    dataset = tmp_path / "trainset"
+    dataset.mkdir()
+    np.save(dataset / "frames.npy", np.stack([BLANK, shifted(BLANK, 3)]))
+    args = ["live", "--checkpoint", flat_model, "--source", str(dataset), "--device", "cpu"]
+    assert main(args) == 0
+    assert "2 frames, depth at" in capsys.readouterr().out
+    np.save(dataset / "frames.npy", np.zeros((2, 8, 8), np.float32))
+    assert main(args) == 1
+    assert "frames.npy: not a dataset's frames" in capsys.readouterr().err
