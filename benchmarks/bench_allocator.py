@@ -1,6 +1,7 @@
-"""What keeping freed memory in the process (threedcal.model.allocator) buys: `context` depth
-frames/s at 240x320 and training samples/s (bfloat16, batches of 32 patches of 64 px), each in a
-fresh process with glibc's default thresholds (the baseline) and with reuse_freed_memory().
+"""What keeping freed memory in the process (threedcal.model.allocator) buys: `context_half` live
+depth frames/s from 240x320 camera frames and training samples/s (the arithmetic `precision: auto`
+picks here, its study's step shape), each in a fresh process with glibc's default thresholds (the
+baseline) and with reuse_freed_memory().
 
 The setting is process-wide and cannot be undone, hence one subprocess per measurement.
 
@@ -27,8 +28,10 @@ torch.set_num_threads({threads})
 rng = np.random.default_rng(0)
 blank = rng.uniform(60, 200, (bench_model.HEIGHT, bench_model.WIDTH, 3)).astype(np.float32)
 frame = np.clip(blank + rng.normal(0, 20, blank.shape), 0, 255).astype(np.uint8)
-ms = bench_model.ms_per_frame(bench_model.estimator("context", blank), frame, {seconds})
-rate = bench_model.training_samples_per_s("context", {seconds}, precision="bfloat16")
+ms = bench_model.ms_per_frame(bench_model.estimator("context_half", blank), frame, {seconds})
+precision = bench_model.resolve_precision("auto", torch.device("cpu"))
+batch, patch = bench_model.STEP_SHAPES["context_half"]
+rate = bench_model.training_samples_per_s("context_half", {seconds}, batch, patch, precision=precision)
 print(json.dumps({{"frames_per_s": 1000 / ms, "samples_per_s": rate}}))
 """
 
@@ -48,7 +51,10 @@ def main() -> None:
     args = parser.parse_args()
     base = measure("default", args.threads, args.seconds)
     reuse = measure("reuse", args.threads, args.seconds)
-    print(f"context at 240x320, torch threads {args.threads}: glibc default -> freed memory reused")
+    print(
+        f"context_half from 240x320 frames, torch threads {args.threads}: glibc default -> "
+        "freed memory reused"
+    )
     for key, label in (("frames_per_s", "depth frames/s"), ("samples_per_s", "training samples/s")):
         print(f"{label:20s} {base[key]:8.1f} -> {reuse[key]:8.1f}  ({reuse[key] / base[key]:.2f}x)")
 

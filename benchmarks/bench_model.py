@@ -1,12 +1,15 @@
-"""Frames/s of DepthEstimator.depth (network + DST Poisson integration) for every preset at 240×320,
-and training samples/s per preset.
+"""Live depth frames/s of DepthEstimator (network + DST Poisson integration) for every preset, from
+240×320 camera frames, and training samples/s per preset in float32 and bfloat16.
 
-The baseline is the paper's TouchNet on the same frame (and the same training batch) in the same run; the goal for the
-presets the default scenes train is ≥ 30 frames/s and ≥ 100× TouchNet. Training is timed in float32 and in
-`precision: bfloat16` (mixed precision, what the simulated scenes train with), the float32 step as baseline. Each preset is also timed with the network's
-tensors in PyTorch's default (contiguous NCHW) layout, the baseline of the channels-last layout DepthEstimator uses. Weights are freshly initialised (speed does not depend
-on their values). Each figure is the median time of single-frame calls, which a busy shared machine
-disturbs less than a mean.
+The baseline is the paper's TouchNet on the same frame (and the same training step) in the same run.
+`context_half` (the simulated scenes' network) runs on frames pooled by 2 (dataset.downscale: 2), as
+it is trained; the others at the camera's size. Training is timed at the step shape each preset
+trains with in the default study, in float32 and in bfloat16 (mixed precision), and the table says
+which one `precision: auto` picks on this machine and whether that was the faster one. Each preset is
+also timed with the network's tensors in PyTorch's default (contiguous NCHW) layout, the baseline of
+the channels-last layout DepthEstimator uses. Weights are freshly initialised (speed does not depend
+on their values). Each figure is the median time of single calls, which a busy shared machine
+disturbs less than a mean. The first lines name the CPU and its instruction sets.
 
 With --accuracy FOLDER (a ball_folder dataset, e.g. data/gelsight_ball_fots) it also trains
 every CPU preset there with BALL_SETTINGS on the seeded 80/20 image split and prints the accuracy per
@@ -29,10 +32,20 @@ from threedcal.model import DEFAULT_PRESET, PRESET_NAMES
 from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
+from threedcal.model.machine import cpu_capability, native_bfloat16, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
 from threedcal.model.train import training_autocast
 
 HEIGHT, WIDTH = 240, 320
+# The model's frame is the camera's pooled by this (dataset.downscale, as the preset is trained).
+POOLING = {"context_half": 2}
+# (batch, patch px) of a training step as the default study trains each preset; the rest (64, 64).
+STEP_SHAPES = {
+    "context_half": (16, 32),
+    "context": (16, 64),
+    "multiscale": (8, 128),
+    "touchnet": (2, 64),
+}
 # The settings the accuracy table trains with, as an imported ball scene's `model:` section would set
 # them (docs/models.md, "Choosing a preset"); chosen on an inner validation split of the training images.
 BALL_SETTINGS = dict(
@@ -47,8 +60,34 @@ BALL_SETTINGS = dict(
 )
 
 
+def host() -> str:
+    """The CPU's model name and vector instruction sets (what every speed figure depends on)."""
+    name, flags = "unknown CPU", set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                name = value.strip()
+            elif key.strip() == "flags":
+                flags = set(value.split())
+    except OSError:
+        pass
+    vector = sorted(f for f in flags if f.startswith(("avx512", "amx")) or f in ("avx2", "fma"))
+    return (
+        f"{name}; flags: {' '.join(vector) or 'none found'}; torch dispatches {cpu_capability()}; "
+        f"native bfloat16: {'yes' if native_bfloat16() else 'no'}"
+    )
+
+
 def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> DepthEstimator:
+    """A fresh `preset` for camera frames of blank's size (pooled by POOLING, as it is trained)."""
     torch.manual_seed(0)
+    factor = POOLING.get(preset, 1)
+    height, width = HEIGHT // factor, WIDTH // factor
+    if factor > 1:
+        from threedcal.dataset.trainset import pool_to
+
+        blank = pool_to(blank, (height, width))
     checkpoint = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -56,19 +95,21 @@ def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> Dep
         "preset_args": preset_args(preset),
         "state_dict": build_model(preset).state_dict(),
         "normalisation": dict(OUR_NORMALISATION),
-        "blank": torch.from_numpy(blank),
-        "px_per_mm": 20.0,
-        "image_shape": [HEIGHT, WIDTH],
+        "blank": torch.from_numpy(np.ascontiguousarray(blank, dtype=np.float32)),
+        "px_per_mm": 20.0 / factor,
+        "image_shape": [height, width],
+        "camera": {"lens": None, "downscale": factor},
     }
     return DepthEstimator(checkpoint, device="cpu", batch_size=1, channels_last=channels_last)
 
 
-def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float) -> float:
-    est.depth(frame)  # warm-up
+def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float, calls: int = 3) -> float:
+    """Median ms of live depth from one camera frame (pooled to the model's frame, then depth)."""
+    est.depth(est.rectify(frame))  # warm-up
     times, began = [], time.perf_counter()
-    while len(times) < 3 or time.perf_counter() - began < seconds:
+    while len(times) < calls or time.perf_counter() - began < seconds:
         start = time.perf_counter()
-        est.depth(frame)
+        est.depth(est.rectify(frame))
         times.append(time.perf_counter() - start)
     return 1000.0 * float(np.median(times))
 
@@ -78,7 +119,7 @@ def training_samples_per_s(
     seconds: float,
     batch: int = 32,
     patch: int = 64,
-    loss: str = "normal",
+    loss: str = "huber",
     layout: torch.memory_format | None = None,
     precision: str = "float32",
 ) -> float:
@@ -106,7 +147,7 @@ def training_samples_per_s(
 
     step()  # warm-up
     times, began = [], time.perf_counter()
-    while len(times) < 3 or time.perf_counter() - began < seconds:
+    while len(times) < 2 or time.perf_counter() - began < seconds:
         start = time.perf_counter()
         step()
         times.append(time.perf_counter() - start)
@@ -144,15 +185,25 @@ def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
-    parser.add_argument("--seconds", type=float, default=3.0, help="timing per preset")
+    parser.add_argument("--seconds", type=float, default=2.0, help="timing per preset")
     parser.add_argument("--accuracy", type=Path, help="ball_folder dataset for the accuracy table")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    print(f"host: {host()}")
     rng = np.random.default_rng(0)
     blank = rng.uniform(60, 200, (HEIGHT, WIDTH, 3)).astype(np.float32)
     frame = np.clip(blank + rng.normal(0, 20, blank.shape), 0, 255).astype(np.uint8)
-    print(f"DepthEstimator.depth at {HEIGHT}x{WIDTH}, CPU, torch threads {args.threads}")
-    ms = {p: ms_per_frame(estimator(p, blank), frame, args.seconds) for p in PRESET_NAMES}
+    print(f"live depth from {HEIGHT}x{WIDTH} camera frames, CPU, torch threads {args.threads}")
+    # TouchNet takes seconds a frame: one timed call is its figure
+    ms = {
+        p: ms_per_frame(
+            estimator(p, blank),
+            frame,
+            0.0 if p == "touchnet" else args.seconds,
+            1 if p == "touchnet" else 3,
+        )
+        for p in PRESET_NAMES
+    }
     nchw = {
         p: ms_per_frame(estimator(p, blank, channels_last=False), frame, args.seconds)
         for p in PRESET_NAMES
@@ -160,39 +211,50 @@ def main() -> None:
     }
     base = ms["touchnet"]
     print(
-        f"{'preset':14s} {'frames/s':>10s} {'ms/frame':>10s} {'x touchnet':>11s} "
+        f"{'preset':14s} {'model frame':>12s} {'frames/s':>9s} {'ms/frame':>9s} {'x touchnet':>11s} "
         f"{'NCHW ms':>8s} {'x NCHW':>7s}"
     )
     for preset, value in ms.items():
         mark = "  (default)" if preset == DEFAULT_PRESET else ""
+        factor = POOLING.get(preset, 1)
+        size = f"{HEIGHT // factor}x{WIDTH // factor}"
         layout = (
             f"{nchw[preset]:8.1f} {nchw[preset] / value:6.2f}x" if preset in nchw else f"{'':16s}"
         )
         print(
-            f"{preset:14s} {1000 / value:10.2f} {value:10.1f} {base / value:10.0f}x {layout}{mark}"
+            f"{preset:14s} {size:>12s} {1000 / value:9.2f} {value:9.1f} {base / value:10.0f}x "
+            f"{layout}{mark}"
         )
-    rates = {p: training_samples_per_s(p, args.seconds) for p in PRESET_NAMES}
-    nchw_rates = {
-        p: training_samples_per_s(p, args.seconds, layout=torch.contiguous_format)
-        for p in PRESET_NAMES
-    }
-    bf16_rates = {
-        p: training_samples_per_s(p, args.seconds, precision="bfloat16") for p in PRESET_NAMES
-    }
-    base = rates["touchnet"]
+    auto = resolve_precision("auto", torch.device("cpu"))
     print(
-        f"\ntraining, batch of 32 patches 64x64, normal loss: {'samples/s':>10s} {'x touchnet':>11s}"
-        f" {'NCHW':>8s} {'x NCHW':>7s} {'bfloat16':>9s} {'x fp32':>7s}"
+        f"\ntraining samples/s (AdamW steps, huber loss, the study's step shape); "
+        f"precision: auto picks {auto} here"
     )
-    for preset, rate in rates.items():
-        if np.isfinite(rate):
-            print(
-                f"{preset:14s} {'':35s} {rate:10.1f} {rate / base:10.1f}x"
-                f" {nchw_rates[preset]:8.1f} {rate / nchw_rates[preset]:6.2f}x"
-                f" {bf16_rates[preset]:9.1f} {bf16_rates[preset] / rate:6.2f}x"
+    print(
+        f"{'preset':14s} {'batch x patch':>13s} {'float32':>9s} {'bfloat16':>9s} {'bf16/fp32':>10s} "
+        f"{'NCHW fp32':>10s} {'auto':>9s}"
+    )
+    for preset in PRESET_NAMES:
+        batch, patch = STEP_SHAPES.get(preset, (64, 64))
+        rates = {
+            precision: training_samples_per_s(
+                preset, args.seconds, batch, patch, precision=precision
             )
-        else:
-            print(f"{preset:14s} {'':35s} {'(no gradient training)':>22s}")
+            for precision in ("float32", "bfloat16")
+        }
+        if not np.isfinite(rates["float32"]):
+            print(f"{preset:14s} {'':13s} {'(no gradient training)':>22s}")
+            continue
+        nchw_rate = training_samples_per_s(
+            preset, args.seconds, batch, patch, layout=torch.contiguous_format
+        )
+        faster = max(rates, key=rates.get)
+        verdict = f"{auto}" + (" (faster)" if auto == faster else f" ({faster} faster)")
+        print(
+            f"{preset:14s} {f'{batch} x {patch}':>13s} {rates['float32']:9.1f} "
+            f"{rates['bfloat16']:9.1f} {rates['bfloat16'] / rates['float32']:9.2f}x "
+            f"{nchw_rate:10.1f} {verdict}"
+        )
     if args.accuracy is None:
         return
     cpu = [p for p in PRESET_NAMES if p != "touchnet"]

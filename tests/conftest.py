@@ -276,6 +276,37 @@ def paper_mini_calibration(tmp_path_factory):
     return bench_scene(sensor, plan, 3, dataset=PAPER_DATASET), folder, record
 
 
+def write_untrained_model(path, preset, blank, model=None, px_per_mm=19.58, **keys) -> str:
+    """A model.pt of `model` (default: `preset` freshly built, seeded) on `blank` (H, W, 3): what
+    inference needs and `keys` beside (a registration, a dome, ...). Returns the path as a string."""
+    import numpy as np
+    import torch
+
+    from threedcal.model.checkpoint import (
+        FORMAT,
+        FORMAT_VERSION,
+        OUR_NORMALISATION,
+        save_checkpoint,
+    )
+    from threedcal.model.presets import build_model, preset_args
+
+    torch.manual_seed(0)
+    model = build_model(preset) if model is None else model
+    checkpoint = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "preset": preset,
+        "preset_args": preset_args(preset),
+        "state_dict": model.state_dict(),
+        "normalisation": dict(OUR_NORMALISATION),
+        "blank": torch.from_numpy(np.asarray(blank, np.float32)),
+        "px_per_mm": px_per_mm,
+        "image_shape": list(np.shape(blank)[:2]),
+    }
+    save_checkpoint(path, {**checkpoint, **keys})
+    return str(path)
+
+
 def load_file_module(relative: str, name: str):
     """A repository script that is not a package module (workflow/cluster/*.py, docs/diagnostics)."""
     import importlib.util

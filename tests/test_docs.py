@@ -61,6 +61,7 @@ def tiny_checkpoint(path: str) -> None:
     from threedcal.model.train import TrainSettings, train
     from threedcal.profiles import load_profile
     from threedcal.sim import GelSimulator, Sphere
+    from threedcal.sim.bench import nominal_affine
 
     sim = GelSimulator(load_profile("sensor", "digit"), seed=0)
     centres = [(80, 110), (160, 110), (120, 160), (80, 210), (160, 210), (120, 250)]
@@ -83,8 +84,18 @@ def tiny_checkpoint(path: str) -> None:
     )
     blank = sim.blank(frame_index=0)
     px_per_mm = sim.px_per_mm
+    profile = load_profile("sensor", "digit")
+    # what a collected scene's dataset stage records: the gel's dome and the registration (here the
+    # nominal seating), so the docs' printer-frame examples run
+    meta = {
+        "dome": profile["gel"]["dome"],
+        "registration": {
+            "affine_px_per_mm": nominal_affine(profile).tolist(),
+            "contact_z_mm": float(profile["mount"]["z_touch_mm"]),
+        },
+    }
     trainset = TrainingSet(
-        np.stack(frames), blank, samples, px_per_mm=px_per_mm, sphere_radius_mm=2.0
+        np.stack(frames), blank, samples, px_per_mm=px_per_mm, sphere_radius_mm=2.0, meta=meta
     )
     settings = TrainSettings.of(
         preset="compact_tiny",

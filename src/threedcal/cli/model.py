@@ -1,12 +1,16 @@
-"""`threedcal predict` (one image → depth) and `threedcal live` (a stream → depth video + frames/s)."""
+"""`threedcal predict` (one image → depth, points) and `threedcal live` (a stream → depth video,
+frames/s, points; the blank re-taken on request)."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 from pathlib import Path
 
 from threedcal.cli import Command, add_force_option, refuse_existing_outputs, refuse_file_on_path
 from threedcal.errors import ConfigError, FrameSizeError
+from threedcal.model import BACKGROUND_DRIFT_WARN_DN, CONTACT_DEPTH_MM, POINT_FRAMES
 
 
 def _estimator_args(parser: argparse.ArgumentParser) -> None:
@@ -17,6 +21,27 @@ def _estimator_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--px-per-mm", type=float, help="needed for the authors' weights")
     parser.add_argument("--device", help="cpu, cuda, ... (default: CUDA when present)")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    parser.add_argument(
+        "--registration",
+        help="registration.json for --frame-of printer, where the checkpoint carries none",
+    )
+
+
+def _points_args(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--points", help=what)
+    parser.add_argument(
+        "--frame-of",
+        choices=POINT_FRAMES,
+        default="sensor",
+        help="the points' frame: sensor (gel plane, x right, y down the image, z into the gel) "
+        "or printer (G-code axes); docs/deploy.md",
+    )
+    parser.add_argument(
+        "--contact-mm",
+        type=float,
+        default=CONTACT_DEPTH_MM,
+        help=f"depth above which a point is in contact (default {CONTACT_DEPTH_MM} mm)",
+    )
 
 
 def _estimator(args: argparse.Namespace):
@@ -24,6 +49,9 @@ def _estimator(args: argparse.Namespace):
         raise ConfigError(f"--threads must be a whole number >= 1, got {args.threads}")
     if args.px_per_mm is not None and not args.px_per_mm > 0:
         raise ConfigError(f"--px-per-mm must be a number > 0, got {args.px_per_mm}")
+    contact_mm = getattr(args, "contact_mm", 0.0)
+    if not (contact_mm >= 0 and contact_mm < float("inf")):
+        raise ConfigError(f"--contact-mm must be a number >= 0, got {contact_mm}")
     import torch
 
     from threedcal.dataset.importers import read_rgb
@@ -39,6 +67,7 @@ def _estimator(args: argparse.Namespace):
             blank=blank,
             px_per_mm=args.px_per_mm,
             camera_blank=True,  # the user's blank comes from the camera, like the frames
+            registration=args.registration,
         )
     except FrameSizeError as exc:  # only the user's blank is pooled here
         raise ConfigError(f"{args.blank} (--blank): {exc}") from None
@@ -53,13 +82,14 @@ def _model_frames(estimator, frames, where: str):
 
 
 def colour_map(depth_mm, vmax: float | None = None):
-    """uint8 RGB image of a depth map (viridis; 0 mm dark, vmax bright)."""
-    import matplotlib
+    """uint8 RGB image of a depth map (viridis, OpenCV's table; 0 mm dark, vmax bright; NaN dark)."""
+    import cv2
     import numpy as np
 
-    top = vmax or max(float(np.percentile(depth_mm, 99.5)), 1e-6)
-    rgba = matplotlib.colormaps["viridis"](np.clip(depth_mm / top, 0.0, 1.0))
-    return (rgba[..., :3] * 255).astype(np.uint8)
+    top = vmax or max(float(np.nanpercentile(depth_mm, 99.5)), 1e-6)
+    levels = np.nan_to_num(np.clip(np.asarray(depth_mm, np.float64) / top, 0.0, 1.0), nan=0.0)
+    bgr = cv2.applyColorMap(np.round(levels * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def _predict(args: argparse.Namespace) -> int:
@@ -76,11 +106,25 @@ def _predict(args: argparse.Namespace) -> int:
     if not cv2.haveImageWriter(str(png)):
         raise ConfigError(f"{png_option} {png}: not an image type OpenCV writes (use .png)")
     outputs = {"--out": out, png_option: png}
+    if args.points:
+        if Path(args.points).suffix.lower() != ".ply":
+            raise ConfigError(
+                f"--points {args.points}: the point cloud is a PLY file: end it in .ply"
+            )
+        outputs["--points"] = Path(args.points)
     _refuse_overwriting_inputs(
-        outputs, {"--image": args.image, "--blank": args.blank, "--checkpoint": args.checkpoint}
+        outputs,
+        {
+            "--image": args.image,
+            "--blank": args.blank,
+            "--checkpoint": args.checkpoint,
+            "--registration": args.registration,
+        },
     )
     refuse_existing_outputs(outputs, args.force)
     estimator = _estimator(args)
+    if args.points:
+        estimator.geometry.check_frame(args.frame_of)  # before any output is written
     depth = estimator.depth(_model_frames(estimator, read_rgb(Path(args.image)), args.image))
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("wb") as fh:  # np.save(path) would add .npy to a name ending in .NPY
@@ -88,6 +132,15 @@ def _predict(args: argparse.Namespace) -> int:
     if not cv2.imwrite(str(png), cv2.cvtColor(colour_map(depth), cv2.COLOR_RGB2BGR)):
         raise ConfigError(f"{png_option} {png}: OpenCV could not write the colour map")
     print(f"{out}: depth {depth.shape} mm, max {float(depth.max()):.3f} mm; colour map {png}")
+    if args.points:
+        from threedcal.model.points import write_ply
+
+        cloud = estimator.points_of_depth(depth, args.frame_of, args.contact_mm)
+        write_ply(args.points, cloud)
+        print(
+            f"{args.points}: {len(cloud.points)} points ({args.frame_of} frame, mm), "
+            f"{int(cloud.contact.sum())} in contact"
+        )
     return 0
 
 
@@ -113,10 +166,14 @@ def _live(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
+    from threedcal.model.drift import background_drift_dn
     from threedcal.model.sources import open_source
 
     if args.frames < 0:
         raise ConfigError(f"--frames must be >= 0 (0: all), got {args.frames}")
+    if not args.drift_warn_dn > 0:
+        raise ConfigError(f"--drift-warn-dn must be a number > 0, got {args.drift_warn_dn}")
+    inputs = {"--source": args.source, "--blank": args.blank, "--checkpoint": args.checkpoint}
     if args.out:
         if not (args.video_fps > 0 and np.isfinite(args.video_fps)):
             raise ConfigError(f"--video-fps must be a number > 0, got {args.video_fps}")
@@ -125,41 +182,143 @@ def _live(args: argparse.Namespace) -> int:
                 f"--out {args.out}: give a {' or '.join(VIDEO_SUFFIXES)} file (the video is "
                 "written after the last frame)"
             )
-        _refuse_overwriting_inputs(
-            {"--out": Path(args.out)},
-            {"--source": args.source, "--blank": args.blank, "--checkpoint": args.checkpoint},
-        )
+        _refuse_overwriting_inputs({"--out": Path(args.out)}, inputs)
         refuse_existing_outputs({"--out": Path(args.out)}, args.force)
+    if args.points:
+        _refuse_points_folder(Path(args.points), args.force)
     estimator = _estimator(args)
+    if args.points:
+        estimator.geometry.check_frame(args.frame_of)
     frames_out, times = [], []
+    retake = _BlankRequest()
+    warned = False
     source = open_source(args.source)
-    for count, frame in enumerate(tqdm(source, desc="live", unit="frame", total=args.frames)):
-        if args.frames and count >= args.frames:
-            break
-        began = time.perf_counter()
-        model_frame = _model_frames(estimator, frame, f"live source {args.source}, frame {count}")
-        depth = estimator.depth(model_frame)
-        times.append(time.perf_counter() - began)
-        fps = len(times) / sum(times)
-        view = np.concatenate([model_frame, colour_map(depth, args.max_depth_mm)], axis=1)
-        cv2.putText(
-            view, f"{fps:5.1f} fps", (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1
-        )
-        if args.out:
-            frames_out.append(view)
-        if args.show:
-            cv2.imshow("threedcal live", cv2.cvtColor(view, cv2.COLOR_RGB2BGR))
-            if cv2.waitKey(1) & 0xFF == ord("q"):
+    print(f"live: press b in the window, or kill -USR1 {os.getpid()}, to re-take the blank")
+    with retake.on_signal():
+        for count, frame in enumerate(tqdm(source, desc="live", unit="frame", total=args.frames)):
+            if args.frames and count >= args.frames:
                 break
+            began = time.perf_counter()
+            where = f"live source {args.source}, frame {count}"
+            model_frame = _model_frames(estimator, frame, where)
+            if retake.pending:
+                estimator.retake_blank(frame)
+                retake.pending, warned = False, False
+                tqdm.write(f"live: frame {count} is the blank from now on")
+            depth = estimator.depth(model_frame)
+            times.append(time.perf_counter() - began)
+            contact = depth > args.contact_mm
+            drift = background_drift_dn(model_frame, estimator.blank, contact)
+            if drift > args.drift_warn_dn and not warned:
+                tqdm.write(
+                    f"live: warning: frame {count}: the no-contact region has drifted {drift:.1f} "
+                    f"grey levels (RMS) from the blank (> --drift-warn-dn {args.drift_warn_dn:g}): "
+                    "depth there may read as contact; with nothing touching the gel, press b or "
+                    "send SIGUSR1 to re-take the blank"
+                )
+            warned = drift > args.drift_warn_dn  # warned again only after it settled
+            if args.points:
+                from threedcal.model.points import write_ply
+
+                cloud = estimator.points_of_depth(depth, args.frame_of, args.contact_mm)
+                write_ply(Path(args.points) / f"frame_{count:06d}.ply", cloud)
+            fps = len(times) / sum(times)
+            view = np.concatenate([model_frame, colour_map(depth, args.max_depth_mm)], axis=1)
+            white, red = (255, 255, 255), (255, 64, 64)
+            cv2.putText(view, f"{fps:5.1f} fps", (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, white, 1)
+            label = f"drift {drift:.1f}" + (": b = new blank" if warned else "")
+            colour = red if warned else white
+            cv2.putText(view, label, (5, 36), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1)
+            if args.out:
+                frames_out.append(view)
+            if args.show:
+                cv2.imshow("threedcal live", cv2.cvtColor(view, cv2.COLOR_RGB2BGR))
+                key = cv2.waitKey(1) & 0xFF
+                if key == ord("q"):
+                    break
+                if key == ord("b"):
+                    retake.pending = True
     if not times:
         print("no frames")
         return 1
     print(
         f"{len(times)} frames, depth at {len(times) / sum(times):.1f} frames/s ({estimator.preset})"
     )
+    if args.points:
+        print(f"wrote {len(times)} point clouds ({args.frame_of} frame) to {args.points}")
     if args.out:
         _write_video(Path(args.out), frames_out, args.video_fps)
         print(f"wrote {args.out}")
+    return 0
+
+
+class _BlankRequest:
+    """Set when the user asks `live` to re-take the blank: the window's b key, or SIGUSR1 (the
+    headless way: `kill -USR1 PID`, where the platform has the signal)."""
+
+    def __init__(self) -> None:
+        self.pending = False
+
+    @contextlib.contextmanager
+    def on_signal(self):
+        import signal
+
+        number = getattr(signal, "SIGUSR1", None)
+        if number is None:  # Windows
+            yield
+            return
+        before = signal.signal(number, lambda *_: setattr(self, "pending", True))
+        try:
+            yield
+        finally:
+            signal.signal(number, before)
+
+
+def _refuse_points_folder(folder: Path, force: bool) -> None:
+    """`live --points DIR`: a folder (made when missing) without earlier point clouds, unless
+    --force; checked before anything runs."""
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"--points {folder}: is a file; give a folder for the .ply files")
+    refuse_file_on_path("--points", folder, folder.parent)
+    earlier = sorted(folder.glob("frame_*.ply")) if folder.is_dir() else []
+    if earlier and not force:
+        raise ConfigError(
+            f"--points {folder}: holds {len(earlier)} point clouds of an earlier run "
+            f"({earlier[0].name}, ...); refusing to overwrite them (choose another folder, or add "
+            "--force to replace them)"
+        )
+
+
+def _export(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.suffix.lower() != ".onnx":
+        raise ConfigError(f"--out {out}: the model is an ONNX file: end it in .onnx")
+    from threedcal.model.export import OPSET, export_onnx, sidecar_path
+
+    outputs = {"--out": out, "the sidecar (--out + .json)": sidecar_path(out)}
+    _refuse_overwriting_inputs(
+        outputs,
+        {
+            "--checkpoint": args.checkpoint,
+            "--blank": args.blank,
+            "--registration": args.registration,
+        },
+    )
+    refuse_existing_outputs(outputs, args.force)
+    try:
+        import onnx  # noqa: F401  (torch's exporter needs it)
+    except ImportError:
+        raise ConfigError(
+            "export needs the onnx package: pip install 'threedcal[export]'"
+        ) from None
+    estimator = _estimator(args)
+    record = export_onnx(estimator, out, args.checkpoint)
+    height, width = estimator.image_shape
+    print(
+        f"{out}: ONNX opset {OPSET}, frames (N, {height}, {width}, 3) uint8 -> gradients "
+        f"(N, {height}, {width}, 2); {sidecar_path(out)}: px/mm {record['px_per_mm']:.4g}, "
+        f"touch height {record['contact_z_mm']} mm"
+    )
     return 0
 
 
@@ -192,6 +351,7 @@ def _configure_predict(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image", required=True, help="sensor image (PNG, RGB)")
     parser.add_argument("--out", required=True, help="depth map in mm, .npy")
     parser.add_argument("--png", help="colour map PNG (default: --out with .png)")
+    _points_args(parser, "also write the depth as 3D points (mm) to this .ply")
     add_force_option(parser)
 
 
@@ -207,7 +367,25 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--video-fps", type=float, default=10.0, help="playback rate of --out")
     add_force_option(parser)
     parser.add_argument("--max-depth-mm", type=float, default=None, help="colour scale top")
-    parser.add_argument("--show", action="store_true", help="show a window (needs a display)")
+    parser.add_argument(
+        "--show",
+        action="store_true",
+        help="show a window (needs a display); q quits, b re-takes the blank",
+    )
+    _points_args(parser, "write each frame's 3D points (mm) to FOLDER/frame_NNNNNN.ply")
+    parser.add_argument(
+        "--drift-warn-dn",
+        type=float,
+        default=BACKGROUND_DRIFT_WARN_DN,
+        help="warn when the no-contact region drifts this far from the blank (grey levels RMS, "
+        f"beyond a uniform shift; default {BACKGROUND_DRIFT_WARN_DN})",
+    )
+
+
+def _configure_export(parser: argparse.ArgumentParser) -> None:
+    _estimator_args(parser)
+    parser.add_argument("--out", required=True, help="model.onnx; its sidecar is model.onnx.json")
+    add_force_option(parser)
 
 
 COMMANDS = [
@@ -215,4 +393,10 @@ COMMANDS = [
         ("predict",), "depth map (mm, .npy + PNG) of one sensor image", _predict, _configure_predict
     ),
     Command(("live",), "depth of a camera or image stream, with frames/s", _live, _configure_live),
+    Command(
+        ("export",),
+        "a checkpoint as ONNX (frames -> gradients) with a JSON sidecar of its geometry",
+        _export,
+        _configure_export,
+    ),
 ]

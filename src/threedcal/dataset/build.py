@@ -246,6 +246,7 @@ def build_collected(
     method = "search" if len(store.rows("touch")) else "rim"
     touch = touch_height(store, radius_mm, method, progress)
     offset = touch["touch_offset_mm"]
+    contact_z_mm = round(float(sensor["mount"]["z_touch_mm"]) + offset, 4)
     # Labels for every grid frame whose probe centre the registration puts inside the image.
     depth = np.clip(store.nominal_depth + offset, 0.0, None)
     inside = (
@@ -305,6 +306,11 @@ def build_collected(
             # labels are the depth below the undeformed gel: on a domed gel, its dome's
             "dome": sensor["gel"].get("dome"),
             "sensor": sensor.get("name"),
+            # printer mm → rectified camera px and the apex's first-touch Z (model points)
+            "registration": {
+                "affine_px_per_mm": fit.matrix.round(9).tolist(),
+                "contact_z_mm": contact_z_mm,
+            },
         },
     )
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
@@ -330,7 +336,7 @@ def build_collected(
         else registration.unmixing.round(4).tolist(),
         **{k: v for k, v in touch.items() if k != "touch_offset_mm"},
         "touch_offset_mm": round(offset, 4),
-        "contact_z_mm": round(float(sensor["mount"]["z_touch_mm"]) + offset, 4),
+        "contact_z_mm": contact_z_mm,
         "frames_in_view": int(inside.sum()),
         "frames_too_deep": int(too_deep.sum()),
         "frames_labelled": int(len(keep)),

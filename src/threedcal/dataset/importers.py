@@ -16,12 +16,16 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from threedcal.errors import ConfigError
 from threedcal.schema import load_yaml, plain
+
+# pandas (the workflow extra) loads where a table is read: read_rgb needs none
+if TYPE_CHECKING:
+    import pandas as pd
 
 BALL_LABEL_COLUMNS = ("image", "center_x_px", "center_y_px", "radius_px")
 # Drawn circles include part of the shading halo: evaluate inside 0.9 · min(r_drawn, 0.98 · R_px).
@@ -120,6 +124,8 @@ def _require(path: Path, what: str) -> Path:
 
 
 def _read_csv(path: Path, columns) -> pd.DataFrame:
+    import pandas as pd
+
     _require(path, "table")
     try:
         table = pd.read_csv(path, comment="#", skipinitialspace=True)
@@ -135,6 +141,8 @@ def _read_csv(path: Path, columns) -> pd.DataFrame:
 
 
 def _numeric(table: pd.DataFrame, path: Path, columns, positive=()) -> None:
+    import pandas as pd
+
     for column in columns:
         values = pd.to_numeric(table[column], errors="coerce")
         for row, value in zip(table.index, values, strict=True):
@@ -254,7 +262,7 @@ def load_py3dcal_folder(folder: str | Path) -> ImportedDataset:
     table = table[kept].reset_index(drop=True)
     if table.empty:
         raise ConfigError(f"{table_path}: no annotated probe image")
-    table.index = pd.Index(np.asarray(rows) - 2)
+    table.index = np.asarray(rows) - 2
     _numeric(table, table_path, columns[1:], positive=("penetration_depth_mm",))
     table = table.reset_index(drop=True)
     names = [str(n).strip() for n in table["img_name"]]

@@ -26,9 +26,9 @@ import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from threedcal.dataset.labels import (
     DEFAULT_MAX_SLOPE_DEG,
@@ -38,6 +38,10 @@ from threedcal.dataset.labels import (
     sphere_gradients,
 )
 from threedcal.errors import ConfigError, FrameSizeError
+
+# pandas (the workflow extra) loads where a table is made or read: pool_to needs none
+if TYPE_CHECKING:
+    import pandas as pd
 
 SAMPLE_COLUMNS = (
     "frame",
@@ -88,6 +92,8 @@ def samples_table(
     point, center_px, depth_mm, eval_radius_px, split, min_p, **replicate_columns
 ) -> pd.DataFrame:
     """samples.csv's table (SAMPLE_COLUMNS, then min_p_r1 ...): one row per frame, numbered 0.."""
+    import pandas as pd
+
     center_px = np.asarray(center_px, dtype=float)
     return pd.DataFrame(
         {
@@ -257,6 +263,8 @@ class TrainingSet:
                     f"{directory / name}: missing (not a threedcal model-ready dataset)"
                 )
         meta = json.loads((directory / "meta.json").read_text())
+        import pandas as pd
+
         samples = pd.read_csv(directory / "samples.csv")
         frames = np.load(directory / "frames.npy", mmap_mode="r" if mmap else None)
         if len(samples) != len(frames):
@@ -346,6 +354,8 @@ def from_imported(
     replicates: int = 1,
 ) -> TrainingSet:
     """An imported dataset → TrainingSet with a seeded split by probe coordinate (by image for ball folders)."""
+    import pandas as pd
+
     from threedcal.dataset.splits import min_p_column, split_points
 
     points = (

@@ -18,6 +18,7 @@ import torch
 
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.lens import RadialLens
+from threedcal.model.points import Registration
 from threedcal.model.presets import build_model
 
 FORMAT = "threedcal-model"
@@ -155,6 +156,18 @@ def _inference_problem(data: dict) -> str | None:
         and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape)
     ):
         return f"'image_shape' must be [height, width] in pixels, got {shape!r}"
+    registration = data.get("registration")
+    if registration is not None:
+        try:
+            Registration.from_record(registration, "'registration'")
+        except ConfigError as exc:
+            return str(exc)
+    dome = data.get("dome")
+    if dome is not None and not (
+        isinstance(dome, dict)
+        and all(isinstance(dome.get(k), int | float) for k in ("kx_per_mm", "ky_per_mm"))
+    ):
+        return f"'dome' must be a dict with numbers kx_per_mm and ky_per_mm, got {dome!r}"
     camera = data.get("camera")
     if camera is not None:
         if not isinstance(camera, dict):

@@ -14,6 +14,7 @@ every preset (the lookup table too), and the checkpoint records it as normalisat
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from threedcal.errors import ConfigError
@@ -41,3 +42,40 @@ def remove_drift(x: torch.Tensor, mode: str, offset: torch.Tensor | None = None)
         raise ConfigError(f"model.drift: mode {mode!r} (allowed: {', '.join(DRIFT_MODES)})")
     offset = drift_offset(x) if offset is None else offset
     return torch.cat([x[:, :3] - offset, x[:, 3:]], 1)
+
+
+# Cells over which the background drift is averaged: camera noise (2-3 grey levels a pixel) falls
+# below 0.4 levels, a lighting change stays.
+DRIFT_CELL_PX = 8
+HALO_CELLS = 2
+
+
+def background_drift_dn(
+    frame: np.ndarray, blank: np.ndarray, contact: np.ndarray | None = None
+) -> float:
+    """How far the no-contact region has drifted from the blank that `remove_drift` cannot undo:
+    the RMS, in grey levels, of (frame - blank) less its per-channel median, averaged over
+    DRIFT_CELL_PX cells at least HALO_CELLS cells from any `contact` pixel (H, W). A uniform shift of the lighting
+    gives 0 (the model removes it); an LED dimmed or brightened alone, or a shadow, does not.
+    NaN when every cell touches the contact."""
+    import cv2
+
+    diff = np.asarray(frame, np.float32) - np.asarray(blank, np.float32)
+    sample = diff[::STRIDE, ::STRIDE].reshape(-1, diff.shape[-1])
+    residual = diff - np.median(sample, axis=0)  # the offset remove_drift takes out
+    height, width = diff.shape[:2]
+    rows, cols = max(height // DRIFT_CELL_PX, 1), max(width // DRIFT_CELL_PX, 1)
+    crop = (slice(0, rows * DRIFT_CELL_PX), slice(0, cols * DRIFT_CELL_PX))
+    cells = cv2.resize(
+        np.ascontiguousarray(residual[crop]), (cols, rows), interpolation=cv2.INTER_AREA
+    )
+    free = np.ones((rows, cols), bool)
+    if contact is not None:
+        touched = np.asarray(contact, np.float32)[crop]
+        touched = cv2.resize(touched, (cols, rows), interpolation=cv2.INTER_AREA) > 0
+        # and their neighbours: the shading halo reaches past where the depth crosses contact
+        reach = np.ones((2 * HALO_CELLS + 1,) * 2, np.uint8)
+        free = cv2.dilate(touched.astype(np.uint8), reach) == 0
+    if not free.any():
+        return float("nan")
+    return float(np.sqrt(np.mean(cells.reshape(rows, cols, -1)[free] ** 2)))

@@ -1,8 +1,10 @@
-"""DepthEstimator: a checkpoint → gradients and depth (mm) of sensor frames, batched, CPU or GPU.
+"""DepthEstimator: a checkpoint → gradients, depth (mm) and 3D points of sensor frames, batched,
+CPU or GPU.
 
 `gradients` and `depth` read frames as the model was trained on them: rectified through the
 camera's lens when the dataset stage fitted one. A camera's own frames go through `rectify` first
-(`threedcal model predict` and `live` do that)."""
+(`threedcal model predict` and `live` do that). `points` places a frame's depth in the sensor's or
+the printer's frame (threedcal.model.points)."""
 
 from __future__ import annotations
 
@@ -21,6 +23,13 @@ from threedcal.lens import RadialLens, rectify_if
 from threedcal.model.allocator import reuse_freed_memory
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
 from threedcal.model.drift import drift_offset, remove_drift
+from threedcal.model.points import (
+    CONTACT_DEPTH_MM,
+    PointCloud,
+    Registration,
+    SensorGeometry,
+    contact_mask,
+)
 from threedcal.model.presets import preferred_memory_format, reach_px
 
 _blas_controller = None
@@ -52,9 +61,12 @@ class DepthEstimator:
         batch_size: int = 8,
         channels_last: bool = True,
         camera_blank: bool = False,
+        registration: str | Path | Mapping[str, Any] | None = None,
     ) -> None:
         """`camera_blank`: `blank` is a frame as the camera streams it, to be rectified and pooled
-        like the frames (`rectify`); by default it is already the model's input."""
+        like the frames (`rectify`); by default it is already the model's input. `registration`:
+        registration.json (path or record) for `points(frame_of="printer")`, in place of the
+        checkpoint's own (checkpoints trained before it was recorded carry none)."""
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         reuse_freed_memory()
         self.preset = checkpoint["preset"]
@@ -97,6 +109,26 @@ class DepthEstimator:
         self._coords = torch.stack([grid_x, grid_y]).to(self.device)
         self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
         self._reach = reach_px(self.model)
+        self.geometry = SensorGeometry(
+            image_shape=self.image_shape,
+            px_per_mm=self.px_per_mm,
+            dome=checkpoint.get("dome"),
+            registration=_registration(registration, checkpoint.get("registration")),
+            downscale=int(camera.get("downscale", 1)),
+        )
+
+    @property
+    def blank(self) -> np.ndarray:
+        """The blank (no-contact) frame the model compares every frame with, (H, W, 3) float32."""
+        return self._blank.permute(1, 2, 0).cpu().numpy()
+
+    def retake_blank(self, frame: np.ndarray) -> None:
+        """Compare later frames with `frame`, a no-contact frame as the camera streams it
+        (rectified and pooled like the frames): after the gel or the lighting drifted."""
+        blank = self.rectify(np.asarray(frame)).astype(np.float32)
+        if blank.shape != (*self.image_shape, 3):
+            raise ConfigError(f"a blank must be one (H, W, 3) frame, got {np.shape(frame)}")
+        self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
 
     def rectify(self, frames: np.ndarray) -> np.ndarray:
         """Camera frames (H, W, 3) or (N, H, W, 3), as the sensor streams them → this model's input:
@@ -195,3 +227,43 @@ class DepthEstimator:
                 ]
             ).astype(np.float32)
         return depth[0] if single else depth
+
+    def points(
+        self,
+        frame: np.ndarray,
+        frame_of: str = "sensor",
+        contact_mm: float = CONTACT_DEPTH_MM,
+    ) -> PointCloud:
+        """One model frame (H, W, 3) → PointCloud: (H * W, 3) points in mm in `frame_of`
+        ('sensor': the gel's rest plane, x right, y down the image, z into the gel; 'printer': the
+        G-code axes at the first-touch height) and the contact mask (depth > `contact_mm`)."""
+        frame = np.asarray(frame)
+        if frame.ndim != 3:
+            raise ConfigError(f"points takes one frame (H, W, 3), got {frame.shape}")
+        return self.points_of_depth(self.depth(frame), frame_of, contact_mm)
+
+    def points_of_depth(
+        self, depth_mm: np.ndarray, frame_of: str = "sensor", contact_mm: float = CONTACT_DEPTH_MM
+    ) -> PointCloud:
+        """`points` of a depth map (H, W) mm of this model's frame (e.g. from `depth`)."""
+        mask = contact_mask(depth_mm, contact_mm)
+        return PointCloud(self.geometry.points(depth_mm, frame_of), mask)
+
+
+def _registration(given, recorded) -> Registration | None:
+    """The registration `points` uses: the one given (a registration.json path or its record),
+    else the checkpoint's; None when neither exists."""
+    if given is None:
+        return None if recorded is None else Registration.from_record(recorded, "checkpoint")
+    if isinstance(given, Mapping):
+        return Registration.from_record(given)
+    import json
+
+    path = Path(given)
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path}: cannot read the registration ({exc})") from None
+    if not isinstance(record, Mapping):
+        raise ConfigError(f"{path}: a registration is a JSON object, got {type(record).__name__}")
+    return Registration.from_record(record, str(path))

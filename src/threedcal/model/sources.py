@@ -27,11 +27,16 @@ def folder_frames(path: Path) -> Iterator[np.ndarray]:
 
 
 def trainset_frames(path: Path) -> Iterator[np.ndarray]:
-    from threedcal.dataset.trainset import TrainingSet
-
-    ts = TrainingSet.load(path)
-    for i in range(len(ts.frames)):
-        yield np.asarray(ts.frames[i])
+    """The frames of a model-ready dataset, read as they are stored (frames.npy: NumPy alone, so
+    the inference core reads them without the workflow's pandas)."""
+    frames = np.load(path / "frames.npy", mmap_mode="r")
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
+        raise ConfigError(
+            f"{path / 'frames.npy'}: not a dataset's frames ((N, H, W, 3) uint8, got "
+            f"{frames.shape} {frames.dtype})"
+        )
+    for frame in frames:
+        yield np.asarray(frame)
 
 
 def camera_frames(index: int | str) -> Iterator[np.ndarray]:

@@ -692,6 +692,10 @@ def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -
             "lens": (ts.meta or {}).get("lens"),
             "downscale": int((ts.meta or {}).get("downscale", 1)),
         },
+        # where the model's pixels lie on the printer and the gel (DepthEstimator.points); None for
+        # an imported dataset (no printer)
+        "registration": (ts.meta or {}).get("registration"),
+        "dome": (ts.meta or {}).get("dome"),
         "training": {
             "percent": int(percent),
             "replicate": int(replicate),
