@@ -26,7 +26,7 @@ from threedcal.dataset.importers import read_rgb
 from threedcal.model.export import export_onnx, onnx_gradients, onnx_session
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "digit_frames_fots"
-PRESETS = ("compact", "context", "multiscale")
+PRESETS = ("compact", "context_half", "context", "multiscale")
 BLOCK = 10  # calls per block; torch and onnxruntime alternate block by block
 
 
@@ -74,7 +74,6 @@ def main() -> None:
     blank = np.ascontiguousarray(np.rot90(read_rgb(DATA / "background.png"))).astype(np.float32)
     frame = np.ascontiguousarray(np.rot90(read_rgb(DATA / "0010.png")))
     height, width = frame.shape[:2]
-    batch = frame[None]
     print(f"{height}x{width} frame, {args.threads} threads, torch {torch.__version__}", end="")
     import onnxruntime
 
@@ -84,13 +83,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for preset in PRESETS:
             est = estimator(preset, blank)
+            model_frame = est.rectify(frame)  # pooled to the model's frame (context_half: by 2)
             path = Path(tmp) / f"{preset}.onnx"
             export_onnx(est, path)
             session = onnx_session(path, threads=args.threads)
             ms = median_ms(
                 {
-                    "torch": lambda est=est: est.gradients(frame),
-                    "onnx": lambda session=session: onnx_gradients(session, batch),
+                    "torch": lambda est=est, f=model_frame: est.gradients(f),
+                    "onnx": lambda session=session, f=model_frame: onnx_gradients(session, f[None]),
                 },
                 args.rounds,
             )
