@@ -104,8 +104,16 @@ rule convergence:
             f"results/{wildcards.scene}/models/P{p}/r0/model.pt"
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
+        study_losses=lambda wildcards: [
+            f"results/{wildcards.scene}/models/P{p}/r0/losses.csv"
+            for p in convergence_fractions(config["scenes"][wildcards.scene])
+        ],
         twice=lambda wildcards: [
             f"results/{wildcards.scene}/convergence/P{p}/snapshots"
+            for p in convergence_fractions(config["scenes"][wildcards.scene])
+        ],
+        twice_losses=lambda wildcards: [
+            f"results/{wildcards.scene}/convergence/P{p}/losses.csv"
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
         trainset="results/{scene}/dataset/trainset",

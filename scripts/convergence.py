@@ -9,10 +9,11 @@ from threedcal.logs import stage_log
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.params.threads)
     fractions = snakemake.params.fractions
+    inputs = snakemake.input
     curve = curve_table(
-        dict(zip(fractions, snakemake.input.study, strict=True)),
-        dict(zip(fractions, snakemake.input.twice, strict=True)),
-        TrainingSet.load(snakemake.input.trainset),
+        dict(zip(fractions, zip(inputs.study, inputs.study_losses, strict=True), strict=True)),
+        dict(zip(fractions, zip(inputs.twice, inputs.twice_losses, strict=True), strict=True)),
+        TrainingSet.load(inputs.trainset),
     )
     curve.to_csv(snakemake.output.curve, index=False, float_format="%.6g")
     convergence_table(curve).to_csv(snakemake.output.convergence, index=False, float_format="%.6g")

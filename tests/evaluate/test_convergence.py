@@ -47,7 +47,11 @@ def runs(tmp_path_factory):
 
 def test_the_curve_scores_every_snapshot_and_the_study_model_as_the_stats_stage_does(runs):
     ts, root, study = runs
-    curve = curve_table({80: root / "study/model.pt"}, {80: root / "twice/snapshots"}, ts)
+    curve = curve_table(
+        {80: (root / "study/model.pt", root / "study/losses.csv")},
+        {80: (root / "twice/snapshots", root / "twice/losses.csv")},
+        ts,
+    )
     assert list(curve.columns) == list(CURVE_COLUMNS)
     snapshots = sorted((root / "twice/snapshots").glob("step*.pt"))
     assert (curve["run"] == "twice").sum() == len(snapshots) >= 2
@@ -55,7 +59,9 @@ def test_the_curve_scores_every_snapshot_and_the_study_model_as_the_stats_stage_
     expected = coordinate_mse(DepthEstimator(study, device="cpu"), ts)["mse"].mean()
     assert own["mse"] == pytest.approx(expected)
     assert own["steps"] == study["training"]["steps"]
-    assert curve[curve["run"] == "twice"]["seconds"].is_monotonic_increasing
+    twice = curve[curve["run"] == "twice"]
+    assert twice["seconds"].is_monotonic_increasing and twice["seconds"].notna().all()
+    assert own["seconds"] == pytest.approx(pd.read_csv(root / "study/losses.csv")["seconds"].sum())
 
 
 def test_the_table_compares_the_study_with_twice_its_budget(runs, tmp_path):

@@ -21,6 +21,7 @@ from threedcal.model.checkpoint import (
 )
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.lookup import LookupTable
+from threedcal.model.machine import BFLOAT16_SAFE
 from threedcal.model.presets import TouchNet, build_model, reach_px
 from threedcal.model.train import TrainSettings, train
 
@@ -252,16 +253,20 @@ def test_bfloat16_training_runs_the_network_in_bfloat16_and_keeps_float32_weight
     assert not torch.equal(half["state_dict"]["body.0.weight"], full["state_dict"]["body.0.weight"])
 
 
-def test_context_gradients_in_bfloat16_follow_float32():
-    # The simulated scenes train `context` in bfloat16. oneDNN's channels-last bfloat16 weight
-    # gradients of dilated convolutions are NaN at some channel counts (24: multiscale); context's
-    # must stay finite and within bfloat16's rounding of the float32 gradients.
+@pytest.mark.parametrize(
+    "preset, batch, patch", [(p, 16, 32) for p in BFLOAT16_SAFE] + [("context", 32, 64)]
+)
+def test_bfloat16_gradients_follow_float32_for_every_network_auto_trains_in_it(preset, batch, patch):
+    # `precision: auto` trains these in bfloat16 on a CPU that has it. oneDNN's channels-last
+    # bfloat16 weight gradients of dilated convolutions are NaN at some channel counts (24:
+    # multiscale, which auto keeps in float32); these must stay finite and within bfloat16's
+    # rounding of the float32 gradients, at the step shapes they train with.
     from threedcal.model.train import training_autocast
 
     torch.manual_seed(0)
-    model = build_model("context").to(memory_format=torch.channels_last)
-    x = torch.randn(32, 5, 64, 64).contiguous(memory_format=torch.channels_last)  # config.yaml's
-    y = torch.randn(32, 2, 64, 64)
+    model = build_model(preset).to(memory_format=torch.channels_last)
+    x = torch.randn(batch, 5, patch, patch).contiguous(memory_format=torch.channels_last)
+    y = torch.randn(batch, 2, patch, patch)
     grads = {}
     for precision in ("float32", "bfloat16"):
         model.zero_grad()

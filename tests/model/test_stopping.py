@@ -78,6 +78,9 @@ def test_auto_precision_is_bfloat16_only_where_the_cpu_has_it(monkeypatch):
     monkeypatch.setattr(machine, "native_bfloat16", lambda: True)
     assert resolve_precision("auto", cpu) == "bfloat16"
     assert resolve_precision("float32", cpu) == "float32"
+    assert resolve_precision("auto", cpu, "context_half") == "bfloat16"
+    assert resolve_precision("auto", cpu, "multiscale") == "float32"  # NaN in bfloat16
+    assert resolve_precision("auto", cpu, "touchnet") == "float32"  # not checked in it
     with pytest.raises(ConfigError, match="allowed: auto, float32, bfloat16"):
         resolve_precision("half", cpu)
 
@@ -204,6 +207,5 @@ def test_twice_the_budget_trains_at_least_twice_the_steps_and_snapshots_the_best
     assert len(snapshots) >= 2
     last = read_checkpoint(snapshots[-1])
     assert last["training"]["steps"] == twice["training"]["steps"]
-    assert last["training"]["seconds"] > 0
     for name, value in twice["state_dict"].items():
         assert torch.equal(value, last["state_dict"][name])

@@ -49,39 +49,39 @@ def _score(checkpoint: Mapping, trainset: TrainingSet) -> float:
     return float(coordinate_mse(estimator, trainset)["mse"].mean())
 
 
+def seconds_at(losses: pd.DataFrame) -> pd.Series:
+    """Training seconds spent to reach each logged step (losses.csv: seconds since the last row)."""
+    return pd.Series(losses["seconds"].cumsum().to_numpy(), index=losses["step"].to_numpy())
+
+
 def curve_table(
-    study_models: Mapping[int, str | Path],
-    snapshot_dirs: Mapping[int, str | Path],
+    study: Mapping[int, tuple[str | Path, str | Path]],
+    twice: Mapping[int, tuple[str | Path, str | Path]],
     trainset: TrainingSet,
 ) -> pd.DataFrame:
-    """Every snapshot of the longer trainings and the study's own models, scored."""
+    """Every snapshot of the longer trainings and the study's own models, scored. `study` and
+    `twice` map P to (model.pt or snapshots/, losses.csv)."""
     from threedcal.model.checkpoint import read_checkpoint
 
     rows = []
-    for p in sorted(study_models):
-        study = read_checkpoint(study_models[p])
-        training = study["training"]
-        rows.append(
-            {
-                "P": p,
-                "run": "study",
-                "steps": int(training.get("steps", 0)),
-                "seconds": float(training.get("seconds", np.nan)),
-                "mse": _score(study, trainset),
-            }
-        )
-        for path in sorted(Path(snapshot_dirs[p]).glob("step*.pt")):
+    for p in sorted(study):
+        model_path, losses_path = study[p]
+        model = read_checkpoint(model_path)
+        clock = seconds_at(pd.read_csv(losses_path))
+        steps = int(model["training"]["steps"])
+        rows.append(_point(p, "study", steps, clock, _score(model, trainset)))
+        snapshots, losses_path = twice[p]
+        clock = seconds_at(pd.read_csv(losses_path))
+        for path in sorted(Path(snapshots).glob("step*.pt")):
             snapshot = read_checkpoint(path)
-            rows.append(
-                {
-                    "P": p,
-                    "run": "twice",
-                    "steps": int(snapshot["training"]["steps"]),
-                    "seconds": float(snapshot["training"]["seconds"]),
-                    "mse": _score(snapshot, trainset),
-                }
-            )
+            steps = int(snapshot["training"]["steps"])
+            rows.append(_point(p, "twice", steps, clock, _score(snapshot, trainset)))
     return pd.DataFrame(rows, columns=list(CURVE_COLUMNS))
+
+
+def _point(p: int, run: str, steps: int, clock: pd.Series, mse: float) -> dict:
+    seconds = float(clock.loc[steps]) if steps in clock.index else float("nan")
+    return {"P": int(p), "run": run, "steps": steps, "seconds": seconds, "mse": mse}
 
 
 def convergence_table(curve: pd.DataFrame) -> pd.DataFrame:

@@ -55,13 +55,22 @@ def native_bfloat16() -> bool:
     return bool(hardware and allowed)
 
 
-def resolve_precision(precision: str, device: torch.device) -> str:
+# Networks whose bfloat16 gradients follow float32's (tests/model/test_model.py checks them at the
+# study's step shape). `multiscale`'s 24-channel dilated convolutions come out NaN in channels-last
+# bfloat16 on torch 2.13 (docs/models.md), so `auto` keeps it, and any network not listed, in float32.
+BFLOAT16_SAFE = ("context", "context_half")
+
+
+def resolve_precision(precision: str, device: torch.device, preset: str | None = None) -> str:
     """The arithmetic a training on `device` runs in: `auto` → bfloat16 where it is native
-    (a CUDA device that supports it, or a CPU with native_bfloat16), float32 elsewhere."""
+    (a CUDA device that supports it, or a CPU with native_bfloat16) and the network is known to
+    train in it (`preset` in BFLOAT16_SAFE; None: not asked), float32 elsewhere."""
     if precision not in PRECISIONS:
         raise ConfigError(f"model.precision: {precision!r} (allowed: {', '.join(PRECISIONS)})")
     if precision != "auto":
         return precision
+    if preset is not None and preset not in BFLOAT16_SAFE:
+        return "float32"
     if device.type == "cuda":
         return "bfloat16" if torch.cuda.is_bf16_supported() else "float32"
     if device.type == "cpu":

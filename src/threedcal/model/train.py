@@ -352,7 +352,7 @@ def train(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     device = configure_torch(settings)
-    precision = resolve_precision(settings.precision, device)
+    precision = resolve_precision(settings.precision, device, settings.preset)
     # Where it trains: on a cluster, whether the job's GPU was usable (else the CPU).
     logging.getLogger(__name__).info(
         "training P=%d r%d on %s in %s", percent, replicate, device, precision
@@ -380,7 +380,6 @@ def train(
     )
     final["training"].update(
         steps=int(stopped["steps"]),
-        seconds=round(float(sum(r["seconds"] for r in rows)), 3),
         stopped=stopped["reason"],
         precision=precision,
         machine=describe_machine(),
@@ -467,7 +466,7 @@ def _run_epochs(model, job: _Job, epochs, out_dir, key, progress, job_id, snapsh
         rows.append(_row(epoch, steps, train_loss, val_loss, _since(began), lr))
         bar.set_postfix(train=f"{train_loss:.4g}", val=f"{val_loss:.4g}")
         if snapshot_every and epoch in checked:
-            _snapshot(out_dir, job, model, _cpu_state(model), (job_id, epoch, steps), rows)
+            _snapshot(out_dir, job, model, _cpu_state(model), (job_id, epoch, steps))
         if epoch < epochs and time.monotonic() - last_saved >= RESUME_EVERY_S:
             extra = {"epoch": epoch, "steps": steps}
             _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra)
@@ -520,7 +519,7 @@ def _run_plateau(model, job: _Job, rule: Plateau, out_dir, key, progress, job_id
         began = time.perf_counter()
         bar.set_postfix(check=f"{error:.4g}", best=f"{rule.best:.4g}", drops=rule.drops)
         if snapshot_every and len(rule.history) % snapshot_every == 0:
-            _snapshot(out_dir, job, model, best, (job_id, epoch, steps), rows)
+            _snapshot(out_dir, job, model, best, (job_id, epoch, steps))
         if not rule.done and time.monotonic() - last_saved >= RESUME_EVERY_S:
             extra = {"epoch": epoch, "steps": steps, "rule": rule.state(), "best": best}
             _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra)
@@ -528,7 +527,7 @@ def _run_plateau(model, job: _Job, rule: Plateau, out_dir, key, progress, job_id
     bar.close()
     model.load_state_dict(best)
     if snapshot_every:
-        _snapshot(out_dir, job, model, best, (job_id, epoch, steps), rows)
+        _snapshot(out_dir, job, model, best, (job_id, epoch, steps))
     return rows, {"epochs": epoch, "steps": steps, "reason": rule.reason}
 
 
@@ -571,15 +570,15 @@ def _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, 
     save_checkpoint(out_dir / RESUME_NAME, state)
 
 
-def _snapshot(out_dir: Path, job: _Job, model, weights: dict, position, rows: list[dict]) -> None:
-    """A usable checkpoint of `weights` (the best so far) after `steps`, with the training seconds
-    spent to reach them: one point of the error-against-time curve."""
+def _snapshot(out_dir: Path, job: _Job, model, weights: dict, position) -> None:
+    """A usable checkpoint of `weights` (the best so far) after `steps`: one point of the
+    error-against-time curve (losses.csv's row of that step says how long it took)."""
     (percent, replicate), epoch, steps = position
     snapshot = _checkpoint(
         model, job.settings, job.ts, percent, replicate, epoch, job.normalisation
     )
     snapshot["state_dict"] = weights
-    snapshot["training"].update(steps=int(steps), seconds=float(sum(r["seconds"] for r in rows)))
+    snapshot["training"]["steps"] = int(steps)
     save_checkpoint(out_dir / "snapshots" / f"step{steps:07d}.pt", snapshot)
 
 
