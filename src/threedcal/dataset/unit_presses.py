@@ -48,7 +48,6 @@ def simulate_units(
         raise ConfigError("pretraining needs at least one unit and one press per unit")
     if not 0 <= val_units < len(units):
         raise ConfigError(f"val_units must lie in 0..{len(units) - 1}, got {val_units}")
-    px_per_mm = float(profile["px_per_mm"])
     pooled = [
         downscale(
             _unit_set(profile, int(u), presses_per_unit, (lo, hi), probe_radius_mm, gel_mechanics),
