@@ -68,6 +68,7 @@ EXCLUDED = {
     "integration/error_vs_time.png": "plots the timings",
     "*/presets.png": "plots inference and training times",
     "*/stats/error_vs_cost.png": "plots training time and the probing estimate",
+    "*/stats/error_vs_time.png": "plots training time",
     "summary.md": "quotes collection and inference speed (its other figures are compared at the source)",
     # The collection of KILLED_SCENE was killed and resumed on purpose: its frames and labels must
     # equal the uninterrupted run's, but the per-point clock counts from the start of each run.
@@ -79,6 +80,9 @@ TIMING_COLUMNS = {
     "*/models/P*/losses.csv": (["seconds"], "training time per epoch"),
     "*/cv/*/fold*/losses.csv": (["seconds"], "training time per epoch"),
     "*/sim2real/*losses.csv": (["seconds"], "training time per epoch"),
+    "*/convergence/P*/losses.csv": (["seconds"], "training time per check"),
+    "*/stats/error_vs_time.csv": (["seconds"], "training time of each snapshot"),
+    "*/stats/convergence.csv": (["study_seconds", "twice_seconds"], "training times"),
     # Estimated probing time comes from the collection runs that finished, so after a killed run
     # it leaves out the killed run's share (a gap of the collection summary, docs/cluster.md).
     f"{KILLED_SCENE}/stats/error_vs_cost.csv": (
@@ -344,7 +348,14 @@ def compare_results(local: Path, cluster: Path) -> list[tuple[str, str, str]]:
 
 
 # Column names that hold a duration measured on the machine that ran the job.
-TIMED_COLUMNS = {"seconds", "ms_per_frame", "train_s", "training_min"}
+TIMED_COLUMNS = {
+    "seconds",
+    "ms_per_frame",
+    "train_s",
+    "training_min",
+    "study_seconds",
+    "twice_seconds",
+}
 
 
 def uncovered_timing_tables(results: Path) -> list[str]:
