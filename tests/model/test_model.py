@@ -256,7 +256,9 @@ def test_bfloat16_training_runs_the_network_in_bfloat16_and_keeps_float32_weight
 @pytest.mark.parametrize(
     "preset, batch, patch", [(p, 16, 32) for p in BFLOAT16_SAFE] + [("context", 32, 64)]
 )
-def test_bfloat16_gradients_follow_float32_for_every_network_auto_trains_in_it(preset, batch, patch):
+def test_bfloat16_gradients_follow_float32_for_every_network_auto_trains_in_it(
+    preset, batch, patch
+):
     # `precision: auto` trains these in bfloat16 on a CPU that has it. oneDNN's channels-last
     # bfloat16 weight gradients of dilated convolutions are NaN at some channel counts (24:
     # multiscale, which auto keeps in float32); these must stay finite and within bfloat16's

@@ -208,3 +208,25 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
         "same fraction: no effect of P): t significant in 0 of 1 pairs, U in 1 of 1; their mean "
         "MSE differ by 12.0 %." in text
     )
+
+
+def test_summary_states_the_convergence_check_per_fraction(tmp_path):
+    from threedcal.report.summary import convergence_lines
+
+    path = tmp_path / "convergence.csv"
+    assert convergence_lines(path) == []
+    pd.DataFrame(
+        {
+            "P": [1, 80],
+            "study_steps": [400, 2000],
+            "study_seconds": [5.0, 30.0],
+            "study_mse": [0.004, 0.002],
+            "twice_steps": [800, 4000],
+            "twice_seconds": [10.0, 60.0],
+            "twice_mse": [0.0041, 0.0019],
+            "change": [0.025, -0.05],
+        }
+    ).to_csv(path, index=False)
+    (line,) = [text for text in convergence_lines(path) if text]
+    assert "P = 1 % 0.00400 after 400 steps, 0.00410 after 800 (+2.5%)" in line
+    assert "P = 80 % 0.00200 after 2000 steps, 0.00190 after 4000 (-5.0%)" in line

@@ -157,7 +157,25 @@ def ablation_section(stats_dir: Path) -> list[str]:
     placebo = placebo_summary(tests)
     if placebo:
         lines += ["", f"Placebo (`family = placebo`): {placebo}."]
+    lines += convergence_lines(stats_dir / "convergence.csv")
     return lines + [""]
+
+
+def convergence_lines(path: Path) -> list[str]:
+    """The convergence check in one sentence per P (stats/convergence.csv)."""
+    if not path.is_file():
+        return []
+    table = pd.read_csv(path)
+    parts = [
+        f"P = {row.P} % {row.study_mse:.5f} after {row.study_steps} steps, "
+        f"{row.twice_mse:.5f} after {row.twice_steps} ({row.change:+.1%})"
+        for row in table.itertuples()
+    ]
+    return [
+        "",
+        "Convergence (replicate 0 trained again with twice its budget, mean validation MSE; "
+        f"stats/convergence.csv): {'; '.join(parts)}.",
+    ]
 
 
 def _ci(row, metric: str) -> str:
