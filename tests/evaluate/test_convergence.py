@@ -21,7 +21,7 @@ from threedcal.evaluate.validation import coordinate_mse  # noqa: E402
 from threedcal.model.inference import DepthEstimator  # noqa: E402
 from threedcal.model.train import TrainSettings, train  # noqa: E402
 
-RULE = {"rule": "plateau", "check_every": 2, "patience": 2, "max_steps": 24, "lr_drops": 1}
+RULE = {"rule": "doubling", "first_cycle": 3, "max_steps": 12}
 
 
 @pytest.fixture(scope="module")

@@ -11,19 +11,10 @@ from test_model import TINY, synthetic_set
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.machine import resolve_precision
-from threedcal.model.stopping import Plateau, holdout_split
+from threedcal.model.stopping import Doubling, holdout_split
 from threedcal.model.train import TrainSettings, train
 
-RULE = {
-    "rule": "plateau",
-    "holdout": 0.2,
-    "check_every": 10,
-    "patience": 2,
-    "min_improvement": 0.05,
-    "lr_drops": 1,
-    "drop_factor": 0.1,
-    "max_steps": 1000,
-}
+RULE = {"rule": "doubling", "holdout": 0.2, "first_cycle": 10, "min_gain": 0.05, "max_steps": 1000}
 
 
 def test_holdout_is_a_seeded_share_of_the_models_own_frames_and_none_when_too_few():
@@ -38,35 +29,49 @@ def test_holdout_is_a_seeded_share_of_the_models_own_frames_and_none_when_too_fe
     assert len(hold) == 0 and len(fit) == 2
 
 
-def test_plateau_drops_the_rate_after_patience_then_stops_after_the_last_drop():
-    rule = Plateau.of(RULE, lr=1e-2)
-    assert rule.current_lr == 1e-2 and not rule.due(9) and rule.due(10)
-    assert rule.observe(10, 1.0) == (True, False)
-    assert rule.observe(20, 0.9) == (True, False)  # a 10 % gain
-    assert rule.observe(30, 0.88) == (True, False)  # better, but by less than 5 %: stale 1
-    assert rule.observe(40, 0.95) == (False, True)  # stale 2 = patience: the rate drops
-    assert rule.current_lr == pytest.approx(1e-3) and not rule.done
-    assert rule.best == 0.88 and rule.best_step == 30
-    rule.observe(50, 0.87)
-    assert not rule.done
-    rule.observe(60, 0.87)
-    assert rule.done and "stopped falling" in rule.reason
-    restored = Plateau.from_state(rule.state())
-    assert restored == rule
+def test_doubling_cycles_double_the_training_and_stop_when_a_cycle_no_longer_pays():
+    rule = Doubling.of(RULE, lr=1e-2)
+    rule.best = 2.0  # the starting weights' error
+    lengths = []
+    for error in (1.0, 0.9, 0.8):  # each cycle gains more than 5 %
+        lengths.append(rule.next_cycle())
+        assert rule.observe(rule.steps + lengths[-1], error)
+        assert not rule.done
+    assert lengths == [10, 10, 20] and rule.steps == 40  # 10, 20, 40 steps in all
+    assert rule.lr_at(0, 20) == pytest.approx(1e-2) and rule.lr_at(20, 20) == pytest.approx(1e-4)
+    assert rule.lr_at(10, 20) == pytest.approx((1e-2 + 1e-4) / 2)
+    assert rule.next_cycle() == 40
+    assert rule.observe(80, 0.78)  # better, by 2.5 %: twice the training no longer pays
+    assert rule.done and "lowered the holdout error by less than 5%" in rule.reason
+    assert rule.best == 0.78 and rule.best_step == 80
+    assert Doubling.from_state(rule.state()) == rule
 
 
-def test_plateau_stops_at_max_steps_and_a_scale_stretches_patience_and_cap():
-    rule = Plateau.of({**RULE, "max_steps": 25}, lr=1.0)
-    for step in (10, 20, 30):
-        rule.observe(step, 1.0 / step)
-    assert rule.done and "max_steps (25)" in rule.reason
-    long = Plateau.of(RULE, lr=1.0, scale=2.0, min_steps=500)
-    assert long.patience == 4 and long.max_steps == 2000
-    for step in range(10, 500, 10):  # never improves, yet cannot stop before min_steps
-        long.observe(step, 1.0)
-        assert not long.done
-    with pytest.raises(ConfigError, match="holdout error at step 7 is nan"):
-        long.observe(7, float("nan"))
+def test_doubling_keeps_an_earlier_cycle_when_a_later_one_is_worse_and_stops_at_the_cap():
+    rule = Doubling.of(RULE, lr=1.0)
+    rule.best = 2.0
+    assert rule.observe(10, 1.0)
+    assert not rule.observe(20, 1.2)  # overfitting: worse, so stop and keep step 10's
+    assert rule.done and rule.best_step == 10
+    capped = Doubling.of({**RULE, "max_steps": 25}, lr=1.0)
+    capped.best = 2.0
+    for error in (1.0, 0.5):
+        capped.observe(capped.steps + capped.next_cycle(), error)
+    assert capped.next_cycle() == 5  # cut at the cap
+    capped.observe(25, 0.2)
+    assert capped.done and "max_steps (25)" in capped.reason
+
+
+def test_twice_the_budget_stretches_the_cap_and_cannot_stop_before_min_steps():
+    rule = Doubling.of(RULE, lr=1.0, scale=2.0, min_steps=40)
+    assert rule.max_steps == 2000
+    rule.best = 1.0
+    for steps in (10, 20, 40):  # never better: still no stop before 40 steps
+        assert not rule.done
+        rule.observe(steps, 1.0)
+    assert rule.done
+    with pytest.raises(ConfigError, match="holdout error after 7 steps is nan"):
+        rule.observe(7, float("nan"))
 
 
 def test_auto_precision_is_bfloat16_only_where_the_cpu_has_it(monkeypatch):
@@ -107,17 +112,17 @@ def test_the_model_records_the_precision_it_trained_in_and_the_machine(tmp_path,
     assert {"cpu_capability", "native_bfloat16", "cores"} <= set(checkpoint["training"]["machine"])
 
 
-def plateau_settings(**changes):
+def doubling_settings(**changes):
     return TrainSettings.of(
         preset="compact_tiny",
         seed=5,
         lr=1e-2,
-        stopping={**RULE, "check_every": 2, **changes},
+        stopping={**RULE, "first_cycle": 3, "max_steps": 48, **changes},
         **{**TINY, "batch_size": 2},
     )
 
 
-def test_plateau_training_never_fits_its_holdout_and_says_why_it_stopped(tmp_path, monkeypatch):
+def test_doubling_training_never_fits_its_holdout_and_says_why_it_stopped(tmp_path, monkeypatch):
     import threedcal.model.train as module
 
     ts = synthetic_set(n=12)
@@ -125,26 +130,27 @@ def test_plateau_training_never_fits_its_holdout_and_says_why_it_stopped(tmp_pat
     ts.samples["min_p"] = [80] * 10 + [0, 0]
     ts = replace(ts)  # re-derive the arrays
     fitted = []
-    real = module._train_epoch
+    real = module.sample_windows
     monkeypatch.setattr(
-        module, "_train_epoch", lambda m, t, idx, *a: fitted.append(set(idx)) or real(m, t, idx, *a)
+        module, "sample_windows", lambda t, idx, *a: fitted.append(set(idx)) or real(t, idx, *a)
     )
-    checkpoint = train(ts, tmp_path, 80, plateau_settings(), progress=False)
+    checkpoint = train(ts, tmp_path, 80, doubling_settings(), progress=False)
     training = checkpoint["training"]
     assert training["holdout_frames"] == 2 and training["fit_frames"] == 8
     _, hold = holdout_split(ts.indices("train", percent=80), 0.2, 5)
-    assert all(not (idx & set(hold)) for idx in fitted)
+    trained = [idx for idx in fitted if idx != set(hold)]  # the holdout's own check windows aside
+    assert trained and all(not (idx & set(hold)) for idx in trained)
     assert all(not (idx & {10, 11}) for idx in fitted)  # nor the stats stage's validation frames
-    assert "stopped falling" in training["stopped"] or "max_steps" in training["stopped"]
+    assert "less than 5%" in training["stopped"] or "max_steps" in training["stopped"]
     losses = pd.read_csv(tmp_path / "losses.csv")
     assert losses["step"].iloc[0] == 0 and losses["step"].is_monotonic_increasing
     assert training["steps"] == losses["step"].iloc[-1]
 
 
-def test_plateau_keeps_the_best_weights_it_checked(tmp_path, monkeypatch):
+def test_doubling_keeps_the_best_weights_it_checked(tmp_path, monkeypatch):
     import threedcal.model.train as module
 
-    errors = iter([1.0, 0.5, 0.7, 0.9, 0.95, 0.99, 1.0, 1.0, 1.0, 1.0])
+    errors = iter([1.0, 0.6, 0.5, 0.7])  # the start, then three cycles: the second is best
     states = []
     real_check = module._check_loss
 
@@ -154,33 +160,33 @@ def test_plateau_keeps_the_best_weights_it_checked(tmp_path, monkeypatch):
         return next(errors)
 
     monkeypatch.setattr(module, "_check_loss", scripted)
-    checkpoint = train(synthetic_set(n=12), tmp_path, 80, plateau_settings(), progress=False)
-    best = states[1]  # the 0.5
+    checkpoint = train(synthetic_set(n=12), tmp_path, 80, doubling_settings(), progress=False)
+    best = states[2]  # the 0.5
     for name, value in checkpoint["state_dict"].items():
         assert torch.equal(value, best[name])
 
 
-def test_an_interrupted_plateau_training_resumes_to_the_same_bytes(tmp_path, monkeypatch):
+def test_an_interrupted_doubling_training_resumes_to_the_same_bytes(tmp_path, monkeypatch):
     import threedcal.model.train as module
 
     ts = synthetic_set(n=12)
-    settings = plateau_settings(max_steps=40, patience=3)
+    settings = doubling_settings(min_gain=0.0)  # cycles of 3, 3, 6, 12, 24 steps
     train(ts, tmp_path / "full", 80, settings, progress=False)
-    real = module._train_epoch
+    real = module._optimizer_step
     calls = []
 
-    def crash_on_fourth(*args, **kwargs):
+    def crash_on_step_20(*args, **kwargs):
         calls.append(1)
-        if len(calls) == 4:
+        if len(calls) == 20:  # in the fourth cycle, after three resume checkpoints
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(module, "_train_epoch", crash_on_fourth)
+    monkeypatch.setattr(module, "_optimizer_step", crash_on_step_20)
     monkeypatch.setattr(module, "RESUME_EVERY_S", 0.0)
     with pytest.raises(KeyboardInterrupt):
         train(ts, tmp_path / "resumed", 80, settings, progress=False)
-    assert (tmp_path / "resumed/checkpoint.pt").is_file()
-    monkeypatch.setattr(module, "_train_epoch", real)
+    assert read_checkpoint(tmp_path / "resumed/checkpoint.pt")["steps"] == 12
+    monkeypatch.setattr(module, "_optimizer_step", real)
     train(ts, tmp_path / "resumed", 80, settings, progress=False)
     full, resumed = (read_checkpoint(tmp_path / d / "model.pt") for d in ("full", "resumed"))
     for name, value in full["state_dict"].items():
@@ -190,7 +196,7 @@ def test_an_interrupted_plateau_training_resumes_to_the_same_bytes(tmp_path, mon
 
 def test_twice_the_budget_trains_at_least_twice_the_steps_and_snapshots_the_best(tmp_path):
     ts = synthetic_set(n=12)
-    settings = plateau_settings(max_steps=30)
+    settings = doubling_settings(max_steps=12)
     once = train(ts, tmp_path / "once", 80, settings, progress=False)
     twice = train(
         ts,

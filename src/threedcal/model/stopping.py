@@ -1,16 +1,18 @@
-"""When a training ends: the paper's fixed epochs, or when the error on data it may see stops falling.
+"""When a training ends: the paper's fixed epochs, or when twice the training no longer pays.
 
 `epochs` (the paper's rule, `config/paper.yaml`): epochs_base · 80 / P epochs, whatever the error
 does. A budget says nothing about whether a model has learnt what its data can teach it: the
 ablation then compares how far each model got, not what its data holds.
 
-`plateau`: a share of the model's *own* training coordinates (`holdout`, drawn per replicate) is
-set aside and never trained on; the error on it is checked every `check_every` optimiser steps
-(at the end of the epoch in which the count passes the mark). When `patience` checks in a row
-have not lowered the best error by more than `min_improvement` (relative), the learning rate
-drops by `drop_factor` and training goes on from the best weights; after `lr_drops` drops (or at
-`max_steps`) it stops, and the best weights are the model. The stats stage's validation
-coordinates are never among the checked ones, so the figures it reports chose nothing here.
+`doubling`: a share of the model's *own* training coordinates (`holdout`, drawn per replicate) is
+set aside and never trained on. Training runs in cycles, each a half cosine of the rate from `lr`
+down to lr/100, the first `first_cycle` steps long and every later one as long as all before it, so
+that after each cycle the training has doubled. After each cycle the error on the holdout is
+checked: when a cycle has not lowered the best error by more than `min_gain` (relative), twice the
+training no longer pays and it stops; it also stops once it has taken `max_steps`. The best weights
+checked are the model (for a small fraction that starts to overfit, an early cycle's). The stats
+stage's validation coordinates are never among the checked ones, so the errors it reports chose
+nothing here.
 """
 
 from __future__ import annotations
@@ -23,12 +25,12 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 
-RULES = ("epochs", "plateau")
+RULES = ("epochs", "doubling")
 
 
 def holdout_split(indices: np.ndarray, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(fit, holdout) of a model's training frames: `fraction` of them (at least one, and only
-    when three or more remain to fit on) drawn with the replicate's seed, both sorted."""
+    when two or more remain to fit on) drawn with the replicate's seed, both sorted."""
     indices = np.asarray(indices)
     n_hold = int(round(fraction * len(indices)))
     if fraction > 0:
@@ -40,86 +42,76 @@ def holdout_split(indices: np.ndarray, fraction: float, seed: int) -> tuple[np.n
 
 
 @dataclass
-class Plateau:
-    """The `plateau` rule's state (a resumed training restores it: `state` / `from_state`)."""
+class Doubling:
+    """The `doubling` rule's state (a resumed training restores it: `state` / `from_state`)."""
 
     lr: float
-    check_every: int
-    patience: int
-    min_improvement: float
-    lr_drops: int
-    drop_factor: float
+    first_cycle: int
+    min_gain: float
     max_steps: int
     min_steps: int = 0
+    cycle: int = 0  # cycles finished
+    steps: int = 0  # steps at the end of the last finished cycle
     best: float = math.inf
     best_step: int = 0
-    stale: int = 0  # checks since the best improved by more than min_improvement
-    drops: int = 0
-    next_check: int = 0
     done: bool = False
     reason: str = ""
     history: list = field(default_factory=list)
 
     @classmethod
-    def of(cls, stopping: Mapping, lr: float, scale: float = 1.0, min_steps: int = 0) -> Plateau:
-        """The rule of a scene's `model.stopping`; `scale` stretches its patience and step cap
-        (a longer budget: twice the patience to find an improvement, twice the steps)."""
+    def of(cls, stopping: Mapping, lr: float, scale: float = 1.0, min_steps: int = 0) -> Doubling:
+        """The rule of a scene's `model.stopping`; `scale` stretches its step cap (the
+        convergence check: twice the budget), `min_steps` forbids stopping before that many."""
         if scale <= 0:
             raise ConfigError(f"a stopping rule's budget scale must be positive, got {scale}")
         return cls(
             lr=float(lr),
-            check_every=int(stopping["check_every"]),
-            patience=max(1, int(round(stopping["patience"] * scale))),
-            min_improvement=float(stopping["min_improvement"]),
-            lr_drops=int(stopping["lr_drops"]),
-            drop_factor=float(stopping["drop_factor"]),
+            first_cycle=int(stopping["first_cycle"]),
+            min_gain=float(stopping["min_gain"]),
             max_steps=int(round(stopping["max_steps"] * scale)),
             min_steps=int(min_steps),
-            next_check=int(stopping["check_every"]),
         )
 
-    @property
-    def current_lr(self) -> float:
-        return self.lr * self.drop_factor**self.drops
+    def next_cycle(self) -> int:
+        """Steps of the cycle to come: the first's, then as many as all before it; cut at
+        max_steps (and stretched to reach min_steps when that is what keeps it going)."""
+        length = self.first_cycle if self.cycle == 0 else self.steps
+        cap = max(self.max_steps, self.min_steps)
+        return max(1, min(length, cap - self.steps))
 
-    def due(self, step: int) -> bool:
-        return step >= self.next_check or step >= self.max_steps
+    def lr_at(self, step_in_cycle: int, length: int) -> float:
+        """A half cosine from lr to lr/100 over the cycle, step by step."""
+        floor = self.lr / 100
+        return floor + (self.lr - floor) * 0.5 * (1 + math.cos(math.pi * step_in_cycle / length))
 
-    def observe(self, step: int, error: float) -> tuple[bool, bool]:
-        """Take the holdout error at `step`: (improved: keep these weights as the best,
-        dropped: the rate fell, go on from the best weights)."""
+    def observe(self, steps: int, error: float) -> bool:
+        """Take the holdout error after a cycle that ended at `steps`: True when these weights
+        are the best so far (keep them)."""
         if not math.isfinite(error):
-            raise ConfigError(f"the holdout error at step {step} is {error}")
-        self.next_check = step + self.check_every
-        self.history.append([int(step), float(error)])
+            raise ConfigError(f"the holdout error after {steps} steps is {error}")
+        self.history.append([int(steps), float(error)])
+        gained = error < self.best * (1 - self.min_gain)
         improved = error < self.best
-        if error < self.best * (1 - self.min_improvement):
-            self.stale = 0
-        else:
-            self.stale += 1
+        self.cycle, self.steps = self.cycle + 1, int(steps)
         if improved:
-            self.best, self.best_step = float(error), int(step)
-        dropped = False
-        if step >= self.max_steps and step >= self.min_steps:
+            self.best, self.best_step = float(error), int(steps)
+        if steps < self.min_steps:
+            return improved
+        if steps >= max(self.max_steps, self.min_steps):
             self.done, self.reason = True, f"reached max_steps ({self.max_steps})"
-        elif self.stale >= self.patience and step >= self.min_steps:
-            if self.drops >= self.lr_drops:
-                self.done = True
-                self.reason = (
-                    f"the holdout error stopped falling ({self.patience} checks without a "
-                    f"{self.min_improvement:.0%} gain after {self.drops} learning-rate drops)"
-                )
-            else:
-                self.drops += 1
-                self.stale = 0
-                dropped = True
-        return improved, dropped
+        elif not gained:
+            self.done = True
+            self.reason = (
+                f"doubling the training to {steps} steps lowered the holdout error by less "
+                f"than {self.min_gain:.0%}"
+            )
+        return improved
 
     def state(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
     @classmethod
-    def from_state(cls, state: Mapping) -> Plateau:
+    def from_state(cls, state: Mapping) -> Doubling:
         return cls(**{k: state[k] for k in cls.__dataclass_fields__ if k in state})
 
 

@@ -48,7 +48,7 @@ from threedcal.model.presets import (
     preferred_memory_format,
     preset_args,
 )
-from threedcal.model.stopping import Plateau, check_rule, holdout_split
+from threedcal.model.stopping import Doubling, check_rule, holdout_split
 from threedcal.schema import load_schema, section
 
 RESUME_NAME = "checkpoint.pt"
@@ -301,7 +301,7 @@ class _Job:
 
 
 def _plan_job(ts, percent, replicate, settings, device, precision) -> _Job:
-    """Which frames train and which are checked: under `plateau` a holdout of the model's own
+    """Which frames train and which are checked: under `doubling` a holdout of the model's own
     training frames; under `epochs` (the paper's) the trainer logs the validation split's loss."""
     train_idx = ts.indices("train", percent=percent, replicate=replicate)
     if len(train_idx) == 0:
@@ -309,7 +309,7 @@ def _plan_job(ts, percent, replicate, settings, device, precision) -> _Job:
             f"P={percent}, replicate {replicate}: no training frames in this dataset's split"
         )
     check_rule(settings.stopping)
-    if settings.stopping["rule"] == "plateau":
+    if settings.stopping["rule"] == "doubling":
         fit_idx, check_idx = holdout_split(train_idx, settings.stopping["holdout"], settings.seed)
         if len(check_idx) == 0:  # too few frames to hold any out: judged on what it fits
             check_idx = fit_idx
@@ -340,7 +340,7 @@ def train(
 
     Replicate r trains on its own nested subset (TrainingSet.indices) with the seed
     replicate_seed(settings.seed, r): replicate 0 is the scene seed itself. `budget_scale` and
-    `min_steps` lengthen a `plateau` rule (the convergence check trains twice the budget), and
+    `min_steps` lengthen a `doubling` rule (the convergence check trains twice the budget), and
     `snapshot_every` > 0 writes the best weights so far to out_dir/snapshots/ every that many
     checks (the error-against-time curve). Returns the checkpoint.
     """
@@ -365,9 +365,9 @@ def train(
     key = _resume_key(settings, percent, replicate, ts, run)
     if not is_learned(settings.preset):
         rows, stopped = _fit_lookup(model, job), {"epochs": 1, "steps": 0, "reason": "fitted"}
-    elif settings.stopping["rule"] == "plateau":
-        rule = Plateau.of(settings.stopping, settings.lr, budget_scale, min_steps)
-        rows, stopped = _run_plateau(
+    elif settings.stopping["rule"] == "doubling":
+        rule = Doubling.of(settings.stopping, settings.lr, budget_scale, min_steps)
+        rows, stopped = _run_doubling(
             model, job, rule, out_dir, key, progress, (percent, replicate), snapshot_every
         )
     else:
@@ -384,7 +384,7 @@ def train(
         precision=precision,
         machine=describe_machine(),
         fit_frames=int(len(job.fit_idx)),
-        holdout_frames=int(len(job.check_idx)) if settings.stopping["rule"] == "plateau" else 0,
+        holdout_frames=int(len(job.check_idx)) if settings.stopping["rule"] == "doubling" else 0,
     )
     save_checkpoint(out_dir / "model.pt", final)
     write_losses(out_dir / "losses.csv", rows)
@@ -474,61 +474,86 @@ def _run_epochs(model, job: _Job, epochs, out_dir, key, progress, job_id, snapsh
     return rows, {"epochs": epochs, "steps": steps, "reason": f"{epochs} epochs (the budget)"}
 
 
-def _run_plateau(model, job: _Job, rule: Plateau, out_dir, key, progress, job_id, snapshot_every):
-    """Epochs until the rule stops; the best weights on the holdout are the model."""
-    settings = job.settings
+def _epoch_windows(job: _Job, epoch: int) -> list:
+    """Epoch `epoch`'s training windows in the order they are trained (seeded by (seed, epoch))."""
+    rng = np.random.default_rng([job.settings.seed, epoch])
+    torch.manual_seed(job.settings.seed * 1_000_003 + epoch)
+    windows = sample_windows(job.ts, job.fit_idx, job.settings, rng)
+    order = rng.permutation(len(windows))
+    return [windows[k] for k in order]
+
+
+def _stream(job: _Job, epoch: int, offset: int):
+    """(epoch, batch, batches in the epoch, x, y) from batch `offset` of `epoch` on, epoch after
+    epoch: the same stream whether or not a run was interrupted and resumed in between."""
+    size = job.settings.batch_size
+    while True:
+        windows = _epoch_windows(job, epoch)
+        batches = -(-len(windows) // size)
+        for batch in range(offset, batches):
+            chunk = windows[batch * size : (batch + 1) * size]
+            (x, y), *_ = _batches(job.ts, chunk, size, job.inputs)
+            yield epoch, batch, batches, x, y
+        epoch, offset = epoch + 1, 0
+
+
+def _run_doubling(model, job: _Job, rule: Doubling, out_dir, key, progress, job_id, snapshot_every):
+    """Cosine cycles, each as long as all before it, until one no longer pays on the holdout;
+    the best weights checked are the model."""
     percent, replicate = job_id
-    optimizer = _optimizer(model, settings)
-    rows: list[dict] = []
-    epoch, steps = 0, 0
+    optimizer = _optimizer(model, job.settings)
     best = _cpu_state(model)
+    epoch, offset = 1, 0
     state = _resume(out_dir, key, model, optimizer)
     if state is not None:
-        rows, epoch, steps = list(state["losses"]), int(state["epoch"]), int(state["steps"])
-        rule, best = Plateau.from_state(state["rule"]), dict(state["best"])
-    else:  # where it starts: the initial (pretrained or fresh) weights' own error
+        rows, best = list(state["losses"]), dict(state["best"])
+        rule = Doubling.from_state(state["rule"])
+        epoch, offset = int(state["epoch"]), int(state["offset"])
+        torch.set_rng_state(state["torch_rng"])
+    else:  # where it starts: the initial (pretrained or fresh) weights' own holdout error
         rule.best = _check_loss(model, job)
-        rows.append(_row(0, 0, float("nan"), rule.best, 0.0, rule.current_lr))
+        rows = [_row(0, 0, float("nan"), rule.best, 0.0, rule.lr)]
+    cap = max(rule.max_steps, rule.min_steps)
     bar = tqdm(
-        total=rule.max_steps,
-        initial=min(steps, rule.max_steps),
-        desc=f"train P{percent} r{replicate}",
-        unit="step",
-        disable=not progress,
+        total=cap, initial=rule.steps, desc=f"train {job.name}", unit="step", disable=not progress
     )
+    stream = _stream(job, epoch, offset)
     last_saved = time.monotonic()
-    began = time.perf_counter()
     while not rule.done:
-        epoch += 1
-        rng = np.random.default_rng([settings.seed, epoch])
-        torch.manual_seed(settings.seed * 1_000_003 + epoch)
-        for group in optimizer.param_groups:
-            group["lr"] = rule.current_lr
-        train_loss, batches = _guarded_epoch(model, job, rng, optimizer, None, epoch)
-        steps += batches
-        bar.update(min(steps, rule.max_steps) - bar.n)
-        if not rule.due(steps):
-            continue
-        error = _check_loss(model, job)
-        improved, dropped = rule.observe(steps, error)
-        if improved:
+        length, began = rule.next_cycle(), time.perf_counter()
+        total, count = 0.0, 0
+        for step in range(length):
+            epoch, batch, batches, x, y = next(stream)
+            total += _guarded_step(model, job, optimizer, x, y, rule.lr_at(step, length), epoch)
+            count += len(x)
+            bar.update(1)
+        if rule.observe(rule.steps + length, _check_loss(model, job)):
             best = _cpu_state(model)
-        if dropped:  # go on from the best weights at the lower rate
-            model.load_state_dict(best)
-        rows.append(_row(epoch, steps, train_loss, error, _since(began), rule.current_lr))
-        began = time.perf_counter()
-        bar.set_postfix(check=f"{error:.4g}", best=f"{rule.best:.4g}", drops=rule.drops)
-        if snapshot_every and len(rule.history) % snapshot_every == 0:
-            _snapshot(out_dir, job, model, best, (job_id, epoch, steps))
+        position = round(epoch - 1 + (batch + 1) / batches, 3)
+        rows.append(
+            _row(position, rule.steps, total / count, rule.history[-1][1], _since(began), rule.lr)
+        )
+        bar.set_postfix(check=f"{rule.history[-1][1]:.4g}", best=f"{rule.best:.4g}")
+        if snapshot_every and rule.cycle % snapshot_every == 0:
+            _snapshot(out_dir, job, model, best, (job_id, epoch, rule.steps))
+        epoch, offset = (epoch + 1, 0) if batch + 1 == batches else (epoch, batch + 1)
+        stream = _stream(job, epoch, offset)
         if not rule.done and time.monotonic() - last_saved >= RESUME_EVERY_S:
-            extra = {"epoch": epoch, "steps": steps, "rule": rule.state(), "best": best}
+            extra = {
+                "epoch": epoch,
+                "offset": offset,
+                "steps": rule.steps,
+                "rule": rule.state(),
+                "best": best,
+                "torch_rng": torch.get_rng_state(),
+            }
             _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra)
             last_saved = time.monotonic()
     bar.close()
     model.load_state_dict(best)
-    if snapshot_every:
-        _snapshot(out_dir, job, model, best, (job_id, epoch, steps))
-    return rows, {"epochs": epoch, "steps": steps, "reason": rule.reason}
+    if snapshot_every and rule.cycle % snapshot_every:
+        _snapshot(out_dir, job, model, best, (job_id, epoch, rule.steps))
+    return rows, {"epochs": epoch, "steps": rule.steps, "reason": rule.reason}
 
 
 def _since(began: float) -> float:
@@ -556,10 +581,35 @@ def _guarded_epoch(model, job: _Job, rng, optimizer, position, epoch) -> tuple[f
             job.precision,
         )
     except TrainingError as exc:
-        raise TrainingError(
-            f"training {job.name} ({job.settings.preset}), epoch {epoch}: {exc}; "
-            + _divergence_hint(job.precision)
-        ) from None
+        raise _job_error(job, epoch, exc) from None
+
+
+def _guarded_step(model, job: _Job, optimizer, x, y, lr: float, epoch: int) -> float:
+    """One optimiser step at rate `lr`: the batch's loss times its size."""
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+    try:
+        value = _optimizer_step(
+            model,
+            job.ts,
+            job.settings,
+            job.device,
+            optimizer,
+            job.normalisation,
+            x,
+            y,
+            job.precision,
+        )
+    except TrainingError as exc:
+        raise _job_error(job, epoch, TrainingError(f"the loss of a batch is {exc}")) from None
+    return value * len(x)
+
+
+def _job_error(job: _Job, epoch: int, exc: TrainingError) -> TrainingError:
+    return TrainingError(
+        f"training {job.name} ({job.settings.preset}), epoch {epoch}: {exc}; "
+        + _divergence_hint(job.precision)
+    )
 
 
 def _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra) -> None:
@@ -614,35 +664,47 @@ def _train_epoch(
     position,
     precision="float32",
 ) -> tuple[float, int]:
-    """One pass over patches of the training frames: (mean loss, optimiser steps). `position`
-    (epoch, epochs) schedules the rate per batch (the `epochs` rule); None keeps the optimiser's."""
+    """One pass over patches of the training frames: (mean loss, optimiser steps); the rate
+    scheduled per batch over (epoch, epochs) = `position` (the `epochs` rule)."""
     windows = sample_windows(ts, train_idx, settings, rng)
     order = rng.permutation(len(windows))
     windows = [windows[k] for k in order]
-    model.train()
     total, count = 0.0, 0
-    sign = normalisation["gradient_sign"]
-    layout = preferred_memory_format(model)
     batches = -(-len(windows) // settings.batch_size)
     for batch, (x, y) in enumerate(_batches(ts, windows, settings.batch_size, inputs)):
-        if position is not None:
-            for group in optimizer.param_groups:
-                group["lr"] = scheduled_lr(settings, *position, batch, batches)
-        x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
-        x = x.contiguous(memory_format=layout)
-        y = y.to(device)
-        optimizer.zero_grad(set_to_none=True)
-        with training_autocast(precision, device):
-            prediction = model(x)
-        loss = gradient_loss(prediction.float() * sign, y, settings.loss)
-        value = float(loss.detach())
-        if not math.isfinite(value):
-            raise TrainingError(f"the loss of batch {batch + 1} is {value}")
-        loss.backward()
-        optimizer.step()
+        for group in optimizer.param_groups:
+            group["lr"] = scheduled_lr(settings, *position, batch, batches)
+        try:
+            value = _optimizer_step(
+                model, ts, settings, device, optimizer, normalisation, x, y, precision
+            )
+        except TrainingError as exc:
+            raise TrainingError(f"the loss of batch {batch + 1} is {exc}") from None
         total += value * len(x)
         count += len(x)
     return total / count, batches
+
+
+def _optimizer_step(
+    model, ts, settings, device, optimizer, normalisation, x, y, precision
+) -> float:
+    """Forward, loss, backward and update on one batch; the loss (a TrainingError holding the
+    value where it is not finite)."""
+    model.train()
+    x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
+    x = x.contiguous(memory_format=preferred_memory_format(model))
+    optimizer.zero_grad(set_to_none=True)
+    with training_autocast(precision, device):
+        prediction = model(x)
+    loss = gradient_loss(
+        prediction.float() * normalisation["gradient_sign"], y.to(device), settings.loss
+    )
+    value = float(loss.detach())
+    if not math.isfinite(value):
+        raise TrainingError(str(value))
+    loss.backward()
+    optimizer.step()
+    return value
 
 
 def _divergence_hint(precision: str) -> str:
