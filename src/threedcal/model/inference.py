@@ -74,7 +74,8 @@ class DepthEstimator:
         self.drift = self.normalisation.get("drift", "none")  # checkpoints before the drift step
         if blank is None and checkpoint.get("blank") is None:
             raise ConfigError(
-                "this checkpoint carries no blank frame (the authors' weights): pass blank="
+                "this checkpoint carries no blank frame (the authors' weights, the shipped "
+                "pretrained ones): pass blank="
             )
         camera = checkpoint.get("camera") or {}
         self.lens = RadialLens.from_record(camera.get("lens"))

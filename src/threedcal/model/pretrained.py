@@ -100,6 +100,12 @@ def pretrain(
     )
     out_dir = Path(out_dir)
     checkpoint = train(trainset, out_dir, 80, settings, progress)
+    # A unit's blank means nothing to another unit: a calibration brings its own. Without it
+    # the shipped file is the weights and their record, a few tens of KB.
+    from threedcal.model.checkpoint import save_checkpoint
+
+    checkpoint["blank"] = None
+    save_checkpoint(out_dir / "model.pt", checkpoint)
     record = {
         "sensor": sensor,
         "image_shape": list(trainset.image_shape),
