@@ -76,11 +76,8 @@ def pretrained_input(wildcards):
     scene = config["scenes"][wildcards.scene]
     if (scene.get("model") or {}).get("init") != "pretrained":
         return {}
-    from threedcal.model.pretrained import SHIPPED_DIR
+    from threedcal.model.pretrained import shipped_weights
     from threedcal.profiles import load_profile
 
-    return {
-        "pretrained": str(
-            SHIPPED_DIR / f"{load_profile('sensor', scene['sensor'])['name']}.pt"
-        )
-    }
+    sensor = load_profile("sensor", scene["sensor"])["name"]
+    return {"pretrained": str(shipped_weights(sensor))}  # a clear error when missing

@@ -423,3 +423,29 @@ def test_two_test_objects_of_one_name_are_refused_naming_both_keys(tmp_path):
         f"  scenes.s.objects[2]: {str(mine)!r} has the name 'pill', as objects[0] has; "
         "rename one file",
     ]
+
+
+def test_scenes_that_share_a_yaml_alias_are_separate_after_validation(tmp_path):
+    from threedcal.config import load_config
+
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "scenes:\n"
+        "  a: {sensor: gelsight_mini, import: {format: ball_folder, path: x}, model: &m {lr: 0.01}}\n"
+        "  b: {sensor: gelsight_mini, import: {format: ball_folder, path: y}, model: *m}\n"
+    )
+    config = load_config(path)
+    config["scenes"]["a"]["model"]["lr"] = 0.5
+    assert config["scenes"]["b"]["model"]["lr"] == 0.01
+
+
+def test_config_check_refuses_pretrained_weights_for_a_sensor_without_them(tmp_path):
+    from threedcal.config import validate_config
+    from threedcal.errors import ConfigError
+
+    scene = {"sensor": "digit", "printer": "ender3", "model": {"init": "pretrained"}}
+    validate_config({"scenes": {"s": scene}})  # the workflow finds them when it plans a training
+    with pytest.raises(
+        ConfigError, match=r"scenes.s.model.init: pretrained: no pretrained weights"
+    ):
+        validate_config({"scenes": {"s": scene}}, check_files=True)

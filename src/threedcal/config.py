@@ -50,6 +50,8 @@ def validate_config(config: Mapping, source: str = "config", *, check_files: boo
     if problems:
         raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
     config = copy.deepcopy(dict(config))
+    # each scene its own copy: a YAML alias (`model: *finetune`) would otherwise share one dict
+    config["scenes"] = {name: copy.deepcopy(scene) for name, scene in config["scenes"].items()}
     fill_defaults(config, schema)
     for scene in config["scenes"].values():
         scene["ablation"] = normalise_ablation(scene.get("ablation"))
@@ -103,7 +105,8 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         printer = load_profile("printer", scene["printer"]) if scene.get("printer") else None
     except ConfigError as exc:
         return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
-    if (scene.get("model") or {}).get("init") == "pretrained":
+    if check_files and (scene.get("model") or {}).get("init") == "pretrained":
+        # (the workflow finds them when it plans a training: `make pretrained` builds them)
         from threedcal.model.pretrained import shipped_weights
 
         try:
