@@ -242,7 +242,8 @@ def _live(args: argparse.Namespace) -> int:
         print("no frames")
         return 1
     print(
-        f"{len(times)} frames, depth at {len(times) / sum(times):.1f} frames/s ({estimator.preset})"
+        f"{len(times)} frames, depth at {len(times) / sum(times):.1f} frames/s ({estimator.preset}, "
+        f"{estimator.describe_runtime()})"
     )
     if args.points:
         print(f"wrote {len(times)} point clouds ({args.frame_of} frame) to {args.points}")

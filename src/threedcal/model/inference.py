@@ -131,6 +131,12 @@ class DepthEstimator:
             raise ConfigError(f"a blank must be one (H, W, 3) frame, got {np.shape(frame)}")
         self._blank = torch.from_numpy(blank).permute(2, 0, 1).to(self.device)
 
+    def describe_runtime(self) -> str:
+        """How this machine runs the model: device, threads, memory layout, arithmetic."""
+        layout = "channels-last" if self.memory_format == torch.channels_last else "NCHW"
+        threads = f"{torch.get_num_threads()} threads, " if self.device.type == "cpu" else ""
+        return f"{self.device.type}, {threads}{layout}, float32"
+
     def rectify(self, frames: np.ndarray) -> np.ndarray:
         """Camera frames (H, W, 3) or (N, H, W, 3), as the sensor streams them → this model's input:
         resampled through the lens the dataset stage fitted (threedcal.lens) and pooled to the
