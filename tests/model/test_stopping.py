@@ -27,6 +27,10 @@ def test_holdout_is_a_seeded_share_of_the_models_own_frames_and_none_when_too_fe
     assert len(holdout_split(frames[:5], 0.2, seed=0)[1]) == 1  # at least one
     fit, hold = holdout_split(frames[:2], 0.2, seed=0)  # two frames: both train
     assert len(hold) == 0 and len(fit) == 2
+    # several frames a coordinate: a coordinate is held out whole
+    points = np.repeat(np.arange(10), 2)
+    fit, hold = holdout_split(frames, 0.2, seed=3, points=points)
+    assert len(hold) == 4 and set(points[hold - 100]).isdisjoint(points[fit - 100])
 
 
 def test_doubling_cycles_double_the_training_and_stop_when_a_cycle_no_longer_pays():
@@ -137,7 +141,8 @@ def test_doubling_training_never_fits_its_holdout_and_says_why_it_stopped(tmp_pa
     checkpoint = train(ts, tmp_path, 80, doubling_settings(), progress=False)
     training = checkpoint["training"]
     assert training["holdout_frames"] == 2 and training["fit_frames"] == 8
-    _, hold = holdout_split(ts.indices("train", percent=80), 0.2, 5)
+    train_idx = ts.indices("train", percent=80)
+    _, hold = holdout_split(train_idx, 0.2, 5, ts.point[train_idx])
     trained = [idx for idx in fitted if idx != set(hold)]  # the holdout's own check windows aside
     assert trained and all(not (idx & set(hold)) for idx in trained)
     assert all(not (idx & {10, 11}) for idx in fitted)  # nor the stats stage's validation frames

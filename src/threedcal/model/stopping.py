@@ -28,17 +28,24 @@ from threedcal.errors import ConfigError
 RULES = ("epochs", "doubling")
 
 
-def holdout_split(indices: np.ndarray, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(fit, holdout) of a model's training frames: `fraction` of them (at least one, and only
-    when two or more remain to fit on) drawn with the replicate's seed, both sorted."""
+def holdout_split(
+    indices: np.ndarray, fraction: float, seed: int, points: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(fit, holdout) of a model's training frames, both sorted: `fraction` of its probe
+    coordinates (`points`, one per frame; None: each frame its own), at least one, and only when
+    two or more remain to fit on, drawn with the replicate's seed. Every frame of a held-out
+    coordinate is held out, so no pressed spot is both fitted and judged."""
     indices = np.asarray(indices)
-    n_hold = int(round(fraction * len(indices)))
+    points = indices if points is None else np.asarray(points)
+    coordinates = np.unique(points)
+    n_hold = int(round(fraction * len(coordinates)))
     if fraction > 0:
         n_hold = max(n_hold, 1)
-    if len(indices) - n_hold < 2 or n_hold == 0:
+    if len(coordinates) - n_hold < 2 or n_hold == 0:
         return np.sort(indices), indices[:0]
-    order = np.random.default_rng([int(seed), 0x5EED]).permutation(len(indices))
-    return np.sort(indices[order[n_hold:]]), np.sort(indices[order[:n_hold]])
+    order = np.random.default_rng([int(seed), 0x5EED]).permutation(len(coordinates))
+    held = np.isin(points, coordinates[order[:n_hold]])
+    return np.sort(indices[~held]), np.sort(indices[held])
 
 
 @dataclass

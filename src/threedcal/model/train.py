@@ -310,7 +310,9 @@ def _plan_job(ts, percent, replicate, settings, device, precision) -> _Job:
         )
     check_rule(settings.stopping)
     if settings.stopping["rule"] == "doubling":
-        fit_idx, check_idx = holdout_split(train_idx, settings.stopping["holdout"], settings.seed)
+        fit_idx, check_idx = holdout_split(
+            train_idx, settings.stopping["holdout"], settings.seed, ts.point[train_idx]
+        )
         if len(check_idx) == 0:  # too few frames to hold any out: judged on what it fits
             check_idx = fit_idx
     else:
