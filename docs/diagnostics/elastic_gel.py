@@ -250,7 +250,8 @@ def contact() -> None:
 def locators() -> None:
     """The dataset stage's contact locators (rim, mirror symmetry) on Mini frames of a ball 1 mm deep
     at 20 known sub-pixel centres (5 columns x 4 rows), each gel: error found - true, px."""
-    from threedcal.dataset.registration import locate_contact, refine_by_symmetry
+    from threedcal.dataset.contacts import locate_contact
+    from threedcal.dataset.symmetry import refine_by_symmetry
 
     for mechanics in ("geometric", "elastic"):
         profile = copy.deepcopy(load_profile("sensor", "gelsight_mini"))
