@@ -29,8 +29,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from threedcal.evaluate.object_presses import relief_indenter  # noqa: E402
 from threedcal.evaluate.objects import load_object  # noqa: E402
-from threedcal.evaluate.pressing import relief_indenter  # noqa: E402
 from threedcal.profiles import load_profile, with_gel_mechanics  # noqa: E402
 from threedcal.sim.camera import LensedGel, make_gel  # noqa: E402
 from threedcal.sim.indenters import Sphere  # noqa: E402

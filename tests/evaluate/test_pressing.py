@@ -18,23 +18,20 @@ from threedcal.evaluate.object_errors import (
     mean_interval,
     printer_press,
 )
+from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
+from threedcal.evaluate.object_scores import evaluate_objects, summarise
 from threedcal.evaluate.objects import load_object, make_object
-from threedcal.evaluate.pressing import (
+from threedcal.evaluate.press_plan import (
     SETS,
     Mount,
     PrinterFrame,
-    TruthGradients,
-    evaluate_objects,
     plan_presses,
-    press_objects,
     pressing_seed,
-    read_presses,
     read_registration,
-    relief_indenter,
     session_draws,
-    summarise,
     true_mount,
 )
+from threedcal.evaluate.truth_gradients import TruthGradients
 from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -188,3 +188,25 @@ def _save(fig, path: str | Path) -> Path:
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def plot_pill_by_fraction(maps: Mapping[int, np.ndarray], path: str | Path) -> None:
+    """Fig. 3C: the pill's predicted depth for every training fraction P."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fractions = sorted(maps)
+    vmax = max(float(np.nanmax(m)) for m in maps.values()) or 1.0
+    fig, axes = plt.subplots(
+        1, len(fractions), figsize=(2.2 * len(fractions), 3.0), dpi=110, squeeze=False
+    )
+    for ax, p in zip(axes[0], fractions, strict=True):
+        shown = ax.imshow(maps[p], cmap="viridis", vmin=0, vmax=vmax)
+        ax.set_title(f"P = {p} %", fontsize=9)
+        ax.axis("off")
+    fig.colorbar(shown, ax=axes[0].tolist(), shrink=0.8, label="depth (mm)")
+    fig.suptitle("pill: predicted depth by training fraction (first reporting press)")
+    fig.savefig(path)
+    plt.close(fig)

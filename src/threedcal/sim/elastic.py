@@ -479,7 +479,7 @@ def solve_contact(
 
 
 @dataclass
-class Press:
+class ElasticPress:
     """One solved press. Its node lattice is centred on the indenter: node (i, j) sits at
     (x0 + j s, y0 + i s) mm with (x0, y0) = `origin_mm`, so the discretisation is symmetric about
     the axis wherever the press sits. `domain` = (row0, col0) of the pressure grid's first node."""
@@ -576,7 +576,7 @@ class ElasticGel:
         self.max_iter = int(max_iter)
         self._tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def press(self, interference, bounds_mm, origin_mm=(0.0, 0.0)) -> Press | None:
+    def press(self, interference, bounds_mm, origin_mm=(0.0, 0.0)) -> ElasticPress | None:
         """Solve the contact of the indenter `interference` confined to `bounds_mm` (x0, x1, y0, y1)
         on the lattice through `origin_mm`.
 
@@ -615,7 +615,7 @@ class ElasticGel:
             result = solve_contact(
                 self.kernel, w, initial=initial, tol=self.tol, max_iter=self.max_iter
             )
-            solved = Press(self, origin, domain, result, interference)
+            solved = ElasticPress(self, origin, domain, result, interference)
             needed = rise * result.force_n
             if margin >= needed or sub == (0, w_all.shape[0], 0, w_all.shape[1]):
                 break
@@ -654,7 +654,7 @@ class ElasticGel:
         return float(r[above[-1]]) if above.size else 0.0
 
 
-def _placed(previous: Press, domain: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+def _placed(previous: ElasticPress, domain: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
     """The previous pressure moved onto a new domain of the same lattice (zero where it had none)."""
     out = np.zeros(shape)
     r0, c0 = previous.domain
