@@ -10,7 +10,7 @@ import torch
 from conftest import DATA, write_untrained_model
 
 from threedcal.cli import main
-from threedcal.dataset.importers import read_rgb
+from threedcal.images import read_rgb
 from threedcal.depth import integrate
 from threedcal.model.checkpoint import (
     AUTHORS_NORMALISATION,

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.images import read_rgb
 
 CHANNELS = "RGB"
 TOLERANCE = {
@@ -96,15 +97,6 @@ class BallDataset:
 
     def read(self, name: str) -> np.ndarray:
         return read_rgb(self.root / name)
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ConfigError(f"{path}: cannot read as an image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def load_ball_dataset(root: str | Path) -> BallDataset:
