@@ -16,7 +16,7 @@ from threedcal.sim.realism import (
     BallLabel,
     halo_radii,
     load_ball_dataset,
-    locate_contact,
+    locate_ball,
 )
 
 W, H, PX_PER_MM, BALL_MM = 160, 200, 12.0, 2.35
@@ -145,11 +145,11 @@ def test_halo_radii_of_a_sharp_disc_are_its_edge_blurred():
     # the contact magnitude is blurred by sigma 2: half height at the edge, 10 % at +1.28 sigma
     assert r50 == pytest.approx(20.5, abs=0.6)
     assert r10 - r50 == pytest.approx(1.2816 * 2, abs=0.6)
-    found = locate_contact(img, bg, 25.0, "disc")
+    found = locate_ball(img, bg, 25.0, "disc")
     assert found.center_px == pytest.approx((70.0, 60.0), abs=0.1) and found.located
     assert found.radius_px == pytest.approx(20.0, abs=0.7)
     with pytest.raises(ConfigError, match="blank: no contact found"):
-        locate_contact(bg, bg, 25.0, "blank")
+        locate_ball(bg, bg, 25.0, "blank")
 
 
 def test_background_field_is_the_polynomial_it_names():

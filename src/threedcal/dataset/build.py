@@ -59,10 +59,9 @@ def build_imported(
 def _registration_figure(
     trainset: TrainingSet, samples: list[int], path: str | Path, title: str
 ) -> None:
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, len(samples), figsize=(2.4 * len(samples), 3.4), dpi=110)
     for ax, i in zip(np.atleast_1d(axes), samples, strict=True):

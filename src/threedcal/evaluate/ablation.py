@@ -637,10 +637,11 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     """Each P against P = 80: ratio of mean validation MSE with the paired (1 - alpha) and TOST
     (1 - 2 alpha) intervals, the margin shaded, each replicate's paper-family ratio as a dot
     (filled where both of the paper's tests are significant)."""
-    import matplotlib
+    from matplotlib import ticker
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from threedcal.plotting import pyplot
+
+    plt = pyplot()
 
     paired = tests[tests["family"] == "paired"].set_index("P").sort_index()
     equivalence = tests[tests["family"] == "equivalence"].set_index("P")
@@ -716,15 +717,11 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     nice = [0.2, 0.25, 0.5, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2, 3, 5, 10, 20]
     if high / low > 3:  # on a wide axis the small steps crowd the 0 %; the shaded band shows them
         nice = [v for v in nice if v not in (0.25, 0.75, 0.9, 1.1, 1.25)]
-    ax.yaxis.set_major_locator(
-        matplotlib.ticker.FixedLocator([v for v in nice if low <= v <= high])
-    )
+    ax.yaxis.set_major_locator(ticker.FixedLocator([v for v in nice if low <= v <= high]))
     ax.yaxis.set_major_formatter(
-        matplotlib.ticker.FuncFormatter(
-            lambda v, _: f"{(v - 1) * 100:+,.0f} %" if v != 1 else "0 %"
-        )
+        ticker.FuncFormatter(lambda v, _: f"{(v - 1) * 100:+,.0f} %" if v != 1 else "0 %")
     )
-    ax.yaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    ax.yaxis.set_minor_locator(ticker.NullLocator())
     ax.set_xticks(x, [f"P = {p} %" for p in fractions])
     ax.set(ylabel="change of mean validation MSE against P = 80 %", title=title)
     comparison = family_comparison(tests).set_index("P")

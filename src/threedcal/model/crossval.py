@@ -475,10 +475,9 @@ def cv_figure(
     tables: Mapping[str, pd.DataFrame], summary: Mapping, path: str | Path, title: str
 ) -> None:
     """Per-image errors of every method (dots) with the pooled figure and its 95 % interval (bar)."""
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
     names = list(tables)

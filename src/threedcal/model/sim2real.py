@@ -464,10 +464,9 @@ def summarise_k(
 def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
     """Error against k (log axis; 'all' at the mean training-set size), both conditions with their
     95 % intervals, and the scene's own model as a band."""
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     pooled_rows = errors[errors["fold"] == "all"]
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")

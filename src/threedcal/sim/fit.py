@@ -29,7 +29,7 @@ Not fitted (kept from the profile): wrap, cast shadows, paint texture, the gel's
 mechanics, per-frame flicker (one frame per press here: no repeated frames of a hold to see it).
 
 A contact's place and size come from the dataset's labels, or, in an unlabelled folder, from the
-frame minus the background (`realism.locate_contact`); the ball's depth is then the one whose
+frame minus the background (`realism.locate_ball`); the ball's depth is then the one whose
 geometric contact radius is that radius.
 """
 

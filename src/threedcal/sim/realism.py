@@ -79,7 +79,7 @@ class BallLabel:
     image: str
     center_px: tuple[float, float]
     radius_px: float
-    located: bool = False  # True: found in frame minus background (locate_contact), not labelled
+    located: bool = False  # True: found in frame minus background (locate_ball), not labelled
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,7 @@ def load_ball_dataset(root: str | Path) -> BallDataset:
         names = sorted(p.name for p in root.glob("*.png") if p.name != "background.png")
         if not names:
             raise ConfigError(f"{root}: no contact images (*.png besides background.png)")
-        located = [locate_contact(read_rgb(root / n), bg, ball_mm * scale, n) for n in names]
+        located = [locate_ball(read_rgb(root / n), bg, ball_mm * scale, n) for n in names]
         return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], located, False)
     labels = []
     try:
@@ -258,10 +258,14 @@ def halo_radii(img, background, center_px, ball_radius_px: float) -> tuple[float
     return out[0], out[1]
 
 
-def locate_contact(img, background, ball_radius_px: float, name: str = "") -> BallLabel:
-    """A contact found in an unlabelled frame: the largest region where the contact magnitude
-    exceeds half its 99.9th percentile, holes filled; centre its centroid, radius that of the disc
-    of its area. Raises ConfigError when the frame shows no contact above the noise."""
+def locate_ball(img, background, ball_radius_px: float, name: str = "") -> BallLabel:
+    """A ball's label found in an unlabelled real frame: the largest region where the contact
+    magnitude exceeds half its 99.9th percentile, holes filled; centre its centroid, radius that of
+    the disc of its area. Raises ConfigError when the frame shows no contact above the noise.
+
+    Not the registration's locator (threedcal.dataset.contacts): this one works on the change less
+    the frame's lighting drift (real frames drift from their background shot) and is what the
+    realism table and the optics fit were measured with; the registration's refines the rim."""
     import cv2
 
     m = contact_magnitude(img, background)
@@ -367,7 +371,7 @@ def compare(
         )
         seen = label
         if label.located:  # find the rendered contact the way the real one was found
-            seen = locate_contact(frame, sim_bg, ball_px, f"render of {label.image}")
+            seen = locate_ball(frame, sim_bg, ball_px, f"render of {label.image}")
         simulated.append(image_figures(frame, sim_bg, seen, ball_px))
     rows = []
     for fig in FIGURES:
