@@ -394,7 +394,7 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
     from threedcal.collect.session import collect_scene
     from threedcal.collect.store import open_raw
 
-    monkeypatch.setattr("builtins.input", lambda prompt="": "")  # "attach the probe, press Enter"
+    asked = []  # the rig asks its user through the callback, never on the terminal itself
     with ReSkinBench(PROFILE, 2.0, {}, 0) as bench:
         scene = {
             "sensor": "reskin",
@@ -404,7 +404,8 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
             "plan": {"pattern": "cross", "spacing_mm": 2.0, "depths_mm": [1.0], "frames": 2},
         }
         scene = validate_config({"scenes": {"rs": scene}})["scenes"]["rs"]
-        collect_scene("rs", scene, tmp_path / "raw.zarr", progress=False)
+        collect_scene("rs", scene, tmp_path / "raw.zarr", progress=False, ask=asked.append)
+    assert asked == ["Attach the probe to the print head"]
     raw = open_raw(tmp_path / "raw.zarr")
     readings = raw["readings"].values
     assert readings.shape[1] == N_VALUES and len(readings) == 2 * (raw["point"].values.max() + 1)

@@ -323,11 +323,11 @@ def estimate_hardware_s(
     """Seconds the real printer needs for `plan`: the same loop, driven against the fake firmware's
     motion model (homing, trapezoidal moves, M400 waits, settling, capture at the camera's rate)."""
     from threedcal.hardware.printer import MarlinHost
-    from threedcal.sim.marlin import SimMarlin, forget, register
+    from threedcal.sim.marlin import FIRMWARES, SimMarlin
 
     firmware = SimMarlin(printer, speedup=math.inf)
     name = f"estimate-{id(firmware)}"
-    register(name, firmware)
+    FIRMWARES.serve(name, firmware)
     try:
         with MarlinHost(f"simmarlin://{name}", printer) as host:
             result = collect(
@@ -341,7 +341,7 @@ def estimate_hardware_s(
                 progress=progress,
             )
     finally:
-        forget(name)
+        FIRMWARES.withdraw(name)
     return result.hardware_s
 
 

@@ -17,7 +17,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from threedcal.errors import ConfigError
-from threedcal.sim.marlin import RECOVERABLE_FAULTS, SimMarlin, forget, parse_faults, register
+from threedcal.sim.marlin import FIRMWARES, RECOVERABLE_FAULTS, SimMarlin, parse_faults
 
 COLUMNS = (
     ("class", 15),
@@ -156,7 +156,7 @@ def run_soak(
     check_soak_arguments(faults, rate, speedup)
     kinds = recoverable(kinds)
     name = f"soak-{seed}-{id(object())}"
-    firmware = register(
+    firmware = FIRMWARES.serve(
         name, SimMarlin("ender3", seed=seed, faults=kinds, rate=rate, speedup=speedup)
     )
     rng = random.Random(seed)
@@ -201,7 +201,7 @@ def run_soak(
             acked_at = {n: t for n, t in host.ack_times.items() if n >= 1}
             sends = host.transmissions
     finally:
-        forget(name)
+        FIRMWARES.withdraw(name)
     executed = [(n, c) for n, c in firmware.executed if n is not None and n >= 1]
     lost, duplicated, reordered = compare_logs(sent, executed)
     faulted = {n for n, _ in firmware.fault_log}
