@@ -17,7 +17,16 @@ from conftest import DATA, REPO, write_untrained_model
 from threedcal.images import read_rgb
 
 WHEELS = Path("/opt/wheels")  # the CPU torch wheel on our machines, as the Makefile uses it
-WORKFLOW_ONLY = ("zarr", "snakemake", "xarray", "pandas", "matplotlib", "serial", "onnx")
+WORKFLOW_ONLY = (
+    "zarr",
+    "snakemake",
+    "xarray",
+    "pandas",
+    "matplotlib",
+    "statsmodels",
+    "serial",
+    "onnx",
+)
 
 
 def run(*command, cwd=None):

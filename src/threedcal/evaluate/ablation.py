@@ -313,13 +313,11 @@ def ratio_interval(sample, reference, tail: float) -> tuple[float, float]:
 
 
 def holm(p_values) -> np.ndarray:
-    """Holm's step-down adjusted p-values."""
+    """Holm's step-down adjusted p-values (statsmodels' multipletests)."""
+    from statsmodels.stats.multitest import multipletests
+
     p = np.asarray(p_values, dtype=float)
-    order = np.argsort(p, kind="stable")
-    adjusted = np.maximum.accumulate(np.minimum(1.0, (len(p) - np.arange(len(p))) * p[order]))
-    out = np.empty_like(p)
-    out[order] = adjusted
-    return out
+    return multipletests(p, method="holm")[1] if p.size else p
 
 
 def _block_row(family, test, p, sample, ref, low, high, statistic, df, p_raw) -> dict:
