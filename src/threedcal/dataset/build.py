@@ -14,7 +14,7 @@ from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 from threedcal.errors import ConfigError
-from threedcal.lens import rectify_if
+from threedcal.lens import profile_focal_px, rectify_if
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -245,6 +245,9 @@ def build_collected(
     record = _registration_record(store, touch, labels, contact_z_mm)
     if truth_path is not None and Path(truth_path).is_file():
         record.update(_bench_errors(store, labels, truth_path, offset))
+    # the fitted lens as OpenCV and ROS read a camera (its focal length: the profile's)
+    lens = store.registration.fit.lens
+    record["camera"] = None if lens is None else lens.camera_info(profile_focal_px(store.sensor))
     Path(registration_path).write_text(json.dumps(record, indent=2) + "\n")
     picks = (
         np.linspace(0, len(trainset.samples) - 1, min(5, len(trainset.samples))).round().astype(int)
