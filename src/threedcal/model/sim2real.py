@@ -129,18 +129,28 @@ def sensor_profile(scene: Mapping) -> dict:
     return profile
 
 
-def sim2real_inputs(name: str, scene: Mapping, results: str = "results") -> dict[str, list[str]]:
+def sim2real_inputs(name: str, scene: Mapping) -> dict[str, list[str]]:
     """The models sim2real_eval scores: "{condition}_k{k}" -> fold models, "scene" -> the scene's
     cross-validated models (ball_eval's) of the same folds."""
+    from threedcal.scenes import CV_MODEL_DIR, SIM2REAL_MODEL_DIR, target
+
     settings = SimToRealSettings.from_scene(scene)
     folds = chosen_folds(settings, int(scene["cv"]["folds"]))
-    root = f"{results}/{name}"
+
+    def model(pattern: str, **wildcards) -> str:
+        path = target(f"{pattern}/model.pt", name)
+        for key, value in wildcards.items():
+            path = path.replace(f"{{{key}}}", str(value))
+        return path
+
     out = {
-        f"{condition}_k{k}": [f"{root}/sim2real/{condition}/k{k}/fold{f}/model.pt" for f in folds]
+        f"{condition}_k{k}": [
+            model(SIM2REAL_MODEL_DIR, condition=condition, k=k, fold=f) for f in folds
+        ]
         for condition in CONDITIONS
         for k in settings.k
     }
-    out["scene"] = [f"{root}/cv/model/fold{f}/model.pt" for f in folds]
+    out["scene"] = [model(CV_MODEL_DIR, method="model", fold=f) for f in folds]
     return out
 
 
