@@ -10,22 +10,21 @@ import pytest
 from scipy import stats
 
 from threedcal.errors import ConfigError
-from threedcal.evaluate import ablation
+from threedcal.evaluate import ablation_figure
 from threedcal.evaluate.ablation import (
-    AXIS_RATIO,
     _equivalence_conclusion,
     ablation_tests,
     block_means,
     contrast,
     difference_test,
     holm,
-    interval_on_axis,
     paper_family,
     ratio_interval,
-    recommend,
     spatial_blocks,
     tost,
 )
+from threedcal.evaluate.ablation_figure import AXIS_RATIO, interval_on_axis
+from threedcal.evaluate.ablation_reading import recommend
 from threedcal.evaluate.power import (
     correlation,
     fit_correlation,
@@ -554,5 +553,5 @@ def test_the_tests_figure_cuts_intervals_at_its_axis_and_writes_their_true_bound
     paired = tests.index[tests["family"] == "paired"]
     tests.loc[paired, ["ci_low", "ci_high"]] = [-1.89, 42.93]  # as wide as the Mini's were
     out = tmp_path / "tests.png"
-    ablation.tests_figure(tests, out, "cut", margin=0.1)
+    ablation_figure.tests_figure(tests, out, "cut", margin=0.1)
     assert out.stat().st_size > 10_000

@@ -335,7 +335,9 @@ def stats_stage(
     table (+ figure), costs and the Fig. 3B/4 figures. `settings` is the config's `stats` section."""
     import json
 
-    from threedcal.evaluate.ablation import ablation_tests, recommend, spatial_blocks, tests_figure
+    from threedcal.evaluate.ablation import ablation_tests, spatial_blocks
+    from threedcal.evaluate.ablation_figure import tests_figure
+    from threedcal.evaluate.ablation_reading import recommend
     from threedcal.evaluate.power import power_figure, power_table
 
     trainset = TrainingSet.load(trainset_dir)
