@@ -138,6 +138,17 @@ def recoverable(kinds) -> tuple[str, ...]:
     return kinds
 
 
+def _position_reported(host, printer_error) -> bool:
+    """M114 gave the commanded position (to the firmware's 0.006 mm), not another or none."""
+    try:
+        position = host.position()
+    except printer_error:
+        return False  # "M114 gave no position line"
+    return all(
+        math.isclose(a, b, abs_tol=0.006) for a, b in zip(position, host.commanded, strict=True)
+    )
+
+
 def run_soak(
     faults: int,
     seed: int = 0,
@@ -186,15 +197,7 @@ def run_soak(
                 moves += 1
                 if moves % 10 == 0:
                     host.wait_until_idle()
-                try:
-                    position = host.position()
-                    if any(
-                        not math.isclose(a, b, abs_tol=0.006)
-                        for a, b in zip(position, host.commanded, strict=True)
-                    ):
-                        bad_reports += 1
-                except PrinterError:
-                    bad_reports += 1  # "M114 gave no position line"
+                bad_reports += not _position_reported(host, PrinterError)
                 bar.update(sum(firmware.faults_injected.values()) - bar.n)
             host.wait_until_idle()
             sent = [(n, c) for n, c in sorted(host._history.items()) if n >= 1]
