@@ -29,14 +29,22 @@ RESULTS = "results"
 # the rules' pattern: `{scene}` is their wildcard, and `target` fills in a scene's name. The rules
 # name their outputs and inputs from here; logs and benchmarks, which nothing reads, stay in them.
 SCENE = f"{RESULTS}/{{scene}}"
+
+
+def _files(folder: str, **leaves: str) -> dict[str, str]:
+    """{name: folder/leaf}: a stage's files by the names its rule gives them."""
+    return {name: f"{folder}/{leaf}" for name, leaf in leaves.items()}
+
+
 SCENE_JSON = f"{SCENE}/scene.json"
 # The collect stage (rules/collect.smk). The store (raw.zarr) is not among its outputs: it is a
 # source the stage keeps beside them, never a product Snakemake may delete.
-COLLECT = {
-    "summary": f"{SCENE}/collect/summary.json",
-    "coverage": f"{SCENE}/collect/coverage.png",
-    "mosaic": f"{SCENE}/collect/frames.png",
-}
+COLLECT = _files(
+    f"{SCENE}/collect",
+    summary="summary.json",
+    coverage="coverage.png",
+    mosaic="frames.png",
+)
 BENCH_TRUTH = f"{SCENE}/collect/bench_truth.json"
 STORE = f"{SCENE}/raw.zarr"
 STAGING_STORE = f"{SCENE}/.partial/raw.zarr"
@@ -53,46 +61,51 @@ CONVERGENCE_RUN = f"{SCENE}/convergence/P{{p}}"
 # The weights shipped for `model.init: pretrained`, one network per sensor (rules/pretrained.smk).
 PRETRAINED_DIR = f"{RESULTS}/pretrained/{{sensor}}"
 # The stats stage (rules/stats.smk), for scenes with an ablation.
-STATS = {
-    "validation_mse": f"{SCENE}/stats/validation_mse.csv",
-    "tests": f"{SCENE}/stats/tests.csv",
-    "tests_figure": f"{SCENE}/stats/tests.png",
-    "recommendation": f"{SCENE}/stats/recommendation.txt",
-    "power": f"{SCENE}/stats/power.csv",
-    "power_figure": f"{SCENE}/stats/power.png",
-    "costs": f"{SCENE}/stats/error_vs_cost.csv",
-    "loss_figure": f"{SCENE}/stats/loss_curves.png",
-    "map_figure": f"{SCENE}/stats/mse_map.png",
-    "kde_figure": f"{SCENE}/stats/mse_kde.png",
-    "cost_figure": f"{SCENE}/stats/error_vs_cost.png",
-}
+STATS = _files(
+    f"{SCENE}/stats",
+    validation_mse="validation_mse.csv",
+    tests="tests.csv",
+    tests_figure="tests.png",
+    recommendation="recommendation.txt",
+    power="power.csv",
+    power_figure="power.png",
+    costs="error_vs_cost.csv",
+    loss_figure="loss_curves.png",
+    map_figure="mse_map.png",
+    kde_figure="mse_kde.png",
+    cost_figure="error_vs_cost.png",
+)
 # The convergence check (rules/stats.smk, ablation.convergence).
-CONVERGENCE = {
-    "convergence": f"{SCENE}/stats/convergence.csv",
-    "curve": f"{SCENE}/stats/error_vs_time.csv",
-    "figure": f"{SCENE}/stats/error_vs_time.png",
-}
+CONVERGENCE = _files(
+    f"{SCENE}/stats",
+    convergence="convergence.csv",
+    curve="error_vs_time.csv",
+    figure="error_vs_time.png",
+)
 # The objects stage (rules/objects.smk): the presses, then their scores.
-PRESSING = {
-    "frames": f"{SCENE}/objects/pressing/frames.npz",
-    "plan": f"{SCENE}/objects/pressing/plan.csv",
-    "truth": f"{SCENE}/objects/pressing/truth.json",
-    "summary": f"{SCENE}/objects/pressing/summary.json",
-}
-OBJECTS = {
-    "errors": f"{SCENE}/objects/errors.csv",
-    "tuning": f"{SCENE}/objects/tuning.csv",
-    "presses": f"{SCENE}/objects/presses.csv",
-    "integrators": f"{SCENE}/objects/integrators.csv",
-    "violins": f"{SCENE}/objects/violins.png",
-    "figures": f"{SCENE}/objects/figures",
-}
+PRESSING = _files(
+    f"{SCENE}/objects/pressing",
+    frames="frames.npz",
+    plan="plan.csv",
+    truth="truth.json",
+    summary="summary.json",
+)
+OBJECTS = _files(
+    f"{SCENE}/objects",
+    errors="errors.csv",
+    tuning="tuning.csv",
+    presses="presses.csv",
+    integrators="integrators.csv",
+    violins="violins.png",
+    figures="figures",
+)
 # The ReSkin stage (rules/reskin.smk), for magnetic-sensor scenes.
-RESKIN_MODEL = {
-    "model": f"{SCENE}/reskin/model.pt",
-    "losses": f"{SCENE}/reskin/losses.csv",
-    "splits": f"{SCENE}/reskin/splits.csv",
-}
+RESKIN_MODEL = _files(
+    f"{SCENE}/reskin",
+    model="model.pt",
+    losses="losses.csv",
+    splits="splits.csv",
+)
 RESKIN_EVAL = {"metrics": f"{SCENE}/reskin_eval.json", "figure": f"{SCENE}/reskin_eval.png"}
 # Imported scenes (rules/ball.smk, rules/presets.smk): the cross-validated evaluation, the presets
 # and the sim-to-real stage (threedcal.model.sim2real).
@@ -106,18 +119,20 @@ BALL_EVAL = {
     "figure": f"{SCENE}/cv/errors.png",
 }
 PRESETS = {"csv": f"{SCENE}/presets.csv", "png": f"{SCENE}/presets.png"}
-SIM2REAL = {
-    "errors": f"{SCENE}/sim2real/errors.csv",
-    "images": f"{SCENE}/sim2real/images.csv",
-    "figure": f"{SCENE}/sim2real/error_vs_k.png",
-}
+SIM2REAL = _files(
+    f"{SCENE}/sim2real",
+    errors="errors.csv",
+    images="images.csv",
+    figure="error_vs_k.png",
+)
 # Study-wide: the integrator comparison (rules/integration_study.smk, when the config enables it),
 # the cross-scene spread, the realism table, the run environment and the summary page.
-INTEGRATION_STUDY = {
-    "csv": f"{RESULTS}/integration/error_vs_time.csv",
-    "png": f"{RESULTS}/integration/error_vs_time.png",
-    "reading": f"{RESULTS}/integration/reading.md",
-}
+INTEGRATION_STUDY = _files(
+    f"{RESULTS}/integration",
+    csv="error_vs_time.csv",
+    png="error_vs_time.png",
+    reading="reading.md",
+)
 INTEGRATION_STUDY_TARGETS = list(INTEGRATION_STUDY.values())
 STATS_OVERVIEW = f"{RESULTS}/stats/mse_std_vs_p.png"
 REALISM_TABLE = f"{RESULTS}/realism/table.txt"
