@@ -322,7 +322,7 @@ def test_a_magnetic_sensor_names_its_board_as_reader_not_camera():
 def test_cv_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     import dataclasses
 
-    from threedcal.model.crossval import CVSettings
+    from threedcal.model.folds import CVSettings
     from threedcal.schema import load_schema
 
     fields = dataclasses.fields(CVSettings)

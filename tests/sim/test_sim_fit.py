@@ -9,7 +9,7 @@ import pytest
 
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
-from threedcal.sim.fit import fit_optics, press_groups, realism_report, split_halves
+from threedcal.sim.fit import fit_optics, image_groups, realism_report, split_halves
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator, background_field
 from threedcal.sim.realism import (
@@ -110,7 +110,7 @@ def test_split_keeps_presses_together_and_never_puts_an_image_in_both_halves():
     # presses 0, 3 and 7 repeat one place; 5 and 6 another (within 4 px); the rest are alone
     places = [(10, 10), (50, 10), (90, 10), (11, 12), (10, 60), (60, 60), (63, 61), (13, 14)]
     labels = [label(x, y, f"{i:02d}.png") for i, (x, y) in enumerate(places)]
-    assert press_groups(labels) == [[0, 3, 7], [1], [2], [4], [5, 6]]
+    assert image_groups(labels) == [[0, 3, 7], [1], [2], [4], [5, 6]]
     seen = set()
     for seed in range(20):
         fit, test = split_halves(labels, seed)

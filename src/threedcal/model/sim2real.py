@@ -265,7 +265,7 @@ def fold_profile(profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, fold: i
 def fitted_to_frames(profile: Mapping, ts: TrainingSet, frames: Sequence[int], where: str):
     """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to these frames of the
     model-ready set, with their contact circles, and its blank."""
-    from threedcal.model.crossval import contact_radius_px
+    from threedcal.model.folds import contact_radius_px
     from threedcal.sim.fit import fit_optics
     from threedcal.sim.realism import BallLabel
 
@@ -293,7 +293,7 @@ def write_simulated(
 ) -> TrainingSet:
     """The simulated set of one fold in `out_dir`; with `profile: fitted` also the fitted profile
     (profile.yaml, headed by the frames it was fitted on: frameNNNNN, the set's frame numbers)."""
-    from threedcal.model.crossval import read_folds
+    from threedcal.model.folds import read_folds
 
     settings = SimToRealSettings.of(**sim_to_real)
     real = TrainingSet.load(real_dir)
@@ -375,7 +375,7 @@ def train_k(
     """One fold's model on k real images: fine-tuned from `pretrained` (sim_real) or from scratch
     (real_only), both for finetune_epochs x pool / k epochs, pool the fold's training images (the
     same steps at every k)."""
-    from threedcal.model.crossval import fold_trainset, read_folds
+    from threedcal.model.folds import fold_trainset, read_folds
     from threedcal.model.train import train
 
     if condition not in CONDITIONS:
@@ -537,7 +537,7 @@ def sim2real_eval(
     `models["{condition}_k{k}"]` lists that model's fold checkpoints in the order of the chosen
     folds; `scene_models` the scene's cross-validated models (ball_eval's) of the same folds.
     """
-    from threedcal.model.crossval import CVSettings, read_folds
+    from threedcal.model.folds import CVSettings, read_folds
 
     settings = SimToRealSettings.of(**sim_to_real)
     cv_settings = CVSettings.of(**cv)
