@@ -137,9 +137,9 @@ def open_rig(
         reader = ReSkinReader(sensor, str(scene["reader"]))
     else:
         reader = open_camera(sensor, scene["camera"])
-    with reader, MarlinHost(scene["port"], printer) as host:
+    with reader as reading, MarlinHost(scene["port"], printer) as host:
         clock = WallClock()
-        yield Rig(host, reader, clock, clock.now, ask=ask)
+        yield Rig(host, reading, clock, clock.now, ask=ask)
 
 
 @contextlib.contextmanager
