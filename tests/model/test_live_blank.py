@@ -158,3 +158,11 @@ def test_live_reads_a_datasets_frames_with_numpy_alone(tmp_path, capsys, flat_mo
     np.save(dataset / "frames.npy", np.zeros((2, 8, 8), np.float32))
     assert main(args) == 1
     assert "frames.npy: not a dataset's frames" in capsys.readouterr().err
+
+
+def test_a_camera_needs_its_sensor_profile_before_anything_loads(tmp_path, capsys):
+    """A camera's frames are converted by its profile (as at collection): without --sensor, live
+    stops before it reads the model (here none exists) or opens the camera."""
+    missing = str(tmp_path / "missing.pt")
+    assert main(["live", "--checkpoint", missing, "--source", "0"]) == 1
+    assert "--source 0 is a camera: give --sensor" in capsys.readouterr().err

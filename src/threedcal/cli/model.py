@@ -239,6 +239,13 @@ def _check_live_args(args: argparse.Namespace) -> None:
         refuse_existing_outputs({"--out": Path(args.out)}, args.force)
     if args.points:
         _refuse_points_folder(Path(args.points), args.force)
+    from threedcal.model.sources import is_camera
+
+    if is_camera(args.source) and not args.sensor:
+        raise ConfigError(
+            f"--source {args.source} is a camera: give --sensor (the sensor profile says how its "
+            "frames are cropped, turned and sized, as at collection)"
+        )
 
 
 def _live_sensor(args: argparse.Namespace):

@@ -82,6 +82,11 @@ def camera_frames(camera) -> Iterator[np.ndarray]:
             yield frame
 
 
+def is_camera(spec: str) -> bool:
+    """A camera index (0) or a device (/dev/video0, /dev/v4l/by-id/...), not a file or folder."""
+    return spec.isdigit() or (spec.startswith("/dev/") and not Path(spec).is_dir())
+
+
 def open_source(spec: str, sensor: Mapping | None = None) -> Iterator[np.ndarray]:
     """`spec`: a camera (index such as 0, or a /dev/video device: `sensor`, its profile, is then
     needed), a video file, a folder of images, or a results/{scene}/dataset/trainset folder."""
@@ -90,8 +95,7 @@ def open_source(spec: str, sensor: Mapping | None = None) -> Iterator[np.ndarray
         return trainset_frames(path)
     if path.is_dir():
         return folder_frames(path)
-    camera = spec.isdigit() or spec.startswith("/dev/")
-    if camera:
+    if is_camera(spec):
         if sensor is None:
             raise ConfigError(
                 f"live source {spec!r} is a camera: give --sensor (the sensor profile says how "
