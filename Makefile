@@ -55,9 +55,11 @@ TEST_WORKERS ?= $(CORES)
 test: $(STAMP)
 	set -o pipefail; $(BIN)/python -m pytest -n $(TEST_WORKERS) --maxschedchunk 1 --durations=10 2>&1 | tee .pytest-last.log
 
+# Every Python file of the repository (pyproject.toml's [tool.ruff]: *.py, less what git ignores),
+# the workflow's rules and Snakemake's own lint.
 lint: $(STAMP)
-	$(BIN)/ruff check src tests scripts benchmarks workflow/cluster
-	$(BIN)/ruff format --check src tests scripts benchmarks workflow/cluster
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/snakefmt --check Snakefile rules
 	$(BIN)/snakemake --lint --cores 1
 

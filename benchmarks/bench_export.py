@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from bench_model import estimator  # the same freshly initialised 240 x 320 models
 
-from threedcal.dataset.importers import read_rgb
+from threedcal.images import read_rgb
 from threedcal.model.export import export_onnx, onnx_gradients, onnx_session
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "digit_frames_fots"

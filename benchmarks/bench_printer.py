@@ -10,7 +10,7 @@ import time
 import serial
 
 from threedcal.hardware.printer import MarlinHost, register_url_handlers
-from threedcal.sim.marlin import forget
+from threedcal.sim.marlin import FIRMWARES
 
 N = 3000
 
@@ -21,7 +21,7 @@ def host_rate() -> float:
         for _ in range(N):
             host.send("M105")
         rate = N / (time.perf_counter() - start)
-    forget("bench-host")
+    FIRMWARES.withdraw("bench-host")
     return rate
 
 
@@ -35,7 +35,7 @@ def bare_rate() -> float:
             pass
     rate = N / (time.perf_counter() - start)
     port.close()
-    forget("bench-bare")
+    FIRMWARES.withdraw("bench-bare")
     return rate
 
 

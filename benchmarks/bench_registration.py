@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from threedcal.dataset import registration
+from threedcal.dataset import symmetry
+from threedcal.dataset.contacts import locate_contact
+from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
@@ -102,8 +104,8 @@ def original_module():
 def symmetric_fits(frames, blank, rim, unmixing):
     """Window + fit of every contact with a given unmixing (the per-contact cost at scale)."""
     return [
-        registration._symmetry_fit(
-            registration._Window.around(f, blank, SMOOTH_PX, c, REACH), unmixing, c, REACH
+        symmetry._symmetry_fit(
+            symmetry._Window.around(f, blank, SMOOTH_PX, c, REACH), unmixing, c, REACH
         )
         for f, c in zip(frames, rim, strict=True)
     ]
@@ -123,12 +125,12 @@ def main() -> None:
     truth, frames, blank = contacts("gelsight_mini", grid=5, margin=50)
     n = len(frames)
     print(f"{n} GelSight Mini contacts (320x240); load average {os.getloadavg()[0]:.1f}")
-    rim, rim_wall, rim_cpu = timed(lambda: [registration.locate_contact(f, blank) for f in frames])
+    rim, rim_wall, rim_cpu = timed(lambda: [locate_contact(f, blank) for f in frames])
     print(
         f"rim (baseline)     {n / rim_wall:7.1f} contacts/s  ({n / rim_cpu:5.1f} per CPU-s)  "
         f"{error(centres(rim), truth)}"
     )
-    unmixing = registration.refine_by_symmetry(frames, blank, rim).unmixing  # not timed
+    unmixing = symmetry.refine_by_symmetry(frames, blank, rim).unmixing  # not timed
     fits, fit_wall, fit_cpu = timed(lambda: symmetric_fits(frames, blank, rim, unmixing))
     print(
         f"symmetric centre   {n / fit_wall:7.1f} contacts/s  ({n / fit_cpu:5.1f} per CPU-s)  "
@@ -165,11 +167,9 @@ def main() -> None:
     d_truth, d_frames, d_blank = contacts("digit", grid=3, margin=60)
     m = len(d_frames)
     digit = load_profile("sensor", "digit")
-    d_rim, d_wall, d_cpu = timed(
-        lambda: [registration.locate_contact(f, d_blank) for f in d_frames]
-    )
+    d_rim, d_wall, d_cpu = timed(lambda: [locate_contact(f, d_blank) for f in d_frames])
     # the contacts lean toward the dome's apex: the stage moves each to its press's axis
-    dome = registration.DomedContacts(
+    dome = DomedContacts(
         digit["gel"]["dome"], 2.0, np.full(m, 1.0), digit["px_per_mm"], d_blank.shape
     )
     d_axes, axes_wall, axes_cpu = timed(lambda: dome.to_axis(d_rim))

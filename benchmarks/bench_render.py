@@ -29,8 +29,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from threedcal.evaluate.object_presses import relief_indenter  # noqa: E402
 from threedcal.evaluate.objects import load_object  # noqa: E402
-from threedcal.evaluate.pressing import relief_indenter  # noqa: E402
 from threedcal.profiles import load_profile, with_gel_mechanics  # noqa: E402
 from threedcal.sim.camera import LensedGel, make_gel  # noqa: E402
 from threedcal.sim.indenters import Sphere  # noqa: E402
@@ -63,6 +63,27 @@ def main() -> None:
     poses = [
         (rng.uniform(40, 200), rng.uniform(40, 280), rng.uniform(0.3, 1.5)) for _ in range(401)
     ]
+    fast, soft = sphere_renders(sim, gel, ball, poses)
+    soft_lens = lensed_renders(digit, elastic_profile, ball, poses, fast, soft)
+    study_renders(ball, poses, soft_lens)
+    pawn_renders(sim, gel, rng)
+    print(
+        f"load average (1 min) during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
+
+
+def through(simulator, ball, poses):
+    """A render of a new pose and depth every frame."""
+
+    def render(i):
+        x, y, d = poses[i]
+        return simulator.render(ball, (x, y), 0.0, d, frame_index=i)
+
+    return render
+
+
+def sphere_renders(sim, gel, ball, poses):
+    """The geometric gel windowed against the whole frame, and the elastic gel."""
 
     def windowed(i):
         x, y, d = poses[i % 64]
@@ -77,16 +98,9 @@ def main() -> None:
         finally:
             del sim.window
 
-    def through(simulator):  # a new pose and depth every frame
-        def render(i):
-            x, y, d = poses[i]
-            return simulator.render(ball, (x, y), 0.0, d, frame_index=i)
-
-        return render
-
     fast = rate(windowed, 400)
     base = rate(full_frame, 40)
-    soft = rate(through(gel), 400)
+    soft = rate(through(gel, ball, poses), 400)
     print("sphere renders 240x320 (digit, R = 2 mm, depth 0.3-1.5 mm):")
     show("  geometric gel, windowed", fast)
     show("  geometric gel, full-frame baseline", base)
@@ -100,12 +114,15 @@ def main() -> None:
         f"goal elastic >= 50 frames/s: {'met' if soft[0] >= 50 else 'NOT met'}"
         f" (per CPU-s: {'met' if soft[1] >= 50 else 'NOT met'})"
     )
+    return fast, soft
 
+
+def lensed_renders(digit, elastic_profile, ball, poses, fast, soft):
+    """The same spheres through the DIGIT's lens; the elastic gel's rate."""
     lensed = LensedGel(digit, seed=0)
     lensed_elastic = LensedGel(elastic_profile, seed=0)
-
-    geo_lens = rate(through(lensed), 400)
-    soft_lens = rate(through(lensed_elastic), 400)
+    geo_lens = rate(through(lensed, ball, poses), 400)
+    soft_lens = rate(through(lensed_elastic, ball, poses), 400)
     print("the same sphere renders through the DIGIT's lens (distortion and vignetting):")
     show("  geometric gel + lens", geo_lens)
     show("  elastic gel + lens", soft_lens)
@@ -114,7 +131,11 @@ def main() -> None:
         f"elastic {soft_lens[0] / soft[0]:.2f}x   goal elastic + lens >= 50 frames/s: "
         f"{'met' if soft_lens[0] >= 50 else 'NOT met'}"
     )
+    return soft_lens
 
+
+def study_renders(ball, poses, soft_lens) -> None:
+    """The default study's sensors, elastic gel + lens, as its benches render them."""
     print("the default study's sensors, elastic gel + lens, a new pose every frame:")
     for name in ("digit_fots", "gelsight_mini"):
         # as the study's benches render it (bench.gel_mechanics: elastic)
@@ -123,18 +144,16 @@ def main() -> None:
         height, width = profile["image"]["height_px"], profile["image"]["width_px"]
         # the same poses, scaled to this frame (the Mini's is landscape)
         scaled = [(x * width / 240, y * height / 320, d) for x, y, d in poses]
-
-        def render(i, simulator=simulator, scaled=scaled):
-            x, y, d = scaled[i]
-            return simulator.render(ball, (x, y), 0.0, d, frame_index=i)
-
-        study = rate(render, 400)
+        study = rate(through(simulator, ball, scaled), 400)
         show(f"  {name} ({width}x{height})", study)
         print(
             f"  ratio {name} / digit elastic + lens: {study[0] / soft_lens[0]:.2f}x   "
             f"goal >= 50 frames/s: {'met' if study[0] >= 50 else 'NOT met'}"
         )
 
+
+def pawn_renders(sim, gel, rng) -> None:
+    """A pawn pressed at 12 poses into the geometric and the elastic gel."""
     pawn = load_object("pawn")
     presses = [
         (rng.uniform(80, 160), rng.uniform(100, 220), rng.uniform(-10, 10), rng.uniform(0.8, 1.2))
@@ -155,9 +174,6 @@ def main() -> None:
     show("  geometric gel", geo_pawn)
     show("  elastic gel", soft_pawn)
     print(f"  ratio elastic / geometric: {soft_pawn[0] / geo_pawn[0]:.2f}x")
-    print(
-        f"load average (1 min) during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
-    )
 
 
 if __name__ == "__main__":

@@ -4,9 +4,9 @@
 
 rule cv_folds:
     input:
-        trainset="results/{scene}/dataset/trainset",
+        trainset=TRAINSET,
     output:
-        "results/{scene}/cv/folds.csv",
+        CV_FOLDS,
     log:
         "results/{scene}/logs/cv_folds.log",
     benchmark:
@@ -26,11 +26,11 @@ rule cv_folds:
 
 rule cv_train:
     input:
-        trainset="results/{scene}/dataset/trainset",
-        folds="results/{scene}/cv/folds.csv",
+        trainset=TRAINSET,
+        folds=CV_FOLDS,
     output:
-        model="results/{scene}/cv/{method}/fold{fold}/model.pt",
-        losses="results/{scene}/cv/{method}/fold{fold}/losses.csv",
+        model=f"{CV_MODEL_DIR}/model.pt",
+        losses=f"{CV_MODEL_DIR}/losses.csv",
     log:
         "results/{scene}/logs/cv_{method}_fold{fold}.log",
     benchmark:
@@ -56,13 +56,13 @@ rule cv_train:
 rule ball_eval:
     input:
         unpack(cv_models),
-        trainset="results/{scene}/dataset/trainset",
-        folds="results/{scene}/cv/folds.csv",
+        trainset=TRAINSET,
+        folds=CV_FOLDS,
     output:
-        json="results/{scene}/ball_eval.json",
-        images="results/{scene}/cv/images.csv",
+        json=BALL_EVAL["json"],
+        images=BALL_EVAL["images"],
         figure=report(
-            "results/{scene}/cv/errors.png",
+            BALL_EVAL["figure"],
             caption="../workflow/report/ball_eval.rst",
             category="{scene}",
             subcategory="3 models",
@@ -92,8 +92,8 @@ rule ball_eval:
 
 rule sim2real_simulate:
     input:
-        trainset="results/{scene}/dataset/trainset",
-        folds="results/{scene}/cv/folds.csv",
+        trainset=TRAINSET,
+        folds=CV_FOLDS,
     output:
         directory("results/{scene}/sim2real/fold{fold}/simset"),
     log:
@@ -120,8 +120,8 @@ rule sim2real_pretrain:
     input:
         simset="results/{scene}/sim2real/fold{fold}/simset",
     output:
-        model="results/{scene}/sim2real/fold{fold}/pretrained/model.pt",
-        losses="results/{scene}/sim2real/fold{fold}/pretrained/losses.csv",
+        model=f"{SIM2REAL_PRETRAINED_DIR}/model.pt",
+        losses=f"{SIM2REAL_PRETRAINED_DIR}/losses.csv",
     log:
         "results/{scene}/logs/sim2real_pretrain_fold{fold}.log",
     benchmark:
@@ -147,11 +147,11 @@ rule sim2real_pretrain:
 rule sim2real_train:
     input:
         unpack(sim2real_init),
-        trainset="results/{scene}/dataset/trainset",
-        folds="results/{scene}/cv/folds.csv",
+        trainset=TRAINSET,
+        folds=CV_FOLDS,
     output:
-        model="results/{scene}/sim2real/{condition}/k{k}/fold{fold}/model.pt",
-        losses="results/{scene}/sim2real/{condition}/k{k}/fold{fold}/losses.csv",
+        model=f"{SIM2REAL_MODEL_DIR}/model.pt",
+        losses=f"{SIM2REAL_MODEL_DIR}/losses.csv",
     log:
         "results/{scene}/logs/sim2real_{condition}_k{k}_fold{fold}.log",
     benchmark:
@@ -179,13 +179,13 @@ rule sim2real_train:
 rule sim2real_eval:
     input:
         unpack(sim2real_models),
-        trainset="results/{scene}/dataset/trainset",
-        folds="results/{scene}/cv/folds.csv",
+        trainset=TRAINSET,
+        folds=CV_FOLDS,
     output:
-        errors="results/{scene}/sim2real/errors.csv",
-        images="results/{scene}/sim2real/images.csv",
+        errors=SIM2REAL["errors"],
+        images=SIM2REAL["images"],
         figure=report(
-            "results/{scene}/sim2real/error_vs_k.png",
+            SIM2REAL["figure"],
             caption="../workflow/report/sim2real.rst",
             category="{scene}",
             subcategory="3 models",

@@ -14,20 +14,20 @@ localrules:
 
 rule collect:
     output:
-        summary="results/{scene}/collect/summary.json",
+        summary=COLLECT["summary"],
         coverage=report(
-            "results/{scene}/collect/coverage.png",
+            COLLECT["coverage"],
             caption="../workflow/report/collect_coverage.rst",
             category="{scene}",
             subcategory="1 collection",
         ),
         mosaic=report(
-            "results/{scene}/collect/frames.png",
+            COLLECT["mosaic"],
             caption="../workflow/report/collect_frames.rst",
             category="{scene}",
             subcategory="1 collection",
         ),
-        truth="results/{scene}/collect/bench_truth.json",
+        truth=BENCH_TRUTH,
     log:
         "results/{scene}/logs/collect.log",
     benchmark:
@@ -43,8 +43,8 @@ rule collect:
         scene=lambda wildcards: canonical_json(
             stage_config(config["scenes"][wildcards.scene], "collect")
         ),
-        store=lambda wildcards: f"results/{wildcards.scene}/raw.zarr",
-        staging=lambda wildcards: f"results/{wildcards.scene}/.partial/raw.zarr",
+        store=lambda wildcards: target(STORE, wildcards.scene),
+        staging=lambda wildcards: target(STAGING_STORE, wildcards.scene),
         code=code_digest("collect.py"),
     script:
         "../scripts/collect.py"

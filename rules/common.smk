@@ -25,7 +25,7 @@ def scene_threads(wildcards):
 def collect_summary(wildcards):
     """{"summary": results/{scene}/collect/summary.json} for a collected scene, {} for an imported one."""
     if wildcards.scene in COLLECTED_SCENES:
-        return {"summary": f"results/{wildcards.scene}/collect/summary.json"}
+        return {"summary": target(COLLECT["summary"], wildcards.scene)}
     return {}
 
 
@@ -49,7 +49,9 @@ def cv_models(wildcards):
     folds = config["scenes"][wildcards.scene]["cv"]["folds"]
     return {
         method: [
-            f"results/{wildcards.scene}/cv/{method}/fold{fold}/model.pt"
+            target(f"{CV_MODEL_DIR}/model.pt", wildcards.scene)
+            .replace("{method}", method)
+            .replace("{fold}", str(fold))
             for fold in range(folds)
         ]
         for method in CV_METHODS
@@ -60,7 +62,9 @@ def sim2real_init(wildcards):
     """{"pretrained": the fold's sim-pretrained model} for a fine-tuned model, {} for real-only."""
     if wildcards.condition == "sim_real":
         return {
-            "pretrained": f"results/{wildcards.scene}/sim2real/fold{wildcards.fold}/pretrained/model.pt"
+            "pretrained": target(
+                f"{SIM2REAL_PRETRAINED_DIR}/model.pt", wildcards.scene
+            ).replace("{fold}", wildcards.fold)
         }
     return {}
 

@@ -3,8 +3,8 @@
 
 rule dataset_import:
     output:
-        trainset=directory("results/{scene}/dataset/trainset"),
-        splits="results/{scene}/dataset/splits.csv",
+        trainset=directory(TRAINSET),
+        splits=SPLITS,
     log:
         "results/{scene}/logs/dataset.log",
     benchmark:
@@ -25,14 +25,14 @@ rule dataset_import:
 rule dataset_collected:
     input:
         # names the store (a source, see rules/collect.smk) and the digest of its frame settings
-        collected="results/{scene}/collect/summary.json",
-        truth="results/{scene}/collect/bench_truth.json",
+        collected=COLLECT["summary"],
+        truth=BENCH_TRUTH,
     output:
-        trainset=directory("results/{scene}/dataset/trainset"),
-        splits="results/{scene}/dataset/splits.csv",
-        registration="results/{scene}/dataset/registration.json",
+        trainset=directory(TRAINSET),
+        splits=SPLITS,
+        registration=REGISTRATION,
         figure=report(
-            "results/{scene}/dataset/registration.png",
+            REGISTRATION_FIGURE,
             caption="../workflow/report/registration.rst",
             category="{scene}",
             subcategory="2 registration",

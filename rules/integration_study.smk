@@ -3,13 +3,13 @@
 
 rule integration_study:
     output:
-        csv="results/integration/error_vs_time.csv",
+        csv=INTEGRATION_STUDY["csv"],
         png=report(
-            "results/integration/error_vs_time.png",
+            INTEGRATION_STUDY["png"],
             caption="../workflow/report/integration_study.rst",
             category="Depth integration",
         ),
-        reading="results/integration/reading.md",
+        reading=INTEGRATION_STUDY["reading"],
     log:
         "results/integration/logs/integration_study.log",
     benchmark:

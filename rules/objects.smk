@@ -15,12 +15,12 @@ localrules:
 
 rule object_presses:
     input:
-        registration="results/{scene}/dataset/registration.json",
+        registration=REGISTRATION,
     output:
-        frames="results/{scene}/objects/pressing/frames.npz",
-        plan="results/{scene}/objects/pressing/plan.csv",
-        truth="results/{scene}/objects/pressing/truth.json",
-        summary="results/{scene}/objects/pressing/summary.json",
+        frames=PRESSING["frames"],
+        plan=PRESSING["plan"],
+        truth=PRESSING["truth"],
+        summary=PRESSING["summary"],
     log:
         "results/{scene}/logs/object_presses.log",
     benchmark:
@@ -43,23 +43,23 @@ rule object_presses:
 rule objects:
     input:
         unpack(scene_models),
-        registration="results/{scene}/dataset/registration.json",
-        frames="results/{scene}/objects/pressing/frames.npz",
-        plan="results/{scene}/objects/pressing/plan.csv",
-        truth="results/{scene}/objects/pressing/truth.json",
+        registration=REGISTRATION,
+        frames=PRESSING["frames"],
+        plan=PRESSING["plan"],
+        truth=PRESSING["truth"],
     output:
-        errors="results/{scene}/objects/errors.csv",
-        tuning="results/{scene}/objects/tuning.csv",
-        integrators="results/{scene}/objects/integrators.csv",
-        presses="results/{scene}/objects/presses.csv",
+        errors=OBJECTS["errors"],
+        tuning=OBJECTS["tuning"],
+        integrators=OBJECTS["integrators"],
+        presses=OBJECTS["presses"],
         violins=report(
-            "results/{scene}/objects/violins.png",
+            OBJECTS["violins"],
             caption="../workflow/report/objects_violins.rst",
             category="{scene}",
             subcategory="5 test objects",
         ),
         figures=report(
-            directory("results/{scene}/objects/figures"),
+            directory(OBJECTS["figures"]),
             patterns=["{name}.png"],
             caption="../workflow/report/objects_figures.rst",
             category="{scene}",

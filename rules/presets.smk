@@ -4,11 +4,11 @@
 
 rule presets:
     input:
-        trainset="results/{scene}/dataset/trainset",
+        trainset=TRAINSET,
     output:
-        csv="results/{scene}/presets.csv",
+        csv=PRESETS["csv"],
         png=report(
-            "results/{scene}/presets.png",
+            PRESETS["png"],
             caption="../workflow/report/presets.rst",
             category="{scene}",
             subcategory="3 models",

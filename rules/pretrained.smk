@@ -5,10 +5,10 @@
 
 rule pretrain:
     output:
-        model="results/pretrained/{sensor}/model.pt",
-        provenance="results/pretrained/{sensor}/provenance.json",
-        losses="results/pretrained/{sensor}/losses.csv",
-        figure="results/pretrained/{sensor}/losses.png",
+        model=f"{PRETRAINED_DIR}/model.pt",
+        provenance=f"{PRETRAINED_DIR}/provenance.json",
+        losses=f"{PRETRAINED_DIR}/losses.csv",
+        figure=f"{PRETRAINED_DIR}/losses.png",
     log:
         "results/pretrained/logs/{sensor}.log",
     benchmark:
@@ -28,6 +28,6 @@ rule pretrain:
 rule pretrained:
     input:
         expand(
-            "results/pretrained/{sensor}/model.pt",
+            f"{PRETRAINED_DIR}/model.pt",
             sensor=config["pretraining"]["sensors"],
         ),

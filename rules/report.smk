@@ -4,7 +4,7 @@
 rule environment:
     output:
         report(
-            "results/environment.json",
+            ENVIRONMENT,
             caption="../workflow/report/environment.rst",
             category="study",
             subcategory="run environment",
@@ -29,9 +29,9 @@ rule inference_speed:
         model=lambda wildcards: full_model_file(
             wildcards.scene, config["scenes"][wildcards.scene]
         ),
-        trainset="results/{scene}/dataset/trainset",
+        trainset=TRAINSET,
     output:
-        "results/{scene}/models/inference.json",
+        INFERENCE_SPEED,
     log:
         "results/{scene}/logs/inference_speed.log",
     benchmark:
@@ -51,7 +51,7 @@ rule realism:
         realism_files(config),
     output:
         table=report(
-            "results/realism/table.txt",
+            REALISM_TABLE,
             caption="../workflow/report/realism.rst",
             category="study",
             subcategory="simulator realism",
@@ -73,10 +73,10 @@ rule realism:
 
 rule summary:
     input:
-        [t for t in study_targets(config) if t != "results/summary.md"],
+        [t for t in study_targets(config) if t != SUMMARY],
     output:
         report(
-            "results/summary.md",
+            SUMMARY,
             caption="../workflow/report/summary.rst",
             category="study",
             subcategory="summary",

@@ -5,11 +5,11 @@
 
 rule reskin_train:
     input:
-        collected="results/{scene}/collect/summary.json",
+        collected=COLLECT["summary"],
     output:
-        model="results/{scene}/reskin/model.pt",
-        losses="results/{scene}/reskin/losses.csv",
-        splits="results/{scene}/reskin/splits.csv",
+        model=RESKIN_MODEL["model"],
+        losses=RESKIN_MODEL["losses"],
+        splits=RESKIN_MODEL["splits"],
     log:
         "results/{scene}/logs/reskin_train.log",
     benchmark:
@@ -30,13 +30,13 @@ rule reskin_train:
 
 rule reskin_eval:
     input:
-        collected="results/{scene}/collect/summary.json",
-        model="results/{scene}/reskin/model.pt",
-        splits="results/{scene}/reskin/splits.csv",
+        collected=COLLECT["summary"],
+        model=RESKIN_MODEL["model"],
+        splits=RESKIN_MODEL["splits"],
     output:
-        metrics="results/{scene}/reskin_eval.json",
+        metrics=RESKIN_EVAL["metrics"],
         figure=report(
-            "results/{scene}/reskin_eval.png",
+            RESKIN_EVAL["figure"],
             caption="../workflow/report/reskin_eval.rst",
             category="{scene}",
             subcategory="3 ReSkin",

@@ -3,7 +3,7 @@
 
 rule scene:
     output:
-        "results/{scene}/scene.json",
+        SCENE_JSON,
     log:
         "results/{scene}/logs/scene.log",
     benchmark:

@@ -9,51 +9,51 @@ rule stats:
         unpack(scene_models),
         unpack(collect_summary),
         losses=ablation_losses,
-        trainset="results/{scene}/dataset/trainset",
-        splits="results/{scene}/dataset/splits.csv",
+        trainset=TRAINSET,
+        splits=SPLITS,
     output:
-        validation_mse="results/{scene}/stats/validation_mse.csv",
+        validation_mse=STATS["validation_mse"],
         tests=report(
-            "results/{scene}/stats/tests.csv",
+            STATS["tests"],
             caption="../workflow/report/stats_tests.rst",
             category="{scene}",
             subcategory="4 ablation",
         ),
         tests_figure=report(
-            "results/{scene}/stats/tests.png",
+            STATS["tests_figure"],
             caption="../workflow/report/stats_tests_figure.rst",
             category="{scene}",
             subcategory="4 ablation",
         ),
-        recommendation="results/{scene}/stats/recommendation.txt",
-        power="results/{scene}/stats/power.csv",
+        recommendation=STATS["recommendation"],
+        power=STATS["power"],
         power_figure=report(
-            "results/{scene}/stats/power.png",
+            STATS["power_figure"],
             caption="../workflow/report/stats_power.rst",
             category="{scene}",
             subcategory="4 ablation",
         ),
-        costs="results/{scene}/stats/error_vs_cost.csv",
+        costs=STATS["costs"],
         loss_figure=report(
-            "results/{scene}/stats/loss_curves.png",
+            STATS["loss_figure"],
             caption="../workflow/report/stats_loss.rst",
             category="{scene}",
             subcategory="3 training",
         ),
         map_figure=report(
-            "results/{scene}/stats/mse_map.png",
+            STATS["map_figure"],
             caption="../workflow/report/stats_map.rst",
             category="{scene}",
             subcategory="4 ablation",
         ),
         kde_figure=report(
-            "results/{scene}/stats/mse_kde.png",
+            STATS["kde_figure"],
             caption="../workflow/report/stats_kde.rst",
             category="{scene}",
             subcategory="4 ablation",
         ),
         cost_figure=report(
-            "results/{scene}/stats/error_vs_cost.png",
+            STATS["cost_figure"],
             caption="../workflow/report/stats_cost.rst",
             category="{scene}",
             subcategory="4 ablation",
@@ -77,10 +77,10 @@ rule stats:
 
 rule stats_overview:
     input:
-        expand("results/{scene}/stats/validation_mse.csv", scene=ABLATION_SCENES),
+        expand(STATS["validation_mse"], scene=ABLATION_SCENES),
     output:
         report(
-            "results/stats/mse_std_vs_p.png",
+            STATS_OVERVIEW,
             caption="../workflow/report/stats_std.rst",
             category="study",
             subcategory="ablation",
@@ -101,27 +101,29 @@ rule stats_overview:
 rule convergence:
     input:
         study=lambda wildcards: [
-            f"results/{wildcards.scene}/models/P{p}/r0/model.pt"
+            model_file(wildcards.scene, p, 0)
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
         study_losses=lambda wildcards: [
-            f"results/{wildcards.scene}/models/P{p}/r0/losses.csv"
+            model_file(wildcards.scene, p, 0, "losses.csv")
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
         twice=lambda wildcards: [
-            f"results/{wildcards.scene}/convergence/P{p}/snapshots"
+            target(f"{CONVERGENCE_RUN}/snapshots", wildcards.scene).replace(
+                "{p}", str(p)
+            )
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
         twice_losses=lambda wildcards: [
-            f"results/{wildcards.scene}/convergence/P{p}/losses.csv"
+            target(f"{CONVERGENCE_RUN}/losses.csv", wildcards.scene).replace("{p}", str(p))
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
-        trainset="results/{scene}/dataset/trainset",
+        trainset=TRAINSET,
     output:
-        convergence="results/{scene}/stats/convergence.csv",
-        curve="results/{scene}/stats/error_vs_time.csv",
+        convergence=CONVERGENCE["convergence"],
+        curve=CONVERGENCE["curve"],
         figure=report(
-            "results/{scene}/stats/error_vs_time.png",
+            CONVERGENCE["figure"],
             caption="../workflow/report/stats_error_vs_time.rst",
             category="{scene}",
             subcategory="3 training",

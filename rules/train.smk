@@ -5,11 +5,11 @@
 rule train:
     input:
         unpack(pretrained_input),
-        trainset="results/{scene}/dataset/trainset",
+        trainset=TRAINSET,
     output:
-        model="results/{scene}/models/P{p}/r{r}/model.pt",
-        losses="results/{scene}/models/P{p}/r{r}/losses.csv",
-        figure="results/{scene}/models/P{p}/r{r}/losses.png",
+        model=model_file("{scene}", "{p}", "{r}"),
+        losses=model_file("{scene}", "{p}", "{r}", "losses.csv"),
+        figure=model_file("{scene}", "{p}", "{r}", "losses.png"),
     log:
         "results/{scene}/logs/train_P{p}_r{r}.log",
     benchmark:
@@ -35,13 +35,13 @@ rule train:
 rule train_twice:
     input:
         unpack(pretrained_input),
-        trainset="results/{scene}/dataset/trainset",
-        study="results/{scene}/models/P{p}/r0/model.pt",
+        trainset=TRAINSET,
+        study=model_file("{scene}", "{p}", 0),
     output:
-        model="results/{scene}/convergence/P{p}/model.pt",
-        losses="results/{scene}/convergence/P{p}/losses.csv",
-        figure="results/{scene}/convergence/P{p}/losses.png",
-        snapshots=directory("results/{scene}/convergence/P{p}/snapshots"),
+        model=f"{CONVERGENCE_RUN}/model.pt",
+        losses=f"{CONVERGENCE_RUN}/losses.csv",
+        figure=f"{CONVERGENCE_RUN}/losses.png",
+        snapshots=directory(f"{CONVERGENCE_RUN}/snapshots"),
     log:
         "results/{scene}/logs/train_twice_P{p}.log",
     benchmark:

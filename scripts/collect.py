@@ -2,6 +2,7 @@
 
 import json
 
+from threedcal.cli import ask_on_console
 from threedcal.collect.session import collect_stage
 from threedcal.logs import stage_log
 
@@ -15,4 +16,5 @@ with stage_log(snakemake.log[0]):
         coverage=snakemake.output.coverage,
         mosaic=snakemake.output.mosaic,
         truth=snakemake.output.truth,
+        ask=ask_on_console,  # a real rig asks for the probe to be attached
     )

@@ -2,7 +2,8 @@
 
 from pathlib import Path
 
-from threedcal.evaluate.pressing import press_objects
+from threedcal.cli import ask_on_console
+from threedcal.evaluate.object_presses import press_objects
 from threedcal.logs import stage_log
 
 with stage_log(snakemake.log[0]) as log:
@@ -11,5 +12,6 @@ with stage_log(snakemake.log[0]) as log:
         snakemake.input.registration,
         Path(snakemake.output.frames).parent,
         name=snakemake.wildcards.scene,
+        ask=ask_on_console,  # a real rig asks for each object to be mounted
     )
     log.info("object presses: %s", summary)

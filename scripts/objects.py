@@ -5,7 +5,7 @@ from pathlib import Path
 
 import torch
 
-from threedcal.evaluate.pressing import evaluate_objects
+from threedcal.evaluate.object_scores import evaluate_objects
 from threedcal.logs import stage_log
 
 with stage_log(snakemake.log[0]):

@@ -71,12 +71,12 @@ def sim_firmware():
     """A fault-free fake Marlin (no pacing) behind a fresh simmarlin:// name: (url, firmware)."""
     import uuid
 
-    from threedcal.sim.marlin import SimMarlin, forget, register
+    from threedcal.sim.marlin import FIRMWARES, SimMarlin
 
     name = f"f{uuid.uuid4().hex[:8]}"
-    firmware = register(name, SimMarlin("ender3", speedup=float("inf")))
+    firmware = FIRMWARES.serve(name, SimMarlin("ender3", speedup=float("inf")))
     yield f"simmarlin://{name}", firmware
-    forget(name)
+    FIRMWARES.withdraw(name)
 
 
 @pytest.fixture

@@ -322,7 +322,7 @@ def test_a_magnetic_sensor_names_its_board_as_reader_not_camera():
 def test_cv_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     import dataclasses
 
-    from threedcal.model.crossval import CVSettings
+    from threedcal.model.folds import CVSettings
     from threedcal.schema import load_schema
 
     fields = dataclasses.fields(CVSettings)
@@ -373,8 +373,8 @@ def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_p
     message = error_of(config_with(objects=["pill", "pil", str(missing), str(mine)]))
     assert message.splitlines()[1:] == [
         "  scenes.s.objects[1]: test object 'pil' is neither a built-in (hemispheres, pill, pawn) "
-        "nor an .stl path",
-        f"  scenes.s.objects[2]: STL file '{missing}' does not exist",
+        "nor a mesh file (.stl, .obj, .ply, .off)",
+        f"  scenes.s.objects[2]: mesh file '{missing}' does not exist",
     ]
     good = validate_config(config_with(objects=["pill", "pawn", "hemispheres", str(mine)]))
     check_object_files(good)
@@ -383,14 +383,14 @@ def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_p
         check_object_files(bad, source="my.yaml")
     assert str(info.value).splitlines() == [
         "my.yaml: invalid config",
-        f"  scenes.s.objects[1]: {empty}: ASCII STL must list 3 vertices per facet, found 0",
-        f"  scenes.s.objects[2]: {sheet}: the STL is not a closed (watertight), consistently "
+        f"  scenes.s.objects[1]: {empty}: no triangle read (an empty STL file, or not one)",
+        f"  scenes.s.objects[2]: {sheet}: the mesh is not a closed (watertight), consistently "
         "wound surface; repair it (e.g. in your CAD tool or slicer) and export again",
     ]
     study = tmp_path / "study.yaml"
     study.write_text(yaml.safe_dump(bad))
     assert main(["config", "check", str(study)]) == 1
-    assert f"scenes.s.objects[1]: {empty}: ASCII STL" in capsys.readouterr().err
+    assert f"scenes.s.objects[1]: {empty}: no triangle read" in capsys.readouterr().err
 
 
 def test_realism_folders_and_sensors_are_named_by_config_check(tmp_path, capsys):

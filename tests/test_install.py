@@ -14,10 +14,19 @@ import pytest
 import torch
 from conftest import DATA, REPO, write_untrained_model
 
-from threedcal.dataset.importers import read_rgb
+from threedcal.images import read_rgb
 
 WHEELS = Path("/opt/wheels")  # the CPU torch wheel on our machines, as the Makefile uses it
-WORKFLOW_ONLY = ("zarr", "snakemake", "xarray", "pandas", "matplotlib", "serial", "onnx")
+WORKFLOW_ONLY = (
+    "zarr",
+    "snakemake",
+    "xarray",
+    "pandas",
+    "matplotlib",
+    "statsmodels",
+    "serial",
+    "onnx",
+)
 
 
 def run(*command, cwd=None):

@@ -87,3 +87,39 @@ def test_digit_profile_lens_has_tactos_focal_length_in_opencv_units():
     assert lens.kappa1 == pytest.approx(digit["lens"]["k1"] / focal**2, rel=1e-12)
     assert lens.centre_px == (119.5, 159.5) and lens.shape == (320, 240)
     assert RadialLens.from_profile({"image": {}, "lens": None}) is None
+
+
+def test_the_lens_is_opencvs_camera_matrix_and_distortion():
+    """OpenCV's own answers for the lens as `opencv()` writes it: projectPoints distorts as
+    `distort`, undistortPoints inverts as `undistort`, initUndistortRectifyMap gives the maps
+    `rectify` uses; and the form round-trips."""
+    import cv2
+
+    lens = RadialLens(centre_px=(121.3, 157.8), kappa1=-1.1e-6, kappa2=0.0, shape=(320, 240))
+    matrix, coeffs = lens.opencv(focal_px=250.0)
+    assert RadialLens.from_opencv(matrix, coeffs, lens.shape) == lens
+    cols, rows = np.meshgrid(np.linspace(0, 239, 9), np.linspace(0, 319, 11))
+    ideal = np.stack([cols.ravel(), rows.ravel()], axis=-1)
+    rays = np.column_stack([(ideal - matrix[:2, 2]) / matrix[0, 0], np.ones(len(ideal))])
+    projected, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), matrix, coeffs)
+    np.testing.assert_allclose(lens.distort(ideal), projected[:, 0], atol=1e-9)
+    camera = lens.distort(ideal)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    back = cv2.undistortPoints(camera[:, None], matrix, coeffs, None, None, matrix, criteria)
+    np.testing.assert_allclose(lens.undistort(camera), back[:, 0], atol=1e-6)
+    map_x, map_y = lens.rectify_maps(lens.shape)
+    grid = np.stack(np.meshgrid(np.arange(240.0), np.arange(320.0)), axis=-1)
+    np.testing.assert_allclose(np.stack([map_x, map_y], axis=-1), lens.distort(grid), atol=1e-3)
+    with pytest.raises(ConfigError, match="p1, p2, k3 zero"):
+        RadialLens.from_opencv(matrix, [0.1, 0.0, 0.01, 0.0, 0.0])
+
+
+def test_camera_info_is_what_ros_reads():
+    info = BARREL.camera_info(focal_px=300.0)
+    assert (info["image_width"], info["image_height"]) == (240, 320)
+    assert info["distortion_model"] == "plumb_bob"
+    matrix = np.array(info["camera_matrix"])
+    assert matrix[0, 0] == matrix[1, 1] == 300.0 and tuple(matrix[:2, 2]) == BARREL.centre_px
+    k1, k2, *rest = info["distortion_coefficients"]
+    assert k1 == pytest.approx(-1e-6 * 300**2) and k2 == pytest.approx(2e-12 * 300**4)
+    assert rest == [0.0, 0.0, 0.0] and np.array(info["projection_matrix"]).shape == (3, 4)

@@ -27,7 +27,7 @@ import yaml
 
 from threedcal.config import load_config
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.evaluate.pressing import evaluate_objects
+from threedcal.evaluate.object_scores import evaluate_objects
 from threedcal.model.train import TrainSettings, train
 from threedcal.scenes import stage_config
 

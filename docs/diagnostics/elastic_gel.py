@@ -89,8 +89,18 @@ def checks() -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    # 1. Hertz: a paraboloid R = 10 mm on a half-space
-    R, s, m = 10.0, 0.05, GelMaterial(1.0, 0.5, math.inf)
+    R, s = 10.0, 0.05  # a paraboloid of R = 10 mm on a grid of 0.05 mm
+    hertz_check(axes[0], R, s)
+    bonded_layer_check(axes[1], R, s)
+    thin_layer_check(axes[2], R)
+    fig.tight_layout()
+    fig.savefig(FIGURES / "elastic_checks.png", dpi=110)
+    print(f"wrote {FIGURES / 'elastic_checks.png'}")
+
+
+def hertz_check(ax, R: float, s: float) -> None:
+    """1. Hertz: a paraboloid on a half-space."""
+    m = GelMaterial(1.0, 0.5, math.inf)
     depths = np.array([0.05, 0.1, 0.2, 0.3, 0.4, 0.5])
     rows = [paraboloid(m, R, d, s, 1.15 * math.sqrt(2 * R * d)) for d in depths]
     a_err = [a / math.sqrt(R * d) - 1 for (_, a), d in zip(rows, depths, strict=True)]
@@ -101,13 +111,15 @@ def checks() -> None:
     print("Hertz (paraboloid R = 10 mm on a half-space, grid 0.05 mm):")
     for d, ea, ef in zip(depths, a_err, f_err, strict=True):
         print(f"  d = {d:.2f} mm: contact radius {100 * ea:+.2f} %, force {100 * ef:+.3f} %")
-    ax = axes[0]
     ax.plot(depths, 100 * np.array(a_err), "o-", label="contact radius a")
     ax.plot(depths, 100 * np.array(f_err), "s-", label="force F")
     ax.axhspan(-2, 2, color="0.9", label="±2 % (test)")
     ax.set(xlabel="depth d (mm)", ylabel="BEM − Hertz (%)", title="Sphere on a half-space")
     ax.legend()
-    # 2. a thick bonded incompressible layer: F / F_Hertz against chi = sqrt(R d) / h
+
+
+def bonded_layer_check(ax, R: float, s: float) -> None:
+    """2. a thick bonded incompressible layer: F / F_Hertz against chi = sqrt(R d) / h."""
     nu, d = 0.5, 0.25
     gamma = -quad(lambda t: float(layer_factor(t, nu)) - 1, 0, 40, limit=200)[0]
     kappa = 4 * gamma / (3 * math.pi)
@@ -129,7 +141,6 @@ def checks() -> None:
             f"  chi = {c:.2f}: F/F_H BEM {b:.4f}, second-order closed form {e:.4f} "
             f"({100 * (b / e - 1):+.2f} %), Dimitriadis 2002 {dm:.4f} ({100 * (b / dm - 1):+.2f} %)"
         )
-    ax = axes[1]
     ax.plot(chis, bem, "o-", label="BEM")
     ax.plot(chis, closed, "--", label="(1 − κ a/h)^−3/2 (2nd order)")
     ax.plot(chis, dimitriadis, ":", label="Dimitriadis et al. 2002")
@@ -137,10 +148,12 @@ def checks() -> None:
         xlabel="χ = sqrt(R d) / h", ylabel="F / F_Hertz", title="Sphere on a bonded layer, ν = 0.5"
     )
     ax.legend()
-    # 3. thin layers: the Winkler (nu = 0.3) and Chadwick (nu = 0.5) limits
+
+
+def thin_layer_check(ax, R: float) -> None:
+    """3. thin layers: the Winkler (nu = 0.3) and Chadwick (nu = 0.5) limits."""
     d = 0.1
     ratios = np.array([5, 10, 20])
-    ax = axes[2]
     for nu, a_lim, style in ((0.3, math.sqrt(2 * R * d), "o-"), (0.5, 2 * math.sqrt(R * d), "s-")):
         fs, as_ = [], []
         for ratio in ratios:
@@ -168,9 +181,6 @@ def checks() -> None:
     ax.axhline(1, color="0.5", lw=0.8)
     ax.set(xlabel="h / a", ylabel="BEM / thin-layer limit", title="Thin bonded layers")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(FIGURES / "elastic_checks.png", dpi=110)
-    print(f"wrote {FIGURES / 'elastic_checks.png'}")
 
 
 def contact() -> None:
@@ -250,7 +260,8 @@ def contact() -> None:
 def locators() -> None:
     """The dataset stage's contact locators (rim, mirror symmetry) on Mini frames of a ball 1 mm deep
     at 20 known sub-pixel centres (5 columns x 4 rows), each gel: error found - true, px."""
-    from threedcal.dataset.registration import locate_contact, refine_by_symmetry
+    from threedcal.dataset.contacts import locate_contact
+    from threedcal.dataset.symmetry import refine_by_symmetry
 
     for mechanics in ("geometric", "elastic"):
         profile = copy.deepcopy(load_profile("sensor", "gelsight_mini"))

@@ -9,7 +9,7 @@ point, RMS and max over every probe point whose centre is in view) of:
 - `k1`, `k1+k2`, each with the principal point free or held at the frame's centre, fitted to the
   contacts the dataset stage located (on frames rectified through its first fit);
 - the stage's first pass (κ₁ on the contacts as first located), and the stage itself
-  (threedcal.dataset.registration.register: relocated, κ₁ and κ₂, outliers rejected).
+  (threedcal.dataset.registration.register_camera: relocated, κ₁ and κ₂, outliers rejected).
 
 Seeds other than the default study's 0: the figures the study reports are not the ones this
 chose on. Usage (about a minute per sensor and seed on 2 cores):
@@ -29,12 +29,8 @@ from scipy import optimize
 from threedcal.collect.session import collect_scene
 from threedcal.config import validate_config
 from threedcal.dataset.build import register_store
-from threedcal.dataset.registration import (
-    AffineFit,
-    fit_affine,
-    fit_lensed,
-    locate_contact,
-)
+from threedcal.dataset.camera_fit import AffineFit, fit_affine, fit_lensed
+from threedcal.dataset.contacts import locate_contact
 from threedcal.dataset.splits import in_field_of_view
 from threedcal.lens import RadialLens
 from threedcal.sim.bench import BenchTruth

@@ -20,16 +20,9 @@ import numpy as np
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.evaluate.groundtruth import surface_height
-from threedcal.evaluate.pressing import (
-    PrinterFrame,
-    head_position,
-    load_object,
-    read_presses,
-    read_registration,
-    relief_indenter,
-    scene_mount,
-    score_press,
-)
+from threedcal.evaluate.object_presses import read_presses, relief_indenter
+from threedcal.evaluate.object_scores import head_position, score_press
+from threedcal.evaluate.press_plan import PrinterFrame, object_mesh, read_registration, scene_mount
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
 from threedcal.profiles import load_profile
@@ -50,7 +43,7 @@ def main(scene_name: str, p: int = 80) -> None:
     limit = sim.max_penetration_mm
     print(f"{scene_name}: Type 2 / Type 1 MAE (um) of the simulator's own surface and of P = {p}")
     for press in plan[plan["set"] == "reporting"].itertuples():
-        mesh, true = load_object(press.object), truth["presses"][press.frame]
+        mesh, true = object_mesh(press.object), truth["presses"][press.frame]
         placed = frame.placement(head_position(press))
         surface_gt = surface_height(
             mesh, frames.shape[1:3], 1.0, placed.center_px, 0.0, placed.linear_px_per_mm

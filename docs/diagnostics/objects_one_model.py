@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from threedcal.config import load_config
-from threedcal.evaluate.pressing import evaluate_objects
+from threedcal.evaluate.object_scores import evaluate_objects
 from threedcal.scenes import stage_config
 
 

@@ -30,17 +30,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
+from threedcal.evaluate.object_scores import evaluate_objects
 from threedcal.evaluate.objects import load_object
-from threedcal.evaluate.pressing import (
-    TruthGradients,
-    evaluate_objects,
-    press_objects,
-    read_presses,
-    read_registration,
-    rectify_if,
-    relief_indenter,
-)
-from threedcal.lens import RadialLens
+from threedcal.evaluate.press_plan import read_registration
+from threedcal.evaluate.truth_gradients import TruthGradients
+from threedcal.lens import RadialLens, rectify_if
 from threedcal.profiles import load_profile, with_gel_mechanics
 from threedcal.sim.optics import GelSimulator
 

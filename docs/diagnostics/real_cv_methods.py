@@ -27,6 +27,7 @@ import torch
 
 from threedcal.dataset.build import build_imported
 from threedcal.model import crossval
+from threedcal.model import folds as cv_folds
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.presets_study import depth_ms_per_frame
 from threedcal.model.train import TrainSettings, train
@@ -68,7 +69,7 @@ def held_out(ts, folds, name: str, model: dict, out: Path, only: int | None = No
         if not cached.is_file():
             began = time.process_time()
             checkpoint = train(
-                crossval.fold_trainset(ts, folds, fold),
+                cv_folds.fold_trainset(ts, folds, fold),
                 cached.parent,
                 80,
                 TrainSettings.of(**model, seed=0, torch_threads=1),
@@ -88,7 +89,7 @@ def held_out(ts, folds, name: str, model: dict, out: Path, only: int | None = No
 
 
 def main(folder: str, names: list[str]) -> None:
-    settings = crossval.CVSettings()
+    settings = cv_folds.CVSettings()
     rows = []
     for labels in ("drawn", "refined"):
         chosen = [n for n in (names or METHODS) if METHODS[n][0] == labels]
@@ -113,7 +114,7 @@ def model_ready(folder: str, refined: bool):
     with tempfile.TemporaryDirectory() as tmp:
         ts = build_imported(scene, Path(tmp) / "trainset", Path(tmp) / "splits.csv")
         ts.frames = np.asarray(ts.frames)
-    return ts, crossval.make_folds(ts, crossval.CVSettings(), seed=0, where=folder)
+    return ts, cv_folds.make_folds(ts, cv_folds.CVSettings(), seed=0, where=folder)
 
 
 def against_drawn_labels(folder: str, names: list[str], settings) -> list[dict]:

@@ -21,6 +21,7 @@ import numpy as np
 
 from threedcal.dataset.build import build_imported
 from threedcal.model import crossval
+from threedcal.model import folds as cv_folds
 
 sys.path.insert(0, str(Path(__file__).parent))
 from real_cv_methods import CACHE, MULTISCALE, held_out  # noqa: E402
@@ -39,7 +40,7 @@ INNER_FOLDS = 2
 
 
 def main(folder: str, labels: str = "drawn") -> None:
-    settings = crossval.CVSettings()
+    settings = cv_folds.CVSettings()
     scene = {
         "import": {"format": "ball_folder", "path": folder},
         "seed": 0,
@@ -48,7 +49,7 @@ def main(folder: str, labels: str = "drawn") -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ts = build_imported(scene, Path(tmp) / "trainset", Path(tmp) / "splits.csv")
         ts.frames = np.asarray(ts.frames)
-    folds = crossval.make_folds(ts, settings, seed=0, where=folder)
+    folds = cv_folds.make_folds(ts, settings, seed=0, where=folder)
     out = CACHE / Path(folder).name
     suffix = "" if labels == "drawn" else "_refined"
     chosen, frames = {}, {}

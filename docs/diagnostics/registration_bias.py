@@ -14,7 +14,8 @@ import sys
 
 import numpy as np
 
-from threedcal.dataset.registration import locate_contact, refine_by_symmetry
+from threedcal.dataset.contacts import locate_contact
+from threedcal.dataset.symmetry import refine_by_symmetry
 from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator

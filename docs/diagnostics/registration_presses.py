@@ -33,8 +33,9 @@ from threedcal.collect.plan import plan_area_mm
 from threedcal.collect.session import collect_scene
 from threedcal.config import validate_config
 from threedcal.dataset.build import register_store
-from threedcal.dataset.registration import Contact, locate_contact, refine_by_symmetry
+from threedcal.dataset.contacts import Contact, locate_contact
 from threedcal.dataset.splits import in_field_of_view
+from threedcal.dataset.symmetry import refine_by_symmetry
 from threedcal.lens import RadialLens
 from threedcal.sim.bench import BenchTruth
 

@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-from threedcal.dataset.registration import DomedContacts, register
+from threedcal.dataset.dome_contacts import DomedContacts
+from threedcal.dataset.registration import register_camera
 from threedcal.profiles import load_profile, with_gel_mechanics
 from threedcal.sim.elastic import GelMaterial
 from threedcal.sim.indenters import Sphere
@@ -81,7 +82,7 @@ def run(sensor: str, points: int, elastic: bool = False) -> str:
             profile["gel"]["dome"], SPHERE_MM, depths, sim.px_per_mm, blank.shape, material
         )
     wall, cpu = time.perf_counter(), time.process_time()
-    result = register(xy_mm, frames, blank, accept=whole, flat_gel=flat, dome=dome)
+    result = register_camera(xy_mm, frames, blank, accept=whole, flat_gel=flat, dome=dome)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     return (

@@ -27,7 +27,7 @@ import torch
 
 from threedcal.config import load_config
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.model.crossval import read_folds, training_images
+from threedcal.model.folds import read_folds, training_images
 from threedcal.model.sim2real import (
     SimToRealSettings,
     fitted_to_frames,

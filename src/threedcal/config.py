@@ -155,18 +155,22 @@ def _object_problems(scene: Mapping) -> list[str]:
     ]
 
 
+# The mesh files a test object may come in (read by trimesh: threedcal.evaluate.mesh).
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off")
+
+
 def object_problem(ref: str | Path) -> str | None:
-    """What is wrong with a test object reference (a built-in name or an STL path), or None."""
+    """What is wrong with a test object reference (a built-in name or a mesh file), or None."""
     text = str(ref)
     if text in BUILTIN_OBJECTS:
         return None
-    if not text.lower().endswith(".stl"):
+    if Path(text).suffix.lower() not in MESH_SUFFIXES:
         return (
             f"test object {text!r} is neither a built-in ({', '.join(BUILTIN_OBJECTS)}) "
-            "nor an .stl path"
+            f"nor a mesh file ({', '.join(MESH_SUFFIXES)})"
         )
     if not Path(text).is_file():
-        return f"STL file {text!r} does not exist"
+        return f"mesh file {text!r} does not exist"
     return None
 
 

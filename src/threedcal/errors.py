@@ -15,3 +15,7 @@ class FrameSizeError(ConfigError):
 
 class TrainingError(ThreedcalError, ArithmeticError):
     """A training step's loss stopped being finite; the message names the job and what to change."""
+
+
+class RegistrationError(ThreedcalError):
+    """The probe frames do not register the camera (too few contacts, mismatched shapes, ...)."""

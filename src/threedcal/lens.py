@@ -8,8 +8,10 @@ a scale) and then bent by the lens's radial distortion. In pixel units, with d =
     camera = c + d · (1 + κ₁ |d|² + κ₂ |d|⁴)
 
 which is OpenCV's model with k₁ = κ₁ f², k₂ = κ₂ f⁴ for a focal length of f pixels: a calibrated
-lens's k₁, k₂ can be written into a sensor profile as they are. κ < 0 is barrel distortion (a
-wide-angle lens pulls the field's edge inward).
+lens's k₁, k₂ can be written into a sensor profile as they are, and `RadialLens.opencv` gives the
+camera matrix and distortion coefficients every other tool reads (cv2.undistortPoints,
+cv2.initUndistortRectifyMap, a ROS camera_info). κ < 0 is barrel distortion (a wide-angle lens pulls
+the field's edge inward). The rectification's maps are OpenCV's (`rectify_maps`).
 
 Everything the library does after registration works in the *ideal* frame, where one millimetre
 of the gel is the same number of pixels everywhere: the dataset stage fits the lens together with
@@ -52,12 +54,7 @@ class RadialLens:
             return None
         height = int(sensor["image"]["height_px"])
         width = int(sensor["image"]["width_px"])
-        fov = float(block["fov_deg"])
-        if not 0 < fov < 180:
-            raise ConfigError(
-                f"sensor profile {sensor.get('name')!r}: lens.fov_deg must lie in (0, 180), got {fov}"
-            )
-        focal = (height / 2) / math.tan(math.radians(fov) / 2)
+        focal = profile_focal_px(sensor)
         return cls(
             centre_px=((width - 1) / 2, (height - 1) / 2),
             kappa1=float(block.get("k1", 0.0)) / focal**2,
@@ -83,6 +80,60 @@ class RadialLens:
             )
         except (AttributeError, KeyError, TypeError, ValueError) as exc:
             raise ConfigError(f"lens record {record!r} is malformed ({exc})") from exc
+
+    @classmethod
+    def from_opencv(cls, camera_matrix, dist_coeffs, shape: tuple[int, int] | None = None):
+        """A camera matrix K (3 x 3, square pixels) and distortion coefficients (k1, k2[, p1, p2,
+        k3]; tangential and higher terms must be 0: this lens is radial to fourth order)."""
+        matrix = np.asarray(camera_matrix, dtype=float)
+        coeffs = np.ravel(np.asarray(dist_coeffs, dtype=float))
+        if matrix.shape != (3, 3) or not np.isclose(matrix[0, 0], matrix[1, 1]):
+            raise ConfigError(f"camera matrix must be 3 x 3 with fx = fy, got {matrix.tolist()}")
+        if coeffs.size < 2 or np.any(coeffs[2:] != 0):
+            raise ConfigError(
+                f"distortion coefficients must be k1, k2 (p1, p2, k3 zero), got {coeffs.tolist()}"
+            )
+        focal = float(matrix[0, 0])
+        return cls(
+            centre_px=(float(matrix[0, 2]), float(matrix[1, 2])),
+            kappa1=float(coeffs[0]) / focal**2,
+            kappa2=float(coeffs[1]) / focal**4,
+            shape=shape,
+        )
+
+    def opencv(self, focal_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(camera matrix K, distortion coefficients k1, k2, p1, p2, k3) in OpenCV's convention.
+
+        A registration fits the distortion in pixels and not the focal length f: any f describes
+        the same lens (k₁ = κ₁ f², k₂ = κ₂ f⁴). `focal_px` (the profile's, from its lens.fov_deg)
+        keeps k₁, k₂ in the profile's units; by default f is the frame's half-diagonal."""
+        if focal_px is None:
+            if self.shape is None:
+                raise ConfigError("the lens has no frame shape: give focal_px")
+            height, width = self.shape
+            focal_px = math.hypot(width - 1, height - 1) / 2
+        f = float(focal_px)
+        matrix = np.array([[f, 0.0, self.centre_px[0]], [0.0, f, self.centre_px[1]], [0, 0, 1.0]])
+        coeffs = np.array([self.kappa1 * f**2, self.kappa2 * f**4, 0.0, 0.0, 0.0])
+        return matrix, coeffs
+
+    def camera_info(self, focal_px: float | None = None) -> dict:
+        """The lens as a ROS sensor_msgs/CameraInfo's fields (plumb_bob), JSON-ready: what a
+        user hands to ROS, or to OpenCV as np.array(camera_matrix) and distortion_coefficients.
+        The camera sees the ideal frame through it (rectification and projection: K again)."""
+        if self.shape is None:
+            raise ConfigError("the lens has no frame shape: camera_info needs the image size")
+        matrix, coeffs = self.opencv(focal_px)
+        projection = np.column_stack([matrix, np.zeros(3)])
+        return {
+            "image_width": int(self.shape[1]),
+            "image_height": int(self.shape[0]),
+            "distortion_model": "plumb_bob",
+            "camera_matrix": matrix.round(9).tolist(),
+            "distortion_coefficients": coeffs.round(12).tolist(),
+            "rectification_matrix": np.eye(3).tolist(),
+            "projection_matrix": projection.round(9).tolist(),
+        }
 
     def record(self) -> dict:
         """JSON-ready parameters (registration.json, the trainset's meta, a checkpoint)."""
@@ -142,11 +193,15 @@ class RadialLens:
     # ----------------------------------------------------------------- images
     def rectify_maps(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         """cv2.remap tables: for each ideal pixel of a frame `shape` (H, W), the camera pixel it
-        was imaged at (float32 column and row)."""
+        was imaged at (float32 column and row): cv2.initUndistortRectifyMap's, with the ideal
+        frame's camera matrix that of the camera itself."""
+        import cv2
+
         height, width = shape
-        cols, rows = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
-        camera = self.distort(np.stack([cols, rows], axis=-1))
-        return camera[..., 0].astype(np.float32), camera[..., 1].astype(np.float32)
+        matrix, coeffs = self.opencv(math.hypot(width - 1, height - 1) / 2)
+        return cv2.initUndistortRectifyMap(
+            matrix, coeffs, None, matrix, (int(width), int(height)), cv2.CV_32FC1
+        )
 
     def rectify(self, images: np.ndarray) -> np.ndarray:
         """Camera frames (H, W[, C]) or (N, H, W, C) → the ideal frame, bilinear, same dtype.
@@ -184,6 +239,19 @@ class RadialLens:
             out = np.rint(out) if np.issubdtype(dtype, np.integer) else out
             out = out.astype(dtype)
         return out if batched else out[0]
+
+
+def profile_focal_px(sensor: Mapping) -> float | None:
+    """The focal length (px) the profile's lens block implies: the field of view across the rows."""
+    block = sensor.get("lens")
+    if not block:
+        return None
+    fov = float(block["fov_deg"])
+    if not 0 < fov < 180:
+        raise ConfigError(
+            f"sensor profile {sensor.get('name')!r}: lens.fov_deg must lie in (0, 180), got {fov}"
+        )
+    return (int(sensor["image"]["height_px"]) / 2) / math.tan(math.radians(fov) / 2)
 
 
 def rectify_if(lens: RadialLens | None, images: np.ndarray) -> np.ndarray:

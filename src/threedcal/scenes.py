@@ -25,41 +25,126 @@ from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
-# The study-wide integrator comparison (rules/integration_study.smk), built when the config enables it.
-INTEGRATION_STUDY_TARGETS = [
-    f"{RESULTS}/integration/error_vs_time.csv",
-    f"{RESULTS}/integration/error_vs_time.png",
-    f"{RESULTS}/integration/reading.md",
-]
-# Per-scene outputs of the stats stage (rules/stats.smk), for scenes with an ablation.
-STATS_FILES = (
-    "validation_mse.csv",
-    "tests.csv",
-    "tests.png",
-    "recommendation.txt",
-    "power.csv",
-    "power.png",
-    "error_vs_cost.csv",
-    "loss_curves.png",
-    "mse_map.png",
-    "mse_kde.png",
-    "error_vs_cost.png",
+# Every file the workflow writes that something else names (a rule's input, a scene's targets), as
+# the rules' pattern: `{scene}` is their wildcard, and `target` fills in a scene's name. The rules
+# name their outputs and inputs from here; logs and benchmarks, which nothing reads, stay in them.
+SCENE = f"{RESULTS}/{{scene}}"
+
+
+def _files(folder: str, **leaves: str) -> dict[str, str]:
+    """{name: folder/leaf}: a stage's files by the names its rule gives them."""
+    return {name: f"{folder}/{leaf}" for name, leaf in leaves.items()}
+
+
+SCENE_JSON = f"{SCENE}/scene.json"
+# The collect stage (rules/collect.smk). The store (raw.zarr) is not among its outputs: it is a
+# source the stage keeps beside them, never a product Snakemake may delete.
+COLLECT = _files(
+    f"{SCENE}/collect",
+    summary="summary.json",
+    coverage="coverage.png",
+    mosaic="frames.png",
 )
-# Outputs of the convergence check (rules/stats.smk, ablation.convergence).
-CONVERGENCE_FILES = ("convergence.csv", "error_vs_time.csv", "error_vs_time.png")
-# Outputs of the objects stage (rules/objects.smk): the presses, then their scores.
-OBJECT_FILES = (
-    "pressing/frames.npz",
-    "pressing/plan.csv",
-    "pressing/truth.json",
-    "pressing/summary.json",
-    "errors.csv",
-    "tuning.csv",
-    "presses.csv",
-    "integrators.csv",
-    "violins.png",
-    "figures",
+BENCH_TRUTH = f"{SCENE}/collect/bench_truth.json"
+STORE = f"{SCENE}/raw.zarr"
+STAGING_STORE = f"{SCENE}/.partial/raw.zarr"
+# The dataset stage (rules/dataset.smk).
+TRAINSET = f"{SCENE}/dataset/trainset"
+SPLITS = f"{SCENE}/dataset/splits.csv"
+REGISTRATION = f"{SCENE}/dataset/registration.json"
+REGISTRATION_FIGURE = f"{SCENE}/dataset/registration.png"
+# One training job per (P, replicate) (rules/train.smk), and the speed of the largest P's model.
+MODEL_DIR = f"{SCENE}/models/P{{p}}/r{{r}}"
+INFERENCE_SPEED = f"{SCENE}/models/inference.json"
+# The convergence check's second training of a fraction P (rules/train.smk, train_twice).
+CONVERGENCE_RUN = f"{SCENE}/convergence/P{{p}}"
+# The weights shipped for `model.init: pretrained`, one network per sensor (rules/pretrained.smk).
+PRETRAINED_DIR = f"{RESULTS}/pretrained/{{sensor}}"
+# The stats stage (rules/stats.smk), for scenes with an ablation.
+STATS = _files(
+    f"{SCENE}/stats",
+    validation_mse="validation_mse.csv",
+    tests="tests.csv",
+    tests_figure="tests.png",
+    recommendation="recommendation.txt",
+    power="power.csv",
+    power_figure="power.png",
+    costs="error_vs_cost.csv",
+    loss_figure="loss_curves.png",
+    map_figure="mse_map.png",
+    kde_figure="mse_kde.png",
+    cost_figure="error_vs_cost.png",
 )
+# The convergence check (rules/stats.smk, ablation.convergence).
+CONVERGENCE = _files(
+    f"{SCENE}/stats",
+    convergence="convergence.csv",
+    curve="error_vs_time.csv",
+    figure="error_vs_time.png",
+)
+# The objects stage (rules/objects.smk): the presses, then their scores.
+PRESSING = _files(
+    f"{SCENE}/objects/pressing",
+    frames="frames.npz",
+    plan="plan.csv",
+    truth="truth.json",
+    summary="summary.json",
+)
+OBJECTS = _files(
+    f"{SCENE}/objects",
+    errors="errors.csv",
+    tuning="tuning.csv",
+    presses="presses.csv",
+    integrators="integrators.csv",
+    violins="violins.png",
+    figures="figures",
+)
+# The ReSkin stage (rules/reskin.smk), for magnetic-sensor scenes.
+RESKIN_MODEL = _files(
+    f"{SCENE}/reskin",
+    model="model.pt",
+    losses="losses.csv",
+    splits="splits.csv",
+)
+RESKIN_EVAL = {"metrics": f"{SCENE}/reskin_eval.json", "figure": f"{SCENE}/reskin_eval.png"}
+# Imported scenes (rules/ball.smk, rules/presets.smk): the cross-validated evaluation, the presets
+# and the sim-to-real stage (threedcal.model.sim2real).
+CV_FOLDS = f"{SCENE}/cv/folds.csv"
+CV_MODEL_DIR = f"{SCENE}/cv/{{method}}/fold{{fold}}"
+SIM2REAL_PRETRAINED_DIR = f"{SCENE}/sim2real/fold{{fold}}/pretrained"
+SIM2REAL_MODEL_DIR = f"{SCENE}/sim2real/{{condition}}/k{{k}}/fold{{fold}}"
+BALL_EVAL = {
+    "json": f"{SCENE}/ball_eval.json",
+    "images": f"{SCENE}/cv/images.csv",
+    "figure": f"{SCENE}/cv/errors.png",
+}
+PRESETS = {"csv": f"{SCENE}/presets.csv", "png": f"{SCENE}/presets.png"}
+SIM2REAL = _files(
+    f"{SCENE}/sim2real",
+    errors="errors.csv",
+    images="images.csv",
+    figure="error_vs_k.png",
+)
+# Study-wide: the integrator comparison (rules/integration_study.smk, when the config enables it),
+# the cross-scene spread, the realism table, the run environment and the summary page.
+INTEGRATION_STUDY = _files(
+    f"{RESULTS}/integration",
+    csv="error_vs_time.csv",
+    png="error_vs_time.png",
+    reading="reading.md",
+)
+INTEGRATION_STUDY_TARGETS = list(INTEGRATION_STUDY.values())
+STATS_OVERVIEW = f"{RESULTS}/stats/mse_std_vs_p.png"
+REALISM_TABLE = f"{RESULTS}/realism/table.txt"
+ENVIRONMENT = f"{RESULTS}/environment.json"
+SUMMARY = f"{RESULTS}/summary.md"
+
+
+def target(pattern: str, name: str) -> str:
+    """A pattern of the list above with the scene's name filled in (other wildcards kept)."""
+    return pattern.replace("{scene}", name)
+
+
 # Versions recorded with every scene: the packages whose behaviour changes numbers.
 RECORDED_PACKAGES = (
     "threedcal",
@@ -98,23 +183,6 @@ def stage_config(scene: Mapping, stage: str) -> dict:
     return {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
 
 
-# Per-scene outputs of the ReSkin stage (rules/reskin.smk), for magnetic-sensor scenes.
-RESKIN_FILES = (
-    "reskin/model.pt",
-    "reskin/losses.csv",
-    "reskin/splits.csv",
-    "reskin_eval.json",
-    "reskin_eval.png",
-)
-# The store (raw.zarr) is not among them: it is a source the collect stage keeps beside its outputs,
-# never a product Snakemake may delete (rules/collect.smk).
-COLLECT_FILES = ("collect/summary.json", "collect/coverage.png", "collect/frames.png")
-
-
-# Per-scene outputs of the sim-to-real stage (rules/ball.smk, threedcal.model.sim2real).
-SIM2REAL_FILES = ("sim2real/errors.csv", "sim2real/images.csv", "sim2real/error_vs_k.png")
-
-
 def has_sim2real(scene: Mapping) -> bool:
     """Imported scenes with `sim_to_real.enabled`: pretrain on simulated presses, fine-tune on real."""
     return is_imported(scene) and bool((scene.get("sim_to_real") or {}).get("enabled"))
@@ -130,29 +198,31 @@ def reskin_scenes(config: Mapping) -> list[str]:
 
 
 def scene_targets(name: str, scene: Mapping) -> list[str]:
-    root = f"{RESULTS}/{name}"
-    targets = [f"{root}/scene.json"]
+    def of(*patterns) -> list[str]:
+        return [target(pattern, name) for pattern in patterns]
+
+    targets = of(SCENE_JSON)
     if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
-        return targets + [f"{root}/{leaf}" for leaf in COLLECT_FILES + RESKIN_FILES]
+        return targets + of(*COLLECT.values(), *RESKIN_MODEL.values(), *RESKIN_EVAL.values())
     if is_imported(scene):
-        targets += [f"{root}/dataset/splits.csv"]
+        targets += of(SPLITS)
     else:
-        targets += [f"{root}/{leaf}" for leaf in COLLECT_FILES]
-        targets += [f"{root}/dataset/registration.json", f"{root}/dataset/splits.csv"]
+        targets += of(*COLLECT.values(), REGISTRATION, SPLITS)
     targets += model_targets(name, scene)
     if is_vision(scene):
-        targets += [f"{root}/models/inference.json"]
+        targets += of(INFERENCE_SPEED)
     if is_imported(scene):
-        targets += [f"{root}/ball_eval.json", f"{root}/presets.csv", f"{root}/presets.png"]
-        targets += [f"{root}/cv/images.csv", f"{root}/cv/errors.png"]
+        targets += of(
+            BALL_EVAL["json"], *PRESETS.values(), BALL_EVAL["images"], BALL_EVAL["figure"]
+        )
     if has_sim2real(scene):
-        targets += [f"{root}/{leaf}" for leaf in SIM2REAL_FILES]
+        targets += of(*SIM2REAL.values())
     if has_objects(scene):
-        targets += [f"{root}/objects/{leaf}" for leaf in OBJECT_FILES]
+        targets += of(*PRESSING.values(), *OBJECTS.values())
     if has_ablation(scene):
-        targets += [f"{root}/stats/{name}" for name in STATS_FILES]
+        targets += of(*STATS.values())
     if convergence_fractions(scene):
-        targets += [f"{root}/stats/{name}" for name in CONVERGENCE_FILES]
+        targets += of(*CONVERGENCE.values())
     return targets
 
 
@@ -176,9 +246,12 @@ def ablation_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if has_ablation(scene)]
 
 
-def model_file(name: str, percent: int, replicate: int = 0, leaf: str = "model.pt") -> str:
-    """results/{scene}/models/P{p}/r{r}/{leaf}: where replicate r of fraction P is trained."""
-    return f"{RESULTS}/{name}/models/P{percent}/r{replicate}/{leaf}"
+def model_file(name: str, percent, replicate=0, leaf: str = "model.pt") -> str:
+    """results/{scene}/models/P{p}/r{r}/{leaf}: where replicate r of fraction P is trained (the
+    rule's own pattern with the wildcards for arguments)."""
+    return f"{target(MODEL_DIR, name)}/{leaf}".replace("{p}", str(percent)).replace(
+        "{r}", str(replicate)
+    )
 
 
 def full_model_file(name: str, scene: Mapping) -> str:
@@ -203,10 +276,10 @@ def study_targets(config: Mapping) -> list[str]:
     if config.get("integration_study", {}).get("enabled"):
         targets += INTEGRATION_STUDY_TARGETS
     if ablation_scenes(config):
-        targets += [f"{RESULTS}/stats/mse_std_vs_p.png"]
+        targets += [STATS_OVERVIEW]
     if config.get("realism"):
-        targets += [f"{RESULTS}/realism/table.txt"]
-    targets += [f"{RESULTS}/environment.json", f"{RESULTS}/summary.md"]
+        targets += [REALISM_TABLE]
+    targets += [ENVIRONMENT, SUMMARY]
     return targets
 
 

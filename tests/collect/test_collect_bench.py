@@ -320,7 +320,7 @@ def touch_error_with_true_centres(tmp_path, sensor, seed):
     """Collect a touch search and measure δ with the contacts placed by the bench's true affine:
     the search alone, apart from the registration (tested above)."""
     from threedcal.collect.plan import dome_sag_at_px, plan_phases
-    from threedcal.dataset.registration import TOUCH_FIT_SPAN_MM, measure_touch_search
+    from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, measure_touch_search
 
     plan = {"spacing_mm": 8.0, "depth_mm": 1.0, "frames": 1}
     scene = collect_on_bench(tmp_path, sensor, plan, seed)

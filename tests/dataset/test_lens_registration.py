@@ -9,7 +9,8 @@ from conftest import bench_scene, collect_and_register, elastic_gel, shared_acro
 
 from threedcal.collect.store import open_checked
 from threedcal.dataset.build import build_collected
-from threedcal.dataset.registration import fit_affine, fit_lensed, locate_contact
+from threedcal.dataset.camera_fit import fit_affine, fit_lensed
+from threedcal.dataset.contacts import locate_contact
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
@@ -168,7 +169,7 @@ def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_wit
     axis (DomedContacts, the profile's dome and gel constants), the lens and affine register the
     view within 0.3 px. The rigid overlap's centroid, which places a rim on a gel that follows the
     ball, moves them less well."""
-    from threedcal.dataset.registration import DomedContacts
+    from threedcal.dataset.dome_contacts import DomedContacts
 
     plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("digit"), plan, 11)

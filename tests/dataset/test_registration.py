@@ -3,21 +3,14 @@ import math
 import numpy as np
 import pytest
 
+from threedcal.dataset.camera_fit import fit_affine
+from threedcal.dataset.contacts import Contact, find_contact, locate_contact
+from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.labels import sphere_gradients
-from threedcal.dataset.registration import (
-    ChangeDetector,
-    Contact,
-    DomedContacts,
-    RegistrationError,
-    _levenberg_marquardt,
-    estimate_touch,
-    find_contact,
-    fit_affine,
-    fit_touch_onset,
-    locate_contact,
-    refine_by_symmetry,
-    register,
-)
+from threedcal.dataset.registration import register_camera
+from threedcal.dataset.symmetry import _levenberg_marquardt, refine_by_symmetry
+from threedcal.dataset.touch import ChangeDetector, estimate_touch, fit_touch_onset
+from threedcal.errors import RegistrationError
 
 PPM = 19.0
 SHAPE = (320, 240)
@@ -197,14 +190,14 @@ def test_register_keeps_the_locator_an_affine_explains_better(mini_contacts):
     sim, centres, frames, blank = mini_contacts
     truth = np.array([[15.7, 0.4], [0.4, -15.7]])
     xy_mm = (centres - [160, 120]) @ np.linalg.inv(truth).T
-    result = register(xy_mm, frames, blank)
+    result = register_camera(xy_mm, frames, blank)
     assert result.locator == "symmetry"
     assert result.residual_px["symmetry"] < result.residual_px["rim"]
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     assert error.max() < 0.2
     # Grey frames carry one channel: no symmetry in 2D from one LED axis, the rim is used.
     grey = [f.mean(axis=-1) for f in frames]
-    result = register(xy_mm, grey, blank.mean(axis=-1))
+    result = register_camera(xy_mm, grey, blank.mean(axis=-1))
     assert result.locator == "rim" and result.unmixing is None
     assert set(result.residual_px) == {"rim"}
 
@@ -224,12 +217,12 @@ def test_register_uses_only_the_rim_on_a_domed_gel_and_moves_its_centres_to_the_
         sim.px_per_mm,
         blank.shape,
     )
-    result = register(xy_mm, frames, blank, flat_gel=False, dome=dome)
+    result = register_camera(xy_mm, frames, blank, flat_gel=False, dome=dome)
     assert result.locator == "rim" and set(result.residual_px) == {"rim"}
     assert result.unmixing is None
     error = np.linalg.norm(result.fit.apply(xy_mm) - centres, axis=1)
     assert error.max() < 0.5
-    leaning = register(xy_mm, frames, blank, flat_gel=False)  # the contacts' own centres
+    leaning = register_camera(xy_mm, frames, blank, flat_gel=False)  # the contacts' own centres
     assert np.linalg.norm(leaning.fit.apply(xy_mm) - centres, axis=1).max() > 2 * error.max()
 
 
@@ -414,7 +407,7 @@ def test_change_detector_sees_no_contact_in_blank_frames(mini_sim):
 def shallow_search(sim, blanks, delta=-0.03, centre=(120.3, 159.6)):
     """measure_touch_search on one place of 0.01 mm steps rendered by `sim` (commanded c, true
     depth c + δ)."""
-    from threedcal.dataset.registration import TOUCH_FIT_SPAN_MM, measure_touch_search
+    from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, measure_touch_search
     from threedcal.sim.indenters import Sphere
 
     c = np.round(np.arange(-0.1, 0.2501, 0.01), 4)

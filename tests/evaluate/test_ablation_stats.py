@@ -10,22 +10,21 @@ import pytest
 from scipy import stats
 
 from threedcal.errors import ConfigError
-from threedcal.evaluate import ablation
+from threedcal.evaluate import ablation_figure
 from threedcal.evaluate.ablation import (
-    AXIS_RATIO,
     _equivalence_conclusion,
     ablation_tests,
     block_means,
     contrast,
     difference_test,
     holm,
-    interval_on_axis,
     paper_family,
     ratio_interval,
-    recommend,
     spatial_blocks,
     tost,
 )
+from threedcal.evaluate.ablation_figure import AXIS_RATIO, interval_on_axis
+from threedcal.evaluate.ablation_reading import recommend
 from threedcal.evaluate.power import (
     correlation,
     fit_correlation,
@@ -199,13 +198,53 @@ def test_contrast_matches_the_two_way_anova_by_hand():
     assert se == pytest.approx(one.std(ddof=1) / math.sqrt(3)) and df == 2
 
 
+def test_contrast_is_statsmodels_mixed_model_on_the_same_blocks():
+    """The hand-written random-effects contrast against statsmodels' MixedLM on one balanced table
+    (REML; replicate and block crossed variance components, the residual its scale): with every
+    component positive, REML's estimates are the ANOVA's, so the grand mean, its standard error and
+    the components agree."""
+    import warnings
+
+    import statsmodels.formula.api as smf
+
+    rng = np.random.default_rng(1)
+    replicates, blocks = 4, 12
+    d = 0.3 + rng.normal(0, 0.5, (replicates, 1)) + rng.normal(0, 0.8, (1, blocks))
+    d = d + rng.normal(0, 0.3, (replicates, blocks))
+    reference = rng.normal(1.0, 0.2, d.shape)
+    estimate, se, _ = contrast(d + 0.9 * reference, reference, 0.9)
+    table = pd.DataFrame(
+        {
+            "d": d.ravel(),
+            "replicate": np.repeat(np.arange(replicates), blocks),
+            "block": np.tile(np.arange(blocks), replicates),
+            "all": 1,
+        }
+    )
+    components = {"replicate": "0 + C(replicate)", "block": "0 + C(block)"}
+    model = smf.mixedlm("d ~ 1", table, groups="all", re_formula="0", vc_formula=components)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # one group: statsmodels warns that it is one
+        fit = model.fit(reml=True)
+    assert estimate == pytest.approx(fit.fe_params.iloc[0], rel=1e-9)
+    assert se == pytest.approx(fit.bse_fe.iloc[0], rel=1e-4)
+    rows, cols = d.mean(1), d.mean(0)
+    ms_e = ((d - rows[:, None] - cols[None] + d.mean()) ** 2).sum() / (3 * 11)
+    assert fit.scale == pytest.approx(ms_e, rel=1e-4)
+    block_var, replicate_var = fit.vcomp  # statsmodels orders them by name
+    assert replicate_var == pytest.approx((blocks * rows.var(ddof=1) - ms_e) / blocks, rel=1e-3)
+    assert block_var == pytest.approx((replicates * cols.var(ddof=1) - ms_e) / replicates, rel=1e-3)
+
+
 def test_one_block_is_refused():
     with pytest.raises(ConfigError, match="one spatial block"):
         contrast(np.ones((3, 1)), np.ones((3, 1)))
 
 
 def test_holm_adjusts_step_down():
+    # by hand: sorted 0.01 x 4, 0.03 x 3, 0.04 x 2 (raised to the 0.09 before it), 0.2 x 1
     np.testing.assert_allclose(holm([0.01, 0.04, 0.03, 0.2]), [0.04, 0.09, 0.09, 0.2])
+    assert holm([]).size == 0
 
 
 def test_spatial_blocks_are_equal_cells_at_least_the_given_side():
@@ -514,5 +553,5 @@ def test_the_tests_figure_cuts_intervals_at_its_axis_and_writes_their_true_bound
     paired = tests.index[tests["family"] == "paired"]
     tests.loc[paired, ["ci_low", "ci_high"]] = [-1.89, 42.93]  # as wide as the Mini's were
     out = tmp_path / "tests.png"
-    ablation.tests_figure(tests, out, "cut", margin=0.1)
+    ablation_figure.tests_figure(tests, out, "cut", margin=0.1)
     assert out.stat().st_size > 10_000

@@ -8,7 +8,7 @@ import pytest
 
 from threedcal.cli import main
 from threedcal.errors import ConfigError
-from threedcal.evaluate.mesh import read_stl, write_stl
+from threedcal.evaluate.mesh import read_mesh, write_stl
 from threedcal.evaluate.object_errors import pixel_errors_um
 from threedcal.evaluate.object_figures import (
     plot_depth_sections,
@@ -63,7 +63,7 @@ def test_table_ii_markdown():
 def test_cli_export_writes_printable_stls(tmp_path, capsys):
     assert main(["objects", "export", "--out", str(tmp_path), "--objects", "pill", "pawn"]) == 0
     for name in ("pill", "pawn"):
-        assert read_stl(tmp_path / f"{name}.stl").is_watertight()
+        assert read_mesh(tmp_path / f"{name}.stl").is_watertight()
         assert (tmp_path / f"{name}_depth.png").read_bytes()[:4] == PNG
     assert "watertight=True" in capsys.readouterr().out
     assert main(["objects", "export", "--out", str(tmp_path / "x"), "--objects", "rook"]) == 1

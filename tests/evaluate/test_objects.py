@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from threedcal.errors import ConfigError
-from threedcal.evaluate.groundtruth import PenetrationError, depth_map, surface_height
-from threedcal.evaluate.mesh import Mesh, height_field_solid, read_stl, revolve, write_stl
+from threedcal.evaluate.groundtruth import (
+    PenetrationError,
+    depth_map,
+    pose_vertices,
+    surface_height,
+)
+from threedcal.evaluate.mesh import Mesh, height_field_solid, read_mesh, revolve, write_stl
 from threedcal.evaluate.objects import (
     OBJECT_NAMES,
     PawnParams,
@@ -69,7 +74,7 @@ def test_pawn_profile_has_vertical_walls_and_a_narrow_neck():
 
 def test_stl_roundtrip_binary_and_ascii(tmp_path, objects):
     path = write_stl(objects["pawn"], tmp_path / "pawn.stl")
-    back = read_stl(path)
+    back = read_mesh(path)
     assert back.is_watertight()
     assert len(back.faces) == len(objects["pawn"].faces)
     assert back.volume == pytest.approx(objects["pawn"].volume, rel=1e-5)
@@ -255,7 +260,7 @@ def test_an_ascii_vertex_line_needs_exactly_three_numbers(tmp_path, line, messag
     path = tmp_path / "t.stl"
     path.write_text("\n".join([*lines, "endloop", "endfacet", "endsolid t"]))
     with pytest.raises(ConfigError, match=rf"t.stl:5: malformed vertex line '{line}' {message}"):
-        read_stl(path)
+        read_mesh(path)
 
 
 def test_a_closed_surface_that_encloses_no_volume_is_refused(tmp_path):
@@ -263,7 +268,47 @@ def test_a_closed_surface_that_encloses_no_volume_is_refused(tmp_path):
     test object of zero volume and its 'depth map' was the indentation at every pixel."""
     sheet = Mesh(np.array([[0, 0, 0], [4, 0, 0], [0, 4, 0]], float), [[0, 1, 2], [0, 2, 1]], "s")
     path = write_stl(sheet, tmp_path / "sheet.stl")
-    assert read_stl(path).is_watertight()
-    with pytest.raises(ConfigError, match="sheet.stl: the STL's closed surface encloses no volume"):
+    assert read_mesh(path).is_watertight()
+    with pytest.raises(
+        ConfigError, match="sheet.stl: the mesh's closed surface encloses no volume"
+    ):
         load_object(str(path))
     assert load_object(str(write_stl(make_object("pill"), tmp_path / "pill.stl"))).volume > 0
+
+
+@pytest.mark.parametrize("name", ["hemispheres", "pill", "pawn"])
+def test_the_z_buffer_is_trimesh_ray_casting(name):
+    """The ground truth's gel-facing surface against trimesh's own ray casting: a ray up (+z) from
+    below every pixel centre first meets that surface, at the height the z-buffer holds."""
+    import trimesh
+
+    mesh = make_object(name)
+    shape, px_per_mm, centre, turn = (60, 80), 4.0, (40.3, 29.6), 20.0
+    surface = surface_height(mesh, shape, px_per_mm, centre, turn)
+    posed = trimesh.Trimesh(pose_vertices(mesh, px_per_mm, centre, turn), mesh.faces, process=False)
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+    origins = np.column_stack([cols.ravel(), rows.ravel(), np.full(rows.size, -1.0)])
+    up = np.tile([0.0, 0.0, 1.0], (rows.size, 1))
+    hits, ray, _ = posed.ray.intersects_location(origins, up, multiple_hits=False)
+    cast = np.full(rows.size, np.inf)
+    cast[ray] = hits[:, 2]
+    cast = cast.reshape(shape)
+    np.testing.assert_array_equal(np.isfinite(cast), surface.covered)
+    np.testing.assert_allclose(surface.height_mm[surface.covered], cast[surface.covered], atol=1e-9)
+
+
+def test_a_users_mesh_arrives_in_any_format_trimesh_reads_and_inside_out_is_turned(tmp_path):
+    """STL, OBJ, PLY and OFF read alike (trimesh); the same pill in each is the same object, and
+    one wound inside out is turned outward (its volume positive, its surface as before)."""
+    pill = make_object("pill")
+    inside_out = Mesh(pill.vertices, pill.faces[:, ::-1], "pill")
+    assert inside_out.volume < 0 and inside_out.is_watertight()
+    reference = load_object("pill")
+    for suffix in (".stl", ".obj", ".ply", ".off"):
+        path = tmp_path / f"pill{suffix}"
+        inside_out.trimesh().export(path)
+        got = load_object(str(path))
+        assert got.is_watertight() and got.volume == pytest.approx(reference.volume, rel=1e-5)
+        np.testing.assert_allclose(got.bounds, reference.bounds, atol=1e-5)
+    with pytest.raises(ConfigError, match=r"nor a mesh file \(.stl, .obj, .ply, .off\)"):
+        load_object(str(tmp_path / "pill.step"))

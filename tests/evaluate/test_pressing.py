@@ -1,5 +1,6 @@
 """Test objects pressed by the printer: the plan, the bench press, the two protocols, bad input."""
 
+import contextlib
 import json
 
 import numpy as np
@@ -18,23 +19,20 @@ from threedcal.evaluate.object_errors import (
     mean_interval,
     printer_press,
 )
+from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
+from threedcal.evaluate.object_scores import evaluate_objects, summarise
 from threedcal.evaluate.objects import load_object, make_object
-from threedcal.evaluate.pressing import (
+from threedcal.evaluate.press_plan import (
     SETS,
     Mount,
     PrinterFrame,
-    TruthGradients,
-    evaluate_objects,
     plan_presses,
-    press_objects,
     pressing_seed,
-    read_presses,
     read_registration,
-    relief_indenter,
     session_draws,
-    summarise,
     true_mount,
 )
+from threedcal.evaluate.truth_gradients import TruthGradients
 from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench
@@ -428,3 +426,32 @@ def test_bad_input_is_refused_before_any_motion(tmp_path):
     with pytest.raises(ConfigError, match=r"scenes.rig.camera: .*real printer"):
         press_objects(scene, registration, tmp_path / "out", name="rig", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_real_rig_asks_for_each_object_and_records_no_truth(tmp_path, monkeypatch):
+    """The real rig's path (threedcal.rig.open_rig): a Marlin printer at `port` (here the bench's
+    simulated one, behind its serial URL) and the sensor's camera (here the bench's, in place of
+    OpenCV's); the user is asked through `ask` to mount each object, once per session."""
+    import threedcal.rig
+
+    scene = scene_config()
+    registration = perfect_registration(scene, tmp_path / "registration.json")
+    sensor = load_profile("sensor", scene["sensor"])
+    asked = []
+    with SimBench(sensor, 2.0, scene["bench"], scene["seed"]) as bench:
+        opened = []
+
+        def bench_camera(profile, device):
+            opened.append(device)
+            return contextlib.nullcontext(bench.camera)
+
+        monkeypatch.setattr(threedcal.rig, "open_camera", bench_camera)
+        scene.update(port=bench.url, camera="0")
+        scene["pressing"]["mount"] = {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0, "rotation_deg": 0.0}
+        press_objects(scene, registration, tmp_path / "out", progress=False, ask=asked.append)
+    assert opened == ["0"]
+    mounts = [text.split(" on the print head")[0] for text in asked]
+    assert mounts == ["Mount hemispheres", "Mount pill"] * len(SETS)  # each object, each session
+    assert json.loads((tmp_path / "out" / "truth.json").read_text()) == {"simulated": False}
+    plan = pd.read_csv(tmp_path / "out" / "plan.csv")
+    assert len(plan) == 6 and np.isfinite(plan["steps_z_mm"]).all()

@@ -130,3 +130,30 @@ def test_a_real_video_file_plays_through_the_same_interface(tmp_path):
         frames, stamps = cam.capture(2)
     assert frames.shape == (2, 240, 320, 3)
     assert abs(float(frames[0].mean()) - (60 + 10 * 4)) < 3  # frames 0-3 were flushed
+
+
+def test_live_reads_a_camera_through_its_checks():
+    """`threedcal live` on a camera: frames converted by the profile; a dropped or black frame
+    passed over, ten in a row or one past the timeout end the stream with the camera's error."""
+    from threedcal.model.sources import MAX_MISSED_FRAMES, camera_frames, open_source
+
+    cam, _ = camera(script={2: "drop", 4: "black"})
+    frames = camera_frames(cam)
+    first = [next(frames) for _ in range(3)]  # reads 1, 3 and 5: 2 and 4 passed over
+    assert [int(f[0, 0, 0]) for f in first] == [101, 103, 105]  # RGB: BGR's red channel first
+    assert first[0].shape == (240, 320, 3)
+    frames.close()
+    assert not cam._src  # the camera is released when the stream ends
+    dropped = {k: "drop" for k in range(2, 2 + MAX_MISSED_FRAMES)}
+    cam, _ = camera(script=dropped)
+    frames = camera_frames(cam)
+    next(frames)
+    with pytest.raises(DroppedFrame, match=f"{MAX_MISSED_FRAMES} in a row: live stops"):
+        next(frames)
+    cam, _ = camera(script={2: "slow"})
+    frames = camera_frames(cam)
+    next(frames)
+    with pytest.raises(CameraTimeout):
+        next(frames)
+    with pytest.raises(ConfigError, match="is a camera: give --sensor"):
+        open_source("0")

@@ -16,7 +16,7 @@ from threedcal.hardware.printer import (
     PrinterTimeout,
     printer_profile,
 )
-from threedcal.sim.marlin import RECOVERABLE_FAULTS, forget, get_firmware
+from threedcal.sim.marlin import FIRMWARES, RECOVERABLE_FAULTS
 
 
 @pytest.fixture
@@ -31,7 +31,7 @@ def sim_url():
 
     yield make
     for name in names:
-        forget(name)
+        FIRMWARES.withdraw(name)
 
 
 def script(host):
@@ -55,7 +55,7 @@ def test_handshake_reads_firmware_info(sim_url):
     url, name = sim_url()
     with MarlinHost(url) as host:
         assert host.firmware_info["FIRMWARE_NAME"].startswith("Marlin")
-    fw = get_firmware(name)
+    fw = FIRMWARES.get(name)
     assert fw.executed_commands()[:3] == ["M110 N0", "M115", "G90"]
     assert fw.boots == 2  # power-on, then the DTR reset when the port opened
 
@@ -63,7 +63,7 @@ def test_handshake_reads_firmware_info(sim_url):
 def test_moves_are_acknowledged_when_queued_and_done_after_m400(sim_url):
     url, name = sim_url()
     with MarlinHost(url) as host:
-        fw = get_firmware(name)
+        fw = FIRMWARES.get(name)
         host.home()
         host.move_to(100, 50, 10, 100)
         assert fw.clock.now() < fw.busy_until()  # `ok` came while the head was still moving
@@ -80,7 +80,7 @@ def test_moves_are_acknowledged_when_queued_and_done_after_m400(sim_url):
 def test_motion_time_matches_model(sim_url):
     url, name = sim_url()
     with MarlinHost(url) as host:
-        fw = get_firmware(name)
+        fw = FIRMWARES.get(name)
         host.home()
         before = fw.motion_time_s
         host.move_to(100, 0, 0, 100)
@@ -101,10 +101,10 @@ def test_out_of_travel_moves_are_refused_before_sending(sim_url, target):
     url, name = sim_url()
     with MarlinHost(url) as host:
         host.home()
-        sent = len(get_firmware(name).executed)
+        sent = len(FIRMWARES.get(name).executed)
         with pytest.raises(OutOfTravel, match=r"outside the travel .*nothing was sent"):
             host.move_to(*target)
-        assert len(get_firmware(name).executed) == sent
+        assert len(FIRMWARES.get(name).executed) == sent
         host.move_to(235, 235, 250, 500)  # the limits themselves are fine
 
 
@@ -127,8 +127,8 @@ def test_each_fault_kind_is_recovered_exactly(sim_url, kind):
     url, faulty = sim_url(f"speedup=inf&faults={kind}&rate=0.3&seed=3")
     with MarlinHost(url) as host:
         pos = script(host)
-    assert get_firmware(faulty).faults_injected[kind] >= 5
-    assert numbered(get_firmware(faulty)) == numbered(get_firmware(clean))
+    assert FIRMWARES.get(faulty).faults_injected[kind] >= 5
+    assert numbered(FIRMWARES.get(faulty)) == numbered(FIRMWARES.get(clean))
     assert pos == expected_pos
 
 
@@ -137,7 +137,7 @@ def test_reset_in_the_middle_of_a_run_is_an_error(sim_url):
     with MarlinHost(url) as host:
         host.home()
         host.move_to(50, 50, 5)
-        get_firmware(name).schedule_fault("reset")
+        FIRMWARES.get(name).schedule_fault("reset")
         with pytest.raises(PrinterReset, match="reset itself.*home again"):
             host.move_to(60, 60, 5)
         assert not host.homed
@@ -146,12 +146,12 @@ def test_reset_in_the_middle_of_a_run_is_an_error(sim_url):
 def test_halt_and_disconnect_are_errors(sim_url):
     url, name = sim_url()
     with MarlinHost(url) as host:
-        get_firmware(name).schedule_fault("halt")
+        FIRMWARES.get(name).schedule_fault("halt")
         with pytest.raises(PrinterHalted, match="kill"):
             host.home()
     url, name = sim_url()
     with MarlinHost(url) as host:
-        get_firmware(name).schedule_fault("disconnect")
+        FIRMWARES.get(name).schedule_fault("disconnect")
         with pytest.raises(PrinterDisconnected, match="disconnected"):
             host.home()
 
@@ -159,7 +159,7 @@ def test_halt_and_disconnect_are_errors(sim_url):
 def test_silence_becomes_a_timeout_after_retries(sim_url):
     url, name = sim_url()
     with MarlinHost(url, retries=2) as host:
-        fw = get_firmware(name)
+        fw = FIRMWARES.get(name)
         fw.kinds, fw.rate = ("drop_line",), 1.0
         with pytest.raises(
             PrinterTimeout, match=r"no reply to line N\d+ 'M114' after 2 retransmission"
@@ -174,7 +174,7 @@ def test_long_commands_outlast_the_reply_timeout(sim_url):
         host.home()  # ~4 s of homing: acknowledged only at the end, busy keepalives meanwhile
         host.move_to(0, 0, 200, 5)  # 40 s of Z travel
         host.wait_until_idle()
-        assert get_firmware(name).position() == (0, 0, 200)
+        assert FIRMWARES.get(name).position() == (0, 0, 200)
         assert host.stats.timeouts == 0 and host.stats.busy >= 19
 
 
@@ -191,7 +191,7 @@ def test_hold_motors_and_emergency_stop(sim_url):
     host = MarlinHost(url)
     host.home()
     host.hold_motors()
-    fw = get_firmware(name)
+    fw = FIRMWARES.get(name)
     assert fw.motors_on and fw.idle_timeout_s == 0
     host.move_to(200, 200, 0, 100)
     host.emergency_stop()
@@ -208,7 +208,7 @@ def test_speedup_paces_simulated_time_in_real_time(sim_url):
         host.home()
         host.move_to(100, 0, 0, 100)
         host.wait_until_idle()
-    simulated = get_firmware(name).clock.now()
+    simulated = FIRMWARES.get(name).clock.now()
     assert time.monotonic() - start >= 0.9 * simulated / 100
 
 
@@ -223,10 +223,10 @@ def test_reopening_a_url_reaches_the_same_firmware(sim_url):
     url, name = sim_url()
     with MarlinHost(url) as host:
         host.home()
-    fw = get_firmware(name)
+    fw = FIRMWARES.get(name)
     with MarlinHost(url) as host:
         assert not host.homed
-    assert get_firmware(name) is fw and fw.boots == 3
+    assert FIRMWARES.get(name) is fw and fw.boots == 3
 
 
 def test_printer_profile_schema_is_closed(tmp_path):

@@ -13,6 +13,7 @@ from threedcal.dataset.build import build_imported
 from threedcal.dataset.labels import sphere_depth, sphere_gradients
 from threedcal.errors import ConfigError
 from threedcal.model import crossval
+from threedcal.model import folds as cv_folds
 from threedcal.model.ball_eval import ball_eval
 from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
@@ -106,42 +107,42 @@ def test_groups_join_close_presses_transitively_and_frames_of_one_coordinate():
     centres = np.array([[0, 0], [4, 0], [8, 0], [30, 0], [60, 0], [90, 0]], float)
     radius = np.full(6, 20.0)
     # 0.25 x 20 px = 5 px: 0-1 and 1-2 are linked (a chain), the others stand alone.
-    assert crossval.press_groups(centres, radius, 0.25).tolist() == [0, 0, 0, 1, 2, 3]
+    assert cv_folds.press_groups(centres, radius, 0.25).tolist() == [0, 0, 0, 1, 2, 3]
     # a whole contact radius chains 0..3 (30 - 8 = 22 > 20 keeps 3 apart from 2)
-    assert crossval.press_groups(centres, radius, 1.0).tolist() == [0, 0, 0, 1, 2, 3]
-    assert crossval.press_groups(centres, radius, 1.6).tolist() == [0, 0, 0, 0, 0, 0]
+    assert cv_folds.press_groups(centres, radius, 1.0).tolist() == [0, 0, 0, 1, 2, 3]
+    assert cv_folds.press_groups(centres, radius, 1.6).tolist() == [0, 0, 0, 0, 0, 0]
     # frames of one probe coordinate share a group whatever their distance
     point = np.array([0, 1, 2, 3, 3, 4])
-    assert crossval.press_groups(centres, radius, 0.0, point).tolist() == [0, 1, 2, 3, 3, 4]
+    assert cv_folds.press_groups(centres, radius, 0.0, point).tolist() == [0, 1, 2, 3, 3, 4]
 
 
 def test_every_image_is_tested_once_and_no_group_straddles_folds():
     rng = np.random.default_rng(3)
     groups = rng.integers(0, 15, 40)
-    fold = crossval.grouped_folds(groups, 5, seed=0)
+    fold = cv_folds.grouped_folds(groups, 5, seed=0)
     assert sorted(set(fold)) == [0, 1, 2, 3, 4]
     for g in np.unique(groups):
         assert len(set(fold[groups == g])) == 1
     sizes = np.bincount(fold)
     assert sizes.max() - sizes.min() <= np.bincount(groups).max()
-    np.testing.assert_array_equal(fold, crossval.grouped_folds(groups, 5, seed=0))
-    assert not np.array_equal(fold, crossval.grouped_folds(groups, 5, seed=1))
+    np.testing.assert_array_equal(fold, cv_folds.grouped_folds(groups, 5, seed=0))
+    assert not np.array_equal(fold, cv_folds.grouped_folds(groups, 5, seed=1))
 
 
 def test_too_few_images_or_groups_for_k_folds_is_a_clear_error():
     with pytest.raises(
         ConfigError, match=r"my_folder: 4 labelled image\(s\) .* cannot make 6 folds"
     ):
-        crossval.grouped_folds(np.arange(4), 6, seed=0, where="my_folder")
+        cv_folds.grouped_folds(np.arange(4), 6, seed=0, where="my_folder")
     with pytest.raises(ConfigError, match="2 independent press group"):
-        crossval.grouped_folds(np.array([0, 0, 0, 1, 1, 1]), 3, seed=0)
+        cv_folds.grouped_folds(np.array([0, 0, 0, 1, 1, 1]), 3, seed=0)
     with pytest.raises(ConfigError, match="fewer than 3 training images"):
-        crossval.grouped_folds(np.arange(4), 2, seed=0)
+        cv_folds.grouped_folds(np.arange(4), 2, seed=0)
     # one group holding most images cannot be spread over the folds
     with pytest.raises(ConfigError, match="largest 11 of 14"):
-        crossval.grouped_folds(np.array([0] * 11 + [1, 2, 3]), 3, seed=0)
+        cv_folds.grouped_folds(np.array([0] * 11 + [1, 2, 3]), 3, seed=0)
     with pytest.raises(ConfigError, match="cv.folds"):
-        crossval.grouped_folds(np.arange(10), 1, seed=0)
+        cv_folds.grouped_folds(np.arange(10), 1, seed=0)
 
 
 def test_fold_trainset_marks_train_and_test_and_subsets_are_nested(tmp_path):
@@ -149,17 +150,17 @@ def test_fold_trainset_marks_train_and_test_and_subsets_are_nested(tmp_path):
 
     make_ball_folder(tmp_path / "balls", n=12)
     ts = TrainingSet.load(trainset_of(tmp_path / "balls", tmp_path))
-    folds = crossval.make_folds(ts, crossval.CVSettings.of(folds=3), seed=0)
+    folds = cv_folds.make_folds(ts, cv_folds.CVSettings.of(folds=3), seed=0)
     for fold in range(3):
-        part = crossval.fold_trainset(ts, folds, fold)
+        part = cv_folds.fold_trainset(ts, folds, fold)
         test = folds["fold"].to_numpy() == fold
         assert (part.split[test] == "test").all() and (part.split[~test] == "train").all()
         assert part.indices("train", percent=80).tolist() == np.flatnonzero(~test).tolist()
         assert len(part.indices("val")) == 0  # nothing of the test fold reaches training
-        small, large = (set(crossval.training_images(folds, fold, k, seed=0)) for k in (2, 4))
+        small, large = (set(cv_folds.training_images(folds, fold, k, seed=0)) for k in (2, 4))
         assert len(small) == 2 and small < large and not large & set(np.flatnonzero(test))
     with pytest.raises(ConfigError, match="n_train=99"):
-        crossval.training_images(folds, 0, 99, seed=0)
+        cv_folds.training_images(folds, 0, 99, seed=0)
 
 
 # ------------------------------------------------------------------------------------ scoring
@@ -207,13 +208,13 @@ def test_exact_prediction_scores_zero_and_a_depth_offset_scores_its_size():
 
 def test_label_perturbation_moves_depth_with_the_contact_radius():
     ts = _sphere_set()
-    zero = crossval.CVSettings.of(radius_sigma_px=0.0, centre_sigma_px=0.0)
+    zero = cv_folds.CVSettings.of(radius_sigma_px=0.0, centre_sigma_px=0.0)
     same = crossval.perturbed_truth(ts, zero, np.random.default_rng(0))
     np.testing.assert_allclose(same.depth_mm, ts.depth_mm)
     np.testing.assert_allclose(same.eval_radius_px, ts.eval_radius_px)
     moved = crossval.perturbed_truth(
         ts,
-        crossval.CVSettings.of(radius_sigma_px=2.0, centre_sigma_px=1.0),
+        cv_folds.CVSettings.of(radius_sigma_px=2.0, centre_sigma_px=1.0),
         np.random.default_rng(0),
     )
     contact = np.sqrt(2 * BALL_MM * moved.depth_mm - moved.depth_mm**2) * PX_PER_MM
@@ -235,7 +236,7 @@ def test_group_bootstrap_interval_brackets_the_figure_and_pairs_methods():
     )
     worse = table.assign(cap_depth_mae_um=table["cap_depth_mae_um"] + 20)
     summary = crossval.summarise(
-        {"model": table, "lookup": worse}, {}, crossval.CVSettings.of(bootstrap=500), seed=0
+        {"model": table, "lookup": worse}, {}, cv_folds.CVSettings.of(bootstrap=500), seed=0
     )
     model = summary["model"]
     for metric in crossval.METRICS:
@@ -259,7 +260,7 @@ def test_duplicate_presses_bound_the_label_noise():
 # ------------------------------------------------------------------------- end to end, any sensor
 def run_cv(trainset, tmp_path, folds=3):
     cv = {"folds": folds, "bootstrap": 200, "label_draws": 3}
-    crossval.write_folds(trainset, cv, 0, tmp_path / "folds.csv", where="the folder")
+    cv_folds.write_folds(trainset, cv, 0, tmp_path / "folds.csv", where="the folder")
     models = {}
     for method in crossval.CV_METHODS:
         settings = crossval.method_settings({"model": TINY}, method)
@@ -308,7 +309,7 @@ def test_a_py3dcal_dataset_keeps_each_coordinate_in_one_fold(tmp_path):
     make_py3dcal_folder(tmp_path / "py3dcal")
     trainset = trainset_of(tmp_path / "py3dcal", tmp_path, fmt="py3dcal")
     cv = {"folds": 3, "group_fraction": 0.0}
-    table = crossval.write_folds(trainset, cv, 0, tmp_path / "folds.csv")
+    table = cv_folds.write_folds(trainset, cv, 0, tmp_path / "folds.csv")
     pairs = table["fold"].to_numpy().reshape(-1, 2)
     assert (pairs[:, 0] == pairs[:, 1]).all()  # both depths of a coordinate in the same fold
     assert sorted(table["fold"].unique()) == [0, 1, 2]
@@ -317,7 +318,7 @@ def test_a_py3dcal_dataset_keeps_each_coordinate_in_one_fold(tmp_path):
 def test_folders_that_cannot_support_the_evaluation_say_why(tmp_path):
     make_ball_folder(tmp_path / "few", n=4)
     with pytest.raises(ConfigError, match="the folder: 4 labelled image"):
-        crossval.write_folds(
+        cv_folds.write_folds(
             trainset_of(tmp_path / "few", tmp_path),
             {"folds": 6},
             0,

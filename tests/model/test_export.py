@@ -10,8 +10,8 @@ import torch
 from conftest import DATA, write_untrained_model
 
 from threedcal.cli import main
-from threedcal.dataset.importers import read_rgb
 from threedcal.depth import integrate
+from threedcal.images import read_rgb
 from threedcal.model.checkpoint import (
     AUTHORS_NORMALISATION,
     OUR_NORMALISATION,

@@ -11,7 +11,7 @@ import trimesh
 from conftest import DATA, write_untrained_model
 
 from threedcal.cli import main
-from threedcal.dataset.importers import read_rgb
+from threedcal.images import read_rgb
 from threedcal.model import BACKGROUND_DRIFT_WARN_DN
 from threedcal.model.drift import DRIFT_CELL_PX, background_drift_dn
 from threedcal.model.inference import DepthEstimator
@@ -87,7 +87,7 @@ def test_live_warns_on_drift_and_a_signal_retakes_the_blank(
     for the same lighting), then the gradient doubled (a warning again, against the new blank)."""
     frames = [shifted(BLANK, 12), *[shifted(BLANK, ramp(6))] * 4, shifted(BLANK, ramp(12))]
 
-    def source(spec):
+    def source(spec, sensor=None):
         for count, frame in enumerate(frames):
             if count == 3:
                 os.kill(os.getpid(), signal.SIGUSR1)  # as `kill -USR1 PID` from a shell
@@ -160,3 +160,11 @@ def test_live_reads_a_datasets_frames_with_numpy_alone(tmp_path, capsys, flat_mo
     np.save(dataset / "frames.npy", np.zeros((2, 8, 8), np.float32))
     assert main(args) == 1
     assert "frames.npy: not a dataset's frames" in capsys.readouterr().err
+
+
+def test_a_camera_needs_its_sensor_profile_before_anything_loads(tmp_path, capsys):
+    """A camera's frames are converted by its profile (as at collection): without --sensor, live
+    stops before it reads the model (here none exists) or opens the camera."""
+    missing = str(tmp_path / "missing.pt")
+    assert main(["live", "--checkpoint", missing, "--source", "0"]) == 1
+    assert "--source 0 is a camera: give --sensor" in capsys.readouterr().err

@@ -19,7 +19,8 @@ from test_crossval import (
 from threedcal.dataset.labels import contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
-from threedcal.model import crossval, sim2real
+from threedcal.model import folds as cv_folds
+from threedcal.model import sim2real
 from threedcal.model.checkpoint import read_checkpoint
 
 S2R = {
@@ -37,7 +38,7 @@ def real(tmp_path_factory):
     root = tmp_path_factory.mktemp("s2r")
     make_ball_folder(root / "balls", n=12)
     trainset = trainset_of(root / "balls", root)
-    crossval.write_folds(trainset, {"folds": 3}, 0, root / "folds.csv")
+    cv_folds.write_folds(trainset, {"folds": 3}, 0, root / "folds.csv")
     return root, trainset
 
 
@@ -103,7 +104,7 @@ def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
 def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_why(tmp_path):
     make_py3dcal_folder(tmp_path / "py3dcal")
     trainset = trainset_of(tmp_path / "py3dcal", tmp_path, fmt="py3dcal")
-    folds = crossval.write_folds(
+    folds = cv_folds.write_folds(
         trainset, {"folds": 3, "group_fraction": 0.0}, 0, tmp_path / "folds.csv"
     )
     profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
@@ -132,10 +133,10 @@ def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_w
 def test_k_subsets_of_a_fold_are_nested_and_k_cannot_exceed_the_pool(real):
     root, trainset = real
     ts = TrainingSet.load(trainset)
-    folds = crossval.read_folds(root / "folds.csv", ts)
+    folds = cv_folds.read_folds(root / "folds.csv", ts)
     pool = int((folds["fold"] != 0).sum())
     picked = {
-        k: set(np.flatnonzero(crossval.fold_trainset(ts, folds, 0, k, 5).split == "train"))
+        k: set(np.flatnonzero(cv_folds.fold_trainset(ts, folds, 0, k, 5).split == "train"))
         for k in (2, 4, pool)
     }
     assert len(picked[2]) == 2 and picked[2] < picked[4] < picked[pool]
@@ -188,7 +189,7 @@ def test_fine_tuning_starts_from_the_pretrained_model_with_the_same_steps(real, 
 def test_errors_against_k_pool_folds_with_intervals_and_a_perfect_model_scores_zero(real, tmp_path):
     root, trainset = real
     ts = TrainingSet.load(trainset)
-    folds = crossval.read_folds(root / "folds.csv", ts)
+    folds = cv_folds.read_folds(root / "folds.csv", ts)
     rows = []
     for condition, offset in (("sim+real", 0.0), ("real-only", 0.1)):
         for k in ("2", "all"):

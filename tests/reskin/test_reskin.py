@@ -22,16 +22,11 @@ from threedcal.hardware.reskin import (
     parse_line,
     value_names,
 )
+from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, save_checkpoint
 from threedcal.profiles import load_profile
 from threedcal.reskin.data import ReSkinSet, split_by_coordinate
 from threedcal.reskin.evaluate import localisation_errors
-from threedcal.reskin.model import (
-    ReSkinSettings,
-    load_checkpoint,
-    predict,
-    save_checkpoint,
-    train_mlp,
-)
+from threedcal.reskin.model import ReSkinSettings, predict, read_reskin_model, train_mlp
 from threedcal.scenes import scene_targets
 from threedcal.sim.reskin import (
     MagneticSkin,
@@ -326,19 +321,45 @@ def test_mlp_learns_a_tiny_set_deterministically(tmp_path):
     assert rows[-1]["train_loss"] < rows[0]["train_loss"] / 20
     errors = localisation_errors(predict(first, data.inputs), data.targets)
     assert errors["median_error_mm"] < 0.3 and errors["depth_mae_mm"] < 0.15
-    save_checkpoint(first, tmp_path / "model.pt")
-    loaded = load_checkpoint(tmp_path / "model.pt")
+    save_checkpoint(tmp_path / "model.pt", first)
+    loaded = read_reskin_model(tmp_path / "model.pt")
     np.testing.assert_array_equal(predict(loaded, data.inputs), predict(first, data.inputs))
     with pytest.raises(ConfigError, match="expects \\(N, 6\\) readings"):
         predict(loaded, data.inputs[:, :5])
 
 
 def test_checkpoint_of_another_kind_is_refused(tmp_path):
+    """One checkpoint format for every model: a vision model is no ReSkin model, a ReSkin model
+    no vision model, and a foreign file neither."""
     import torch
 
+    from threedcal.model.checkpoint import CheckpointError
+    from threedcal.model.inference import DepthEstimator
+
     torch.save({"kind": "something"}, tmp_path / "other.pt")
-    with pytest.raises(ConfigError, match="not a threedcal ReSkin model"):
-        load_checkpoint(tmp_path / "other.pt")
+    with pytest.raises(CheckpointError, match="neither a threedcal checkpoint"):
+        read_reskin_model(tmp_path / "other.pt")
+    vision = {"format": FORMAT, "format_version": FORMAT_VERSION, "preset": "compact_tiny"}
+    normalisation = {"gradient_sign": 1}
+    save_checkpoint(
+        tmp_path / "vision.pt", {**vision, "state_dict": {}, "normalisation": normalisation}
+    )
+    with pytest.raises(ConfigError, match="vision.pt: not a threedcal ReSkin model"):
+        read_reskin_model(tmp_path / "vision.pt")
+    data = synthetic_set()
+    settings = ReSkinSettings(hidden=(8,), epochs=1)
+    checkpoint, _ = train_mlp(data.inputs, data.targets, settings, seed=0)
+    save_checkpoint(tmp_path / "reskin.pt", checkpoint)
+    with pytest.raises(CheckpointError, match="ReSkin model .* takes no images"):
+        DepthEstimator.from_checkpoint(
+            tmp_path / "reskin.pt", blank=np.zeros((4, 4, 3)), px_per_mm=9
+        )
+    del checkpoint["normalisation"]["in_std"]
+    save_checkpoint(tmp_path / "broken.pt", checkpoint)
+    with pytest.raises(
+        CheckpointError, match="broken.pt: ReSkin model without normalisation in_std"
+    ):
+        read_reskin_model(tmp_path / "broken.pt")
 
 
 def test_localisation_errors_exact():
@@ -394,7 +415,7 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
     from threedcal.collect.session import collect_scene
     from threedcal.collect.store import open_raw
 
-    monkeypatch.setattr("builtins.input", lambda prompt="": "")  # "attach the probe, press Enter"
+    asked = []  # the rig asks its user through the callback, never on the terminal itself
     with ReSkinBench(PROFILE, 2.0, {}, 0) as bench:
         scene = {
             "sensor": "reskin",
@@ -404,7 +425,8 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
             "plan": {"pattern": "cross", "spacing_mm": 2.0, "depths_mm": [1.0], "frames": 2},
         }
         scene = validate_config({"scenes": {"rs": scene}})["scenes"]["rs"]
-        collect_scene("rs", scene, tmp_path / "raw.zarr", progress=False)
+        collect_scene("rs", scene, tmp_path / "raw.zarr", progress=False, ask=asked.append)
+    assert asked == ["Attach the probe to the print head"]
     raw = open_raw(tmp_path / "raw.zarr")
     readings = raw["readings"].values
     assert readings.shape[1] == N_VALUES and len(readings) == 2 * (raw["point"].values.max() + 1)

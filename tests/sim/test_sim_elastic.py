@@ -21,7 +21,7 @@ from threedcal.sim.elastic import (
     solve_contact,
     surface_compliance,
 )
-from threedcal.sim.indenters import Flat, HeightMap, Sphere
+from threedcal.sim.indenters import Flat, Relief, Sphere
 from threedcal.sim.optics import GelSimulator
 
 
@@ -413,7 +413,7 @@ def test_on_the_domed_digit_the_elastic_contact_sits_toward_the_apex():
 def test_the_gel_never_goes_through_the_indenter_and_equals_it_in_contact(esim):
     """A cylinder (vertical walls) and a ball on both gels (DIGIT: domed, so depth is measured from
     the undeformed dome under the axis)."""
-    cyl = HeightMap(np.where(np.hypot(*square_grid(30, 1 / 20)) <= 1.2, 0.0, np.nan), 20.0)
+    cyl = Relief(np.where(np.hypot(*square_grid(30, 1 / 20)) <= 1.2, 0.0, np.nan), 20.0)
     for indenter, d in ((Sphere(2.0), 1.2), (cyl, 0.6)):
         c = (esim.width * 0.35, esim.height * 0.6)
         win = esim.window(indenter, c, d)
@@ -493,8 +493,8 @@ def test_pixels_off_the_lattice_sample_the_same_gel(monkeypatch):
 def test_a_test_object_presses_the_elastic_gel():
     """The pawn (a mesh turned into a relief, vertical walls) on the elastic Mini: it renders, the
     gel never goes through it and equals it in contact, and its walls leave no step."""
+    from threedcal.evaluate.object_presses import relief_indenter
     from threedcal.evaluate.objects import load_object
-    from threedcal.evaluate.pressing import relief_indenter
 
     sim = elastic_sim("gelsight_mini")
     pawn = relief_indenter(load_object("pawn"), sim.px_per_mm, 7.0)

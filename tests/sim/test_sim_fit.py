@@ -9,14 +9,14 @@ import pytest
 
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
-from threedcal.sim.fit import fit_optics, press_groups, realism_report, split_halves
+from threedcal.sim.fit import fit_optics, image_groups, realism_report, split_halves
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator, background_field
 from threedcal.sim.realism import (
     BallLabel,
     halo_radii,
     load_ball_dataset,
-    locate_contact,
+    locate_ball,
 )
 
 W, H, PX_PER_MM, BALL_MM = 160, 200, 12.0, 2.35
@@ -110,7 +110,7 @@ def test_split_keeps_presses_together_and_never_puts_an_image_in_both_halves():
     # presses 0, 3 and 7 repeat one place; 5 and 6 another (within 4 px); the rest are alone
     places = [(10, 10), (50, 10), (90, 10), (11, 12), (10, 60), (60, 60), (63, 61), (13, 14)]
     labels = [label(x, y, f"{i:02d}.png") for i, (x, y) in enumerate(places)]
-    assert press_groups(labels) == [[0, 3, 7], [1], [2], [4], [5, 6]]
+    assert image_groups(labels) == [[0, 3, 7], [1], [2], [4], [5, 6]]
     seen = set()
     for seed in range(20):
         fit, test = split_halves(labels, seed)
@@ -145,11 +145,11 @@ def test_halo_radii_of_a_sharp_disc_are_its_edge_blurred():
     # the contact magnitude is blurred by sigma 2: half height at the edge, 10 % at +1.28 sigma
     assert r50 == pytest.approx(20.5, abs=0.6)
     assert r10 - r50 == pytest.approx(1.2816 * 2, abs=0.6)
-    found = locate_contact(img, bg, 25.0, "disc")
+    found = locate_ball(img, bg, 25.0, "disc")
     assert found.center_px == pytest.approx((70.0, 60.0), abs=0.1) and found.located
     assert found.radius_px == pytest.approx(20.0, abs=0.7)
     with pytest.raises(ConfigError, match="blank: no contact found"):
-        locate_contact(bg, bg, 25.0, "blank")
+        locate_ball(bg, bg, 25.0, "blank")
 
 
 def test_background_field_is_the_polynomial_it_names():

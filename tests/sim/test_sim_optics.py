@@ -5,7 +5,7 @@ import pytest
 
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
-from threedcal.sim.indenters import Flat, HeightMap, Sphere
+from threedcal.sim.indenters import Flat, Relief, Sphere
 from threedcal.sim.optics import GelSimulator
 
 
@@ -188,7 +188,7 @@ def test_height_map_sphere_matches_the_analytic_sphere():
     yy, xx = (np.mgrid[:161, :161] - 80) / s
     r2 = xx**2 + yy**2
     relief = np.where(r2 <= R * R, np.sqrt(np.maximum(R * R - r2, 0)), np.nan)
-    hm, sp = HeightMap(relief, s), Sphere(R)
+    hm, sp = Relief(relief, s), Sphere(R)
     dx = np.array([0.0, 0.3, -1.1, 1.5, 5.0])
     dy = np.array([0.0, 0.2, 0.4, -0.9, 0.0])
     g_hm, g_sp = hm.gap(dx, dy), sp.gap(dx, dy)
@@ -199,7 +199,7 @@ def test_height_map_sphere_matches_the_analytic_sphere():
 def test_rotation_turns_an_asymmetric_indenter():
     sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=0)
     relief = np.zeros((20, 80))  # a 1 x 4 mm bar at 20 px/mm
-    bar = HeightMap(relief, 20.0)
+    bar = Relief(relief, 20.0)
     c = (160.0, 120.0)
     win = sim.window(bar, c, 0.5)
     _, along = sim.surface(bar, c, 0.0, 0.5, win)
@@ -216,6 +216,6 @@ def test_creep_deepens_a_hold_slightly_and_monotonically(sim):
 
 
 def test_bad_indenters_are_config_errors():
-    for make in (lambda: Sphere(0), lambda: Flat(-1), lambda: HeightMap(np.ones(3), 10)):
+    for make in (lambda: Sphere(0), lambda: Flat(-1), lambda: Relief(np.ones(3), 10)):
         with pytest.raises(ConfigError):
             make()

@@ -485,14 +485,7 @@ def main(argv=None) -> int:
     started = time.monotonic()
     since = time.strftime("%Y-%m-%dT%H:%M:%S")
     print(f"cluster check in {work} (Slurm config: {os.environ.get('SLURM_CONF', 'default')})")
-    try:
-        ping = subprocess.run(["scontrol", "ping"], capture_output=True, text=True, timeout=30)
-    except FileNotFoundError:
-        raise CheckFailed("scontrol not found: no Slurm client on this machine") from None
-    check(
-        ping.returncode == 0 and "UP" in ping.stdout,
-        f"a Slurm controller answers ({ping.stdout.strip()})",
-    )
+    _check_controller()
     local, cluster = work / "local", work / "slurm"
     shutil.rmtree(cluster, ignore_errors=True)
     if not args.reuse_local:
@@ -523,9 +516,30 @@ def main(argv=None) -> int:
         all(a[1] <= b[0] for a, b in zip(spans, spans[1:], strict=False)),
         f"the {len(spans)} collections of the bare local run ran one after another",
     )
+    _check_where_jobs_ran(sacct_jobs(since), work, cluster)  # 4.
+    _check_equal_results(local / "results", cluster / "results")  # 5.
+    total_s = time.monotonic() - started
+    print(
+        f"\ncluster check passed in {total_s:.0f} s (local {local_s:.0f} s, "
+        f"cluster {run1_s:.0f} + {run2_s:.0f} s)"
+    )
+    return 0
 
-    # 4. Where the jobs ran.
-    jobs = sacct_jobs(since)
+
+def _check_controller() -> None:
+    try:
+        ping = subprocess.run(["scontrol", "ping"], capture_output=True, text=True, timeout=30)
+    except FileNotFoundError:
+        raise CheckFailed("scontrol not found: no Slurm client on this machine") from None
+    check(
+        ping.returncode == 0 and "UP" in ping.stdout,
+        f"a Slurm controller answers ({ping.stdout.strip()})",
+    )
+
+
+def _check_where_jobs_ran(jobs: pd.DataFrame, work: Path, cluster: Path) -> None:
+    """The printer's rules ran locally, training on the GPU partition, every job completed but
+    the failure made on purpose."""
     check(len(jobs) > 0, f"sacct lists {len(jobs)} Slurm jobs of these runs")
     runs_log = (work / "slurm-run1.log").read_text() + (work / "slurm-run2.log").read_text()
     for rule in PRINTER_RULES:
@@ -564,8 +578,10 @@ def main(argv=None) -> int:
     ]
     print(shown.to_string(index=False))
 
-    # 5. Equality.
-    rows = compare_results(local / "results", cluster / "results")
+
+def _check_equal_results(local: Path, cluster: Path) -> None:
+    """The cluster's results are the local run's, byte for byte where they can be."""
+    rows = compare_results(local, cluster)
     table = pd.DataFrame(rows, columns=["file", "verdict", "note"])
     equal = table[table["verdict"] == "equal bytes"]["file"]
     headline = sorted(
@@ -594,12 +610,6 @@ def main(argv=None) -> int:
         (FAILING_SCENE, "models/P80/r0/model.pt"),
     ]:
         check(f"{scene}/{leaf}" in set(equal), f"{scene}/{leaf}: equal bytes")
-    total_s = time.monotonic() - started
-    print(
-        f"\ncluster check passed in {total_s:.0f} s (local {local_s:.0f} s, "
-        f"cluster {run1_s:.0f} + {run2_s:.0f} s)"
-    )
-    return 0
 
 
 if __name__ == "__main__":

@@ -42,6 +42,11 @@ GROUP_HELP = {
 }
 
 
+def ask_on_console(message: str) -> None:
+    """A real rig's `ask` (threedcal.rig) at a terminal: say what to do, wait for Enter."""
+    input(f"{message}, then press Enter... ")
+
+
 def refuse_file_on_path(option: str, output: Path, folder: Path) -> None:
     """Refused before anything is written: `output` goes into `folder`, whose nearest existing
     part is a file (makedirs would raise FileExistsError or NotADirectoryError half way)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from threedcal.cli import Command
+from threedcal.cli import Command, ask_on_console
 
 
 def _configure(parser: argparse.ArgumentParser) -> None:
@@ -45,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
         )
         return 0
     out = args.out or f"results/{args.scene}/raw.zarr"
-    summary = collect_scene(args.scene, scene, out)
+    summary = collect_scene(args.scene, scene, out, ask=ask_on_console)
     print(json.dumps(summary, indent=2))
     return 0
 

@@ -54,7 +54,7 @@ def _estimator(args: argparse.Namespace):
         raise ConfigError(f"--contact-mm must be a number >= 0, got {contact_mm}")
     import torch
 
-    from threedcal.dataset.importers import read_rgb
+    from threedcal.images import read_rgb
     from threedcal.model.inference import DepthEstimator
 
     if args.threads:
@@ -96,7 +96,7 @@ def _predict(args: argparse.Namespace) -> int:
     import cv2
     import numpy as np
 
-    from threedcal.dataset.importers import read_rgb
+    from threedcal.images import read_rgb
 
     out = Path(args.out)
     if out.suffix.lower() != ".npy":
@@ -163,11 +163,64 @@ def _live(args: argparse.Namespace) -> int:
     import time
 
     import cv2
-    import numpy as np
     from tqdm import tqdm
 
     from threedcal.model.drift import background_drift_dn
     from threedcal.model.sources import open_source
+
+    _check_live_args(args)
+    estimator = _estimator(args)
+    if args.points:
+        estimator.geometry.check_frame(args.frame_of)
+    source = open_source(args.source, _live_sensor(args))
+    frames_out, times = [], []
+    retake = _BlankRequest()
+    warned = False
+    print(f"live: press b in the window, or kill -USR1 {os.getpid()}, to re-take the blank")
+    with retake.on_signal():
+        for count, frame in enumerate(tqdm(source, desc="live", unit="frame", total=args.frames)):
+            if args.frames and count >= args.frames:
+                break
+            began = time.perf_counter()
+            model_frame = _model_frames(
+                estimator, frame, f"live source {args.source}, frame {count}"
+            )
+            if retake.pending:
+                estimator.retake_blank(frame)
+                retake.pending, warned = False, False
+                tqdm.write(f"live: frame {count} is the blank from now on")
+            depth = estimator.depth(model_frame)
+            times.append(time.perf_counter() - began)
+            drift = background_drift_dn(model_frame, estimator.blank, depth > args.contact_mm)
+            if drift > args.drift_warn_dn and not warned:
+                tqdm.write(
+                    f"live: warning: frame {count}: the no-contact region has drifted {drift:.1f} "
+                    f"grey levels (RMS) from the blank (> --drift-warn-dn {args.drift_warn_dn:g}): "
+                    "depth there may read as contact; with nothing touching the gel, press b or "
+                    "send SIGUSR1 to re-take the blank"
+                )
+            warned = drift > args.drift_warn_dn  # warned again only after it settled
+            if args.points:
+                from threedcal.model.points import write_ply
+
+                cloud = estimator.points_of_depth(depth, args.frame_of, args.contact_mm)
+                write_ply(Path(args.points) / f"frame_{count:06d}.ply", cloud)
+            view = _live_view(model_frame, depth, len(times) / sum(times), drift, warned, args)
+            if args.out:
+                frames_out.append(view)
+            if args.show:
+                cv2.imshow("threedcal live", cv2.cvtColor(view, cv2.COLOR_RGB2BGR))
+                key = cv2.waitKey(1) & 0xFF
+                if key == ord("q"):
+                    break
+                if key == ord("b"):
+                    retake.pending = True
+    return _live_done(args, estimator, times, frames_out)
+
+
+def _check_live_args(args: argparse.Namespace) -> None:
+    """Everything `live` can refuse, before the model is loaded or any output written."""
+    import numpy as np
 
     if args.frames < 0:
         raise ConfigError(f"--frames must be >= 0 (0: all), got {args.frames}")
@@ -186,58 +239,44 @@ def _live(args: argparse.Namespace) -> int:
         refuse_existing_outputs({"--out": Path(args.out)}, args.force)
     if args.points:
         _refuse_points_folder(Path(args.points), args.force)
-    estimator = _estimator(args)
-    if args.points:
-        estimator.geometry.check_frame(args.frame_of)
-    frames_out, times = [], []
-    retake = _BlankRequest()
-    warned = False
-    source = open_source(args.source)
-    print(f"live: press b in the window, or kill -USR1 {os.getpid()}, to re-take the blank")
-    with retake.on_signal():
-        for count, frame in enumerate(tqdm(source, desc="live", unit="frame", total=args.frames)):
-            if args.frames and count >= args.frames:
-                break
-            began = time.perf_counter()
-            where = f"live source {args.source}, frame {count}"
-            model_frame = _model_frames(estimator, frame, where)
-            if retake.pending:
-                estimator.retake_blank(frame)
-                retake.pending, warned = False, False
-                tqdm.write(f"live: frame {count} is the blank from now on")
-            depth = estimator.depth(model_frame)
-            times.append(time.perf_counter() - began)
-            contact = depth > args.contact_mm
-            drift = background_drift_dn(model_frame, estimator.blank, contact)
-            if drift > args.drift_warn_dn and not warned:
-                tqdm.write(
-                    f"live: warning: frame {count}: the no-contact region has drifted {drift:.1f} "
-                    f"grey levels (RMS) from the blank (> --drift-warn-dn {args.drift_warn_dn:g}): "
-                    "depth there may read as contact; with nothing touching the gel, press b or "
-                    "send SIGUSR1 to re-take the blank"
-                )
-            warned = drift > args.drift_warn_dn  # warned again only after it settled
-            if args.points:
-                from threedcal.model.points import write_ply
+    from threedcal.model.sources import is_camera
 
-                cloud = estimator.points_of_depth(depth, args.frame_of, args.contact_mm)
-                write_ply(Path(args.points) / f"frame_{count:06d}.ply", cloud)
-            fps = len(times) / sum(times)
-            view = np.concatenate([model_frame, colour_map(depth, args.max_depth_mm)], axis=1)
-            white, red = (255, 255, 255), (255, 64, 64)
-            cv2.putText(view, f"{fps:5.1f} fps", (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, white, 1)
-            label = f"drift {drift:.1f}" + (": b = new blank" if warned else "")
-            colour = red if warned else white
-            cv2.putText(view, label, (5, 36), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1)
-            if args.out:
-                frames_out.append(view)
-            if args.show:
-                cv2.imshow("threedcal live", cv2.cvtColor(view, cv2.COLOR_RGB2BGR))
-                key = cv2.waitKey(1) & 0xFF
-                if key == ord("q"):
-                    break
-                if key == ord("b"):
-                    retake.pending = True
+    if is_camera(args.source) and not args.sensor:
+        raise ConfigError(
+            f"--source {args.source} is a camera: give --sensor (the sensor profile says how its "
+            "frames are cropped, turned and sized, as at collection)"
+        )
+
+
+def _live_sensor(args: argparse.Namespace):
+    """--sensor's profile (a camera's frames are converted by it), or None."""
+    if not args.sensor:
+        return None
+    from threedcal.profiles import load_profile
+
+    sensor = load_profile("sensor", args.sensor)
+    if sensor.get("type") != "vision":
+        raise ConfigError(
+            f"--sensor {args.sensor}: not a camera sensor (type {sensor.get('type')})"
+        )
+    return sensor
+
+
+def _live_view(model_frame, depth, fps: float, drift: float, warned: bool, args):
+    """Frame | depth side by side, frames/s and the background's drift written on it."""
+    import cv2
+    import numpy as np
+
+    view = np.concatenate([model_frame, colour_map(depth, args.max_depth_mm)], axis=1)
+    white, red = (255, 255, 255), (255, 64, 64)
+    cv2.putText(view, f"{fps:5.1f} fps", (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, white, 1)
+    label = f"drift {drift:.1f}" + (": b = new blank" if warned else "")
+    colour = red if warned else white
+    cv2.putText(view, label, (5, 36), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1)
+    return view
+
+
+def _live_done(args: argparse.Namespace, estimator, times, frames_out) -> int:
     if not times:
         print("no frames")
         return 1
@@ -361,7 +400,13 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--source",
         required=True,
-        help="camera index (0), folder of images, video file, or results/{scene}/dataset/trainset",
+        help="camera index (0) or device (/dev/video0; needs --sensor), video file, folder of "
+        "images, or results/{scene}/dataset/trainset",
+    )
+    parser.add_argument(
+        "--sensor",
+        help="the camera's sensor profile (name or YAML): its frames are cropped, turned and "
+        "sized by it, as at collection",
     )
     parser.add_argument("--frames", type=int, default=0, help="stop after this many (0: all)")
     parser.add_argument("--out", help="write frame | depth side by side to a .gif or .mp4")

@@ -8,19 +8,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from threedcal.plotting import pyplot
 
 
 def coverage_figure(plan, sensor: Mapping, path: str | Path, title: str = "") -> None:
     """Probe points over the gel's probe area (plan-relative mm), coloured by commanded depth."""
-    plt = _pyplot()
+    plt = pyplot()
     width, height = sensor["probing"]["plan_area_mm"]
     fig, ax = plt.subplots(figsize=(5, 5 * height / width + 0.6), dpi=120)
     ax.add_patch(plt.Rectangle((0, 0), width, height, fill=False, lw=1, ec="0.5", ls="--"))
@@ -66,7 +59,7 @@ def coverage_figure(plan, sensor: Mapping, path: str | Path, title: str = "") ->
 
 def mosaic_figure(dataset, path: str | Path, count: int = 9, title: str = "") -> None:
     """A grid of evenly spaced sample frames with their probe coordinate, plus the blank."""
-    plt = _pyplot()
+    plt = pyplot()
     n_frames = dataset.sizes["frame"]
     picks = np.linspace(0, n_frames - 1, min(count - 1, n_frames)).round().astype(int)
     columns = 5

@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_to_printer
 from threedcal.collect.store import PointRecord, RawStore, StoreError
+from threedcal.rig import Clock, WallClock
 
 # Captured points are written to the store together, once FLUSH_EVERY_S has passed since the last
 # write or FLUSH_MAX_POINTS wait: a zarr write costs about a millisecond whatever its size, ten
@@ -50,20 +51,6 @@ class FrameSource(Protocol):
     def capture(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         """`count` fresh frames (count, H, W, 3) uint8 RGB and their time stamps (s)."""
         ...
-
-
-class Clock(Protocol):
-    def now(self) -> float: ...
-
-    def sleep(self, seconds: float) -> None: ...
-
-
-class WallClock:
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        time.sleep(seconds)
 
 
 class CollectionInterrupted(KeyboardInterrupt):

@@ -7,7 +7,6 @@ only when complete, so a failed run never deletes what it captured: the next run
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import math
@@ -38,6 +37,7 @@ from threedcal.collect.store import (
 )
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
+from threedcal.rig import Ask, BenchClock, check_devices, is_magnetic, open_rig
 
 
 @dataclass
@@ -62,29 +62,8 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
             parse_faults(scene.get("bench", {}).get("faults", ""))
         except ConfigError as exc:
             raise ConfigError(f"{source}.bench.faults: {exc}") from None
-    key = "reader" if is_magnetic(sensor) else "camera"
-    if scene["port"] != "sim" and str(scene.get(key, "sim")) == "sim":
-        device = (
-            "set the scene's `reader` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
-            if is_magnetic(sensor)
-            else "give the sensor's video device (index or /dev/v4l/by-id path)"
-        )
-        raise ConfigError(
-            f"{source}: port {scene['port']!r} is a real printer but {key} is 'sim': {device}, "
-            "or use port: sim"
-        )
+    check_devices(scene, sensor, source)
     return ScenePlan(sensor, printer, plan, MotionSettings.from_profile(sensor))
-
-
-class _BenchClock:
-    def __init__(self, firmware):
-        self.firmware = firmware
-
-    def now(self) -> float:
-        return self.firmware.clock.now()
-
-    def sleep(self, seconds: float) -> None:
-        self.firmware.clock.advance(seconds)
 
 
 def _store_attrs(name: str, scene: Mapping, prepared: ScenePlan) -> dict[str, Any]:
@@ -160,13 +139,15 @@ def collect_scene(
     staging_path: str | Path | None = None,
     truth_path: str | Path | None = None,
     progress: bool = True,
+    ask: Ask | None = None,
 ) -> dict[str, Any]:
     """Collect (or resume, or find already collected) a scene's store at `store_path`; its summary.
 
     With `staging_path` the store is filled there and moved to `store_path` only when complete. A
     store at `store_path` is never touched: if its recorded settings are the config's, its summary
     is returned; if not, a SettingsMismatch names the keys that differ. A partial store is resumed
-    only with the settings it was started with.
+    only with the settings it was started with. `ask`: how a real rig asks its user to attach
+    the probe (threedcal.rig).
     """
     source = f"scenes.{name}"
     prepared = prepare(scene, source=source)
@@ -200,10 +181,7 @@ def collect_scene(
                 settings=settings,
             )
         if not store.complete:
-            if simulated:
-                _collect_simulated(scene, prepared, store, progress)
-            else:
-                _collect_hardware(scene, prepared, store, progress)
+            _collect_on_rig(scene, prepared, store, progress, ask)
             store.finalize({"summary": store_summary(store)})
         elif staging != store_path:  # completed, then killed before the rename: maybe before
             store.consolidate()  # finalize's last step too
@@ -257,11 +235,6 @@ def simulated_truth(scene: Mapping, prepared: ScenePlan):
     return draw_truth(prepared.sensor, scene["bench"], scene["seed"])
 
 
-def is_magnetic(sensor: Mapping) -> bool:
-    """Magnetic sensors (ReSkin) stream readings over serial instead of camera frames."""
-    return sensor.get("type") == "magnetic"
-
-
 def _sample_layout(prepared: ScenePlan):
     """Shape of one sample and how the store keeps it: an RGB frame, or a ReSkin reading."""
     if is_magnetic(prepared.sensor):
@@ -273,76 +246,29 @@ def _sample_layout(prepared: ScenePlan):
     return (image["height_px"], image["width_px"], 3), IMAGE_LAYOUT
 
 
-def _collect_simulated(scene, prepared: ScenePlan, store: RawStore, progress: bool) -> RunResult:
-    """The simulated bench: fake printer and simulated sensor — the gel camera, or the ReSkin board
-    behind its own serial URL — coupled through the head pose."""
-    from threedcal.hardware.printer import MarlinHost
+# What a person at a real rig is asked to do before the probing starts.
+ATTACH_PROBE = "Attach the probe to the print head"
 
-    if is_magnetic(prepared.sensor):
-        from threedcal.sim.reskin import ReSkinBench as Bench
-    else:
-        from threedcal.sim.bench import SimBench as Bench
-    bench_settings = scene["bench"]
-    with contextlib.ExitStack() as stack:
-        bench = stack.enter_context(
-            Bench(
-                prepared.sensor,
-                scene["probe"]["radius_mm"],
-                bench_settings,
-                scene["seed"],
-                printer=prepared.printer,
-                faults=bench_settings.get("faults", ""),
-                fault_rate=bench_settings.get("fault_rate", 0.0),
-            )
-        )
-        host = stack.enter_context(MarlinHost(bench.url, prepared.printer))
-        if is_magnetic(prepared.sensor):
-            from threedcal.hardware.reskin import ReSkinReader
 
-            source = stack.enter_context(ReSkinReader(prepared.sensor, bench.sensor_url))
-        else:
-            source = bench.camera
-        # Replay: a resumed run goes through the plan from the start, so the simulated sensor
-        # sees an uninterrupted run's timeline and the store comes out byte-identical.
+def _collect_on_rig(
+    scene, prepared: ScenePlan, store: RawStore, progress: bool, ask: Ask | None
+) -> RunResult:
+    """The scene's rig (threedcal.rig): the simulated bench, or the printer and the sensor."""
+    with open_rig(scene, prepared.sensor, prepared.printer, ask=ask) as rig:
+        # Replay on the bench: a resumed run goes through the plan from the start, so the
+        # simulated sensor sees an uninterrupted run's timeline and the store comes out
+        # byte-identical.
         return collect(
             store,
             prepared.sensor,
-            host,
-            source,
+            rig.printer,
+            rig.sensor,
             prepared.settings,
-            hardware_clock=bench.firmware.clock.now,
-            clock=_BenchClock(bench.firmware),
+            hardware_clock=rig.hardware_clock,
+            clock=rig.clock,
+            attach_probe=None if rig.simulated else lambda: rig.prompt(ATTACH_PROBE),
             progress=progress,
-            replay=True,
-        )
-
-
-def _collect_hardware(scene, prepared: ScenePlan, store: RawStore, progress: bool) -> RunResult:
-    from threedcal.hardware.camera import OpenCVCamera
-    from threedcal.hardware.printer import MarlinHost
-
-    device = scene["camera"]
-    if isinstance(device, str) and device.isdigit():
-        device = int(device)
-
-    def attach_probe() -> None:
-        input("Attach the probe to the print head, then press Enter to start probing... ")
-
-    if is_magnetic(prepared.sensor):
-        from threedcal.hardware.reskin import ReSkinReader
-
-        reader = ReSkinReader(prepared.sensor, str(scene["reader"]))
-    else:
-        reader = OpenCVCamera(prepared.sensor, device)
-    with reader, MarlinHost(scene["port"], prepared.printer) as host:
-        return collect(
-            store,
-            prepared.sensor,
-            host,
-            reader,
-            prepared.settings,
-            attach_probe=attach_probe,
-            progress=progress,
+            replay=rig.simulated,
         )
 
 
@@ -397,11 +323,11 @@ def estimate_hardware_s(
     """Seconds the real printer needs for `plan`: the same loop, driven against the fake firmware's
     motion model (homing, trapezoidal moves, M400 waits, settling, capture at the camera's rate)."""
     from threedcal.hardware.printer import MarlinHost
-    from threedcal.sim.marlin import SimMarlin, forget, register
+    from threedcal.sim.marlin import FIRMWARES, SimMarlin
 
     firmware = SimMarlin(printer, speedup=math.inf)
     name = f"estimate-{id(firmware)}"
-    register(name, firmware)
+    FIRMWARES.serve(name, firmware)
     try:
         with MarlinHost(f"simmarlin://{name}", printer) as host:
             result = collect(
@@ -411,11 +337,11 @@ def estimate_hardware_s(
                 _ClockOnlyCamera(firmware.clock, _sample_rate_hz(sensor)),
                 MotionSettings.from_profile(sensor),
                 hardware_clock=firmware.clock.now,
-                clock=_BenchClock(firmware),
+                clock=BenchClock(firmware),
                 progress=progress,
             )
     finally:
-        forget(name)
+        FIRMWARES.withdraw(name)
     return result.hardware_s
 
 
@@ -441,6 +367,7 @@ def collect_stage(
     mosaic: str | Path,
     truth: str | Path,
     progress: bool = True,
+    ask: Ask | None = None,
 ) -> dict[str, Any]:
     """The `collect` rule: store, summary.json, coverage and sample-frame figures, bench truth.
 
@@ -450,7 +377,7 @@ def collect_stage(
 
     prepared = prepare(scene, source=f"scenes.{name}")
     result = collect_scene(
-        name, scene, store, staging_path=staging, truth_path=truth, progress=progress
+        name, scene, store, staging_path=staging, truth_path=truth, progress=progress, ask=ask
     )
     if scene["port"] != "sim":
         Path(truth).write_text(json.dumps({"simulated": False}) + "\n")

@@ -14,7 +14,7 @@ from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 from threedcal.errors import ConfigError
-from threedcal.lens import rectify_if
+from threedcal.lens import profile_focal_px, rectify_if
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -59,10 +59,9 @@ def build_imported(
 def _registration_figure(
     trainset: TrainingSet, samples: list[int], path: str | Path, title: str
 ) -> None:
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, len(samples), figsize=(2.4 * len(samples), 3.4), dpi=110)
     for ax, i in zip(np.atleast_1d(axes), samples, strict=True):
@@ -147,7 +146,8 @@ def register_store(
     read whole and checked (`threedcal.collect.store.open_checked`)."""
     from threedcal.collect.plan import dome_sag_at_px, dome_sag_mm, plan_phases
     from threedcal.collect.store import open_checked
-    from threedcal.dataset.registration import DomedContacts, register
+    from threedcal.dataset.dome_contacts import DomedContacts
+    from threedcal.dataset.registration import register_camera
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])
@@ -188,7 +188,7 @@ def register_store(
             (height, width),
             material=contact_material(scene, sensor),
         )
-    registration = register(
+    registration = register_camera(
         cmd_xy[first[rows]],
         [_mean_frame(raw, first[p], last[p]) for p in rows],
         raw["blank_frames"].values.astype(np.float32).mean(axis=0),
@@ -231,23 +231,56 @@ def build_collected(
     """
     import json
 
-    from threedcal.config import ablation_replicates, training_fractions
-    from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.splits import in_field_of_view, min_p_column, split_points
-
     radius_mm = float(scene["probe"]["radius_mm"])
     store = register_store(scene, store_path, progress, expect_digest)
-    raw, sensor, registration = store.raw, store.sensor, store.registration
-    fit, centres, px_per_mm = registration.fit, store.centres, store.px_per_mm
-    frames = raw["frames"]
-    height, width = frames.shape[1:3]
-    cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
-    plan_xy = np.column_stack([raw["x_mm"].values, raw["y_mm"].values])
     method = "search" if len(store.rows("touch")) else "rim"
     touch = touch_height(store, radius_mm, method, progress)
     offset = touch["touch_offset_mm"]
-    contact_z_mm = round(float(sensor["mount"]["z_touch_mm"]) + offset, 4)
-    # Labels for every grid frame whose probe centre the registration puts inside the image.
+    contact_z_mm = round(float(store.sensor["mount"]["z_touch_mm"]) + offset, 4)
+    labels = _label_frames(scene, store, offset)
+    trainset = _collected_trainset(scene, store, labels, contact_z_mm)
+    trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
+    trainset.save(trainset_dir)
+    write_splits(trainset, splits_path, xy_mm=labels.coordinates[["x_mm", "y_mm"]].to_numpy())
+    record = _registration_record(store, touch, labels, contact_z_mm)
+    if truth_path is not None and Path(truth_path).is_file():
+        record.update(_bench_errors(store, labels, truth_path, offset))
+    # the fitted lens as OpenCV and ROS read a camera (its focal length: the profile's)
+    lens = store.registration.fit.lens
+    record["camera"] = None if lens is None else lens.camera_info(profile_focal_px(store.sensor))
+    Path(registration_path).write_text(json.dumps(record, indent=2) + "\n")
+    picks = (
+        np.linspace(0, len(trainset.samples) - 1, min(5, len(trainset.samples))).round().astype(int)
+    )
+    fit = store.registration.fit
+    _registration_figure(
+        trainset,
+        list(picks),
+        figure_path,
+        f"registration: residual {fit.residual_px:.2f} px, touch offset {offset:+.3f} mm",
+    )
+    return record
+
+
+@dataclass
+class _Labels:
+    """Which frames of a registered store train, at which depth, and their probe coordinates."""
+
+    depth: np.ndarray  # (frames,) depth below the gel with the touch offset applied, mm
+    inside: np.ndarray  # (frames,) bool: a grid frame whose probe lies in view, pressed
+    too_deep: np.ndarray  # (frames,) bool: inside, but past dataset.max_depth_over_radius
+    keep: np.ndarray  # the frames that train (indices)
+    coordinate_id: np.ndarray  # per kept frame: its probe coordinate
+    coordinates: pd.DataFrame  # one row per coordinate: x_mm, y_mm, point (sorted by point)
+
+
+def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Labels:
+    """Labels for every grid frame whose probe centre the registration puts inside the image."""
+    from threedcal.dataset.splits import in_field_of_view
+
+    raw, centres = store.raw, store.centres
+    height, width = raw["frames"].shape[1:3]
+    radius_mm = float(scene["probe"]["radius_mm"])
     depth = np.clip(store.nominal_depth + offset, 0.0, None)
     inside = (
         in_field_of_view(centres[:, 0], centres[:, 1], width, height)
@@ -269,21 +302,43 @@ def build_collected(
             f"frame to train on ({int(too_deep.sum())} of {int(inside.sum())} labelled frames are "
             f"pressed deeper than {max_ratio} x R = {float(max_ratio) * radius_mm:g} mm)"
         )
+    plan_xy = _plan_xy(raw)
     coords = pd.DataFrame({"x_mm": plan_xy[keep, 0], "y_mm": plan_xy[keep, 1]})
     coordinate_id = coords.groupby(["x_mm", "y_mm"], sort=True).ngroup().to_numpy()
     unique = coords.assign(point=coordinate_id).drop_duplicates("point").sort_values("point")
+    return _Labels(depth, inside, too_deep, keep, coordinate_id, unique)
+
+
+def _plan_xy(raw) -> np.ndarray:
+    return np.column_stack([raw["x_mm"].values, raw["y_mm"].values])
+
+
+def _collected_trainset(
+    scene: Mapping, store: RegisteredStore, labels: _Labels, contact_z_mm: float
+) -> TrainingSet:
+    """The kept frames, rectified through the fitted lens (one mm is one px_per_mm everywhere, as
+    the labels are), with their labels and splits."""
+    from threedcal.config import ablation_replicates, training_fractions
+    from threedcal.dataset.labels import contact_radius_mm
+    from threedcal.dataset.splits import min_p_column, split_points
+
+    radius_mm = float(scene["probe"]["radius_mm"])
+    raw, sensor, fit = store.raw, store.sensor, store.registration.fit
+    keep, coordinate_id, depth = labels.keep, labels.coordinate_id, labels.depth
     replicates = ablation_replicates(scene)
     table = split_points(
-        unique, training_fractions(scene), seed=scene["seed"], replicates=replicates
+        labels.coordinates, training_fractions(scene), seed=scene["seed"], replicates=replicates
     ).set_index("point")
     samples = pd.DataFrame(
         {
             "frame": keep,
             "point": coordinate_id,
-            "center_x_px": centres[keep, 0],
-            "center_y_px": centres[keep, 1],
+            "center_x_px": store.centres[keep, 0],
+            "center_y_px": store.centres[keep, 1],
             "depth_mm": depth[keep],
-            "eval_radius_px": [contact_radius_mm(radius_mm, d) * px_per_mm for d in depth[keep]],
+            "eval_radius_px": [
+                contact_radius_mm(radius_mm, d) * store.px_per_mm for d in depth[keep]
+            ],
             "split": table.loc[coordinate_id, "split"].to_numpy(),
             **{
                 min_p_column(r): table.loc[coordinate_id, min_p_column(r)].to_numpy()
@@ -291,12 +346,11 @@ def build_collected(
             },
         }
     )
-    # frames rectified through the fitted lens: one mm is one px_per_mm everywhere, as the labels are
-    trainset = TrainingSet(
-        frames=rectify_if(fit.lens, frames.values[keep]),
+    return TrainingSet(
+        frames=rectify_if(fit.lens, raw["frames"].values[keep]),
         blank=rectify_if(fit.lens, raw["blank_frames"].values.astype(np.float32).mean(axis=0)),
         samples=samples.assign(frame=np.arange(len(keep))),
-        px_per_mm=px_per_mm,
+        px_per_mm=store.px_per_mm,
         sphere_radius_mm=radius_mm,
         max_slope_deg=check_max_slope(scene["dataset"]["max_slope_deg"]),
         meta={
@@ -313,13 +367,17 @@ def build_collected(
             },
         },
     )
-    trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
-    trainset.save(trainset_dir)
-    xy = unique[["x_mm", "y_mm"]].to_numpy()
-    write_splits(trainset, splits_path, xy_mm=xy)
 
+
+def _registration_record(
+    store: RegisteredStore, touch: dict, labels: _Labels, contact_z_mm: float
+) -> dict:
+    """registration.json: the fit, how it was found, the touch height and what was labelled."""
+    registration = store.registration
+    fit = registration.fit
+    offset = touch["touch_offset_mm"]
     linear = fit.matrix[:, :2]
-    record = {
+    return {
         "affine_px_per_mm": fit.matrix.round(9).tolist(),
         "lens": None if fit.lens is None else fit.lens.record(),
         "residual_px": round(fit.residual_px, 4),
@@ -337,35 +395,34 @@ def build_collected(
         **{k: v for k, v in touch.items() if k != "touch_offset_mm"},
         "touch_offset_mm": round(offset, 4),
         "contact_z_mm": contact_z_mm,
-        "frames_in_view": int(inside.sum()),
-        "frames_too_deep": int(too_deep.sum()),
-        "frames_labelled": int(len(keep)),
-        "probe_points_in_view": len({tuple(xy) for xy in plan_xy[inside]}),
-        "probe_points_labelled": int(len(unique)),
+        "frames_in_view": int(labels.inside.sum()),
+        "frames_too_deep": int(labels.too_deep.sum()),
+        "frames_labelled": int(len(labels.keep)),
+        "probe_points_in_view": len({tuple(xy) for xy in _plan_xy(store.raw)[labels.inside]}),
+        "probe_points_labelled": int(len(labels.coordinates)),
     }
-    if truth_path is not None and Path(truth_path).is_file():
-        from threedcal.sim.bench import BenchTruth
 
-        truth = json.loads(Path(truth_path).read_text())
-        if "affine_px_per_mm" in truth:
-            # where the camera truly images each probe point (through the bench's lens, if any)
-            probe = np.unique(cmd_xy[inside], axis=0)
-            true_px = BenchTruth.read(truth_path).camera_px(probe)
-            error = np.linalg.norm(fit.apply(probe) - true_px, axis=1)
-            record["error_px"] = round(float(np.sqrt(np.mean(error**2))), 4)
-            record["error_px_max"] = round(float(error.max()), 4)
-            record["touch_offset_error_mm"] = round(offset - float(truth["touch_offset_mm"]), 4)
-    Path(registration_path).write_text(json.dumps(record, indent=2) + "\n")
-    picks = (
-        np.linspace(0, len(trainset.samples) - 1, min(5, len(trainset.samples))).round().astype(int)
-    )
-    _registration_figure(
-        trainset,
-        list(picks),
-        figure_path,
-        f"registration: residual {fit.residual_px:.2f} px, touch offset {offset:+.3f} mm",
-    )
-    return record
+
+def _bench_errors(store: RegisteredStore, labels: _Labels, truth_path, offset: float) -> dict:
+    """The registration's error against the simulated bench's hidden truth (reported, never used)."""
+    import json
+
+    from threedcal.sim.bench import BenchTruth
+
+    truth = json.loads(Path(truth_path).read_text())
+    if "affine_px_per_mm" not in truth:
+        return {}
+    raw = store.raw
+    cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
+    # where the camera truly images each probe point (through the bench's lens, if any)
+    probe = np.unique(cmd_xy[labels.inside], axis=0)
+    true_px = BenchTruth.read(truth_path).camera_px(probe)
+    error = np.linalg.norm(store.registration.fit.apply(probe) - true_px, axis=1)
+    return {
+        "error_px": round(float(np.sqrt(np.mean(error**2))), 4),
+        "error_px_max": round(float(error.max()), 4),
+        "touch_offset_error_mm": round(offset - float(truth["touch_offset_mm"]), 4),
+    }
 
 
 def touch_height(
@@ -373,11 +430,7 @@ def touch_height(
 ) -> dict:
     """registration.json's touch fields, by `method`: "search" (the plan's first-contact search,
     the default) or "rim" (the grid's contact radii; d < R only, see docs/registration.md)."""
-    from threedcal.dataset.registration import (
-        TOUCH_FIT_SPAN_MM,
-        estimate_touch,
-        measure_touch_search,
-    )
+    from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, estimate_touch, measure_touch_search
 
     fit = store.registration.fit
     if method == "search":

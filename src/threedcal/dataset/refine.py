@@ -43,7 +43,7 @@ STRETCH_BOUNDS = (0.7, 1.3)
 MAX_ASYMMETRY = 0.8
 
 
-def colour_change(frame: np.ndarray, blank: np.ndarray) -> np.ndarray:
+def imprint_magnitude(frame: np.ndarray, blank: np.ndarray) -> np.ndarray:
     """(H, W) float32 magnitude of the drift-corrected colour change, smoothed (sigma 1.5 px)."""
     diff = np.asarray(frame, dtype=np.float32) - np.asarray(blank, dtype=np.float32)
     diff -= np.median(diff[::4, ::4].reshape(-1, 3), axis=0)
@@ -131,7 +131,7 @@ def refine_contacts(
     for i, (frame, (cx, cy)) in enumerate(
         zip(frames, np.asarray(center_px, dtype=float), strict=True)
     ):
-        field = colour_change(frame, blank)
+        field = imprint_magnitude(frame, blank)
         cx, cy = symmetric_centre(field, cx, cy, CENTRE_REACH * scale, search)
         centres.append((cx, cy))
         profile, left = ring_profile(field, cx, cy, PROFILE_REACH * scale)

@@ -101,10 +101,9 @@ def pareto_front(points: pd.DataFrame, x: str = "ms_per_frame", y: str = "rmse")
 
 def plot_pareto(table: pd.DataFrame, path: str | Path) -> None:
     """One log-log panel per scenario: median ms per frame against rmse, front drawn."""
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     scenarios = list(dict.fromkeys(table["scenario"]))
     methods = list(dict.fromkeys(table["method"]))

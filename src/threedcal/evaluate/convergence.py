@@ -18,6 +18,7 @@ import pandas as pd
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.evaluate.validation import coordinate_mse
+from threedcal.plotting import pyplot
 
 CURVE_COLUMNS = ("P", "run", "steps", "seconds", "mse")
 CONVERGENCE_COLUMNS = (
@@ -30,15 +31,6 @@ CONVERGENCE_COLUMNS = (
     "twice_mse",
     "change",
 )
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _score(checkpoint: Mapping, trainset: TrainingSet) -> float:
@@ -106,7 +98,7 @@ def convergence_table(curve: pd.DataFrame) -> pd.DataFrame:
 
 def curve_figure(curve: pd.DataFrame, path: str | Path, title: str) -> None:
     """Validation MSE against training seconds per P; the study's model marked where it stopped."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=120)
     colours = ("tab:blue", "tab:orange", "tab:green", "tab:red")
     for index, (p, runs) in enumerate(curve.groupby("P")):

@@ -1,18 +1,20 @@
-"""Closed triangle meshes in numpy: the few operations the test objects need, and STL files.
+"""Closed triangle meshes: the test objects' CAD, and the mesh files a user brings.
 
-Own code rather than a mesh library: the objects are solids of revolution and one height field, and
-ground truth needs only vertices and faces. Faces are wound counter-clockwise seen from outside
-(outward normals), so a closed mesh's signed volume is positive.
+`Mesh` is the small value the ground truth rasterises: vertices and faces, wound counter-clockwise
+seen from outside (outward normals), so a closed mesh's signed volume is positive. The built-in
+objects are made here (solids of revolution, a height field). Files, the volume and the watertight
+check are trimesh's: it reads STL (binary or ASCII), OBJ, PLY and OFF, so a CAD export arrives as
+it was saved (`MESH_SUFFIXES`).
 """
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from threedcal.config import MESH_SUFFIXES
 from threedcal.errors import ConfigError
 
 
@@ -52,24 +54,22 @@ class Mesh:
     def extent(self) -> np.ndarray:
         return np.ptp(self.vertices, axis=0)
 
+    def trimesh(self):
+        """The same mesh as a trimesh.Trimesh (vertices and faces as they are: not merged)."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
+
     @property
     def volume(self) -> float:
-        """Signed volume (divergence theorem); positive for a closed, outward-wound mesh."""
-        a, b, c = (self.triangles[:, i] for i in range(3))
-        return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+        """Signed volume; positive for a closed, outward-wound mesh."""
+        with np.errstate(invalid="ignore", divide="ignore"):  # trimesh's centre of mass at 0
+            return float(self.trimesh().volume)
 
     def is_watertight(self) -> bool:
         """Every edge is shared by exactly two faces that traverse it in opposite directions."""
-        f = self.faces
-        directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        if np.any(directed[:, 0] == directed[:, 1]):
-            return False
-        n = np.int64(len(self.vertices))
-        keys = directed[:, 0] * n + directed[:, 1]
-        if len(np.unique(keys)) != len(keys):  # an edge used twice in the same direction
-            return False
-        reverse = directed[:, 1] * n + directed[:, 0]
-        return bool(np.all(np.isin(reverse, keys)))
+        mesh = self.trimesh()
+        return bool(mesh.is_watertight and mesh.is_winding_consistent)
 
     def transformed(self, rotation: np.ndarray | None = None, translation=(0.0, 0.0, 0.0)) -> Mesh:
         """x' = R x + t. A reflection (det R < 0) also reverses the winding to keep normals outward."""
@@ -189,45 +189,37 @@ def height_field_solid(
     return Mesh(vertices, faces, name)
 
 
-# --- STL files ---------------------------------------------------------------------------------
+# --- mesh files --------------------------------------------------------------------------------
 
 
 def write_stl(mesh: Mesh, path: str | Path) -> Path:
-    """Binary STL (float32, facet normals computed); what slicers and CAD tools read."""
+    """Binary STL, what slicers and CAD tools read."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tris = mesh.triangles
-    normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-    record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
-    data = np.zeros(len(tris), dtype=record)
-    data["normal"] = normals
-    data["corners"] = tris
-    header = f"threedcal {mesh.name}".encode()[:80].ljust(80, b" ")
-    with path.open("wb") as fh:
-        fh.write(header)
-        fh.write(struct.pack("<I", len(tris)))
-        fh.write(data.tobytes())
+    mesh.trimesh().export(path, file_type="stl")
     return path
 
 
-def read_stl(path: str | Path, name: str | None = None) -> Mesh:
-    """Binary or ASCII STL → Mesh; corners at identical coordinates become one vertex."""
+def read_mesh(path: str | Path, name: str | None = None) -> Mesh:
+    """A mesh file (`MESH_SUFFIXES`) → Mesh; corners at identical coordinates become one vertex and
+    faces that collapse to a line are dropped. A file trimesh cannot read, or a corner that is not
+    a finite number, is an error naming the file (and the facet or line)."""
+    import trimesh
+
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"STL file {str(path)!r} does not exist")
-    raw = path.read_bytes()
-    name = name or path.stem
-    corners = None
-    if len(raw) >= 84:
-        count = struct.unpack("<I", raw[80:84])[0]
-        if len(raw) == 84 + 50 * count and count > 0:
-            record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
-            corners = np.frombuffer(raw, dtype=record, count=count, offset=84)["corners"]
-    if corners is None:
-        corners = _ascii_corners(raw, path)
-    corners = np.asarray(corners, dtype=np.float64).reshape(-1, 3)
+        raise ConfigError(f"mesh file {str(path)!r} does not exist")
+    kind = path.suffix.lower()
+    if kind not in MESH_SUFFIXES:
+        raise ConfigError(f"{path}: not a mesh file ({', '.join(MESH_SUFFIXES)})")
+    if kind == ".stl":
+        _check_ascii_vertex_lines(path.read_bytes(), path)
+    try:
+        loaded = trimesh.load(path, file_type=kind[1:], force="mesh", process=False)
+        corners = np.asarray(loaded.triangles, dtype=np.float64).reshape(-1, 3)
+    except Exception as exc:  # noqa: BLE001 - any failure to read is one message naming the file
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"{path}: not a readable {kind[1:].upper()} file ({reason})") from None
     bad = np.flatnonzero(~np.isfinite(corners).all(axis=1))
     if bad.size:
         raise ConfigError(
@@ -240,45 +232,45 @@ def read_stl(path: str | Path, name: str | None = None) -> Mesh:
         (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     ]
     if len(faces) == 0:
-        raise ConfigError(f"{path}: the STL has no non-degenerate triangles")
-    return Mesh(vertices, faces, name)
+        label = kind[1:].upper()
+        raise ConfigError(f"{path}: no triangle read (an empty {label} file, or not one)")
+    return Mesh(vertices, faces, name or path.stem)
 
 
-def read_solid_stl(path: str | Path) -> Mesh:
-    """A test object's STL → a closed mesh wound outwards, in the press frame (`Mesh.normalised`)."""
-    mesh = read_stl(path)
+def read_solid(path: str | Path) -> Mesh:
+    """A test object's mesh file → a closed mesh wound outwards, in the press frame
+    (`Mesh.normalised`)."""
+    mesh = read_mesh(path)
     if not mesh.is_watertight():
         raise ConfigError(
-            f"{path}: the STL is not a closed (watertight), consistently wound surface; "
+            f"{path}: the mesh is not a closed (watertight), consistently wound surface; "
             "repair it (e.g. in your CAD tool or slicer) and export again"
         )
     if abs(mesh.volume) <= 1e-9 * max(float(np.prod(mesh.extent)), 1e-300):
         # e.g. a sheet and its reverse: closed, but nothing for the printer to press
-        raise ConfigError(f"{path}: the STL's closed surface encloses no volume")
+        raise ConfigError(f"{path}: the mesh's closed surface encloses no volume")
     if mesh.volume < 0:  # wound inside out: turn the normals outwards
         mesh = Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.name)
     return mesh.normalised()
 
 
-def _ascii_corners(raw: bytes, path: Path) -> np.ndarray:
+def _check_ascii_vertex_lines(raw: bytes, path: Path) -> None:
+    """An ASCII STL's `vertex` lines hold exactly x y z: a short or long one is named by its line
+    (a reader would fail without saying where, or drop the extra number)."""
     try:
         text = raw.decode("ascii")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: neither a binary nor an ASCII STL file") from exc
+    except UnicodeDecodeError:
+        return  # binary
     if not text.lstrip().lower().startswith("solid"):
-        raise ConfigError(f"{path}: neither a binary nor an ASCII STL file (no 'solid' header)")
-    values = []
+        return
     for number, line in enumerate(text.splitlines(), start=1):
         words = line.split()
         if words and words[0].lower() == "vertex":
             try:
                 if len(words) != 4:
                     raise ValueError(f"{len(words) - 1} numbers, need x y z")
-                values.append([float(w) for w in words[1:]])
+                [float(w) for w in words[1:]]
             except ValueError as exc:
                 raise ConfigError(
                     f"{path}:{number}: malformed vertex line {line.strip()!r} ({exc})"
-                ) from exc
-    if not values or len(values) % 3:
-        raise ConfigError(f"{path}: ASCII STL must list 3 vertices per facet, found {len(values)}")
-    return np.array(values)
+                ) from None

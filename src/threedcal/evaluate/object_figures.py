@@ -3,24 +3,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from threedcal.errors import ConfigError
+from threedcal.plotting import pyplot
 
 _TYPES = ("Type 1", "Type 2")
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def plot_error_violins(
@@ -35,7 +27,7 @@ def plot_error_violins(
     missing = {"object", "type", "error_um"} - set(errors.columns)
     if missing:
         raise ConfigError(f"violin plot: error table lacks columns {sorted(missing)}")
-    plt = _pyplot()
+    plt = pyplot()
     objects = list(dict.fromkeys(errors["object"]))
     fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(objects), 3.6))
     colors = {"Type 1": "tab:blue", "Type 2": "tab:orange"}
@@ -87,7 +79,7 @@ def plot_depth_sections(
     col = int(deepest[1] if col is None else col)
     if not (0 <= row < gt.shape[0] and 0 <= col < gt.shape[1]):
         raise ConfigError(f"section row {row} / column {col} outside the image {gt.shape}")
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(8.5, 6.8), layout="constrained")  # no label overlaps
     vmax = max(float(np.nanmax(gt)), float(np.nanmax(pred)), 1e-6)
     h, w = gt.shape
@@ -120,7 +112,7 @@ def plot_depth_preview(
     depth: np.ndarray, path: str | Path, *, px_per_mm: float, title: str = ""
 ) -> Path:
     """One ground-truth depth map in mm, for the exported objects."""
-    plt = _pyplot()
+    plt = pyplot()
     h, w = depth.shape
     fig, ax = plt.subplots(figsize=(4.5, 4.5 * h / w + 0.6))
     extent = (-0.5 / px_per_mm, (w - 0.5) / px_per_mm, (h - 0.5) / px_per_mm, -0.5 / px_per_mm)
@@ -188,3 +180,24 @@ def _save(fig, path: str | Path) -> Path:
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def plot_pill_by_fraction(maps: Mapping[int, np.ndarray], path: str | Path) -> None:
+    """Fig. 3C: the pill's predicted depth for every training fraction P."""
+    from threedcal.plotting import pyplot
+
+    plt = pyplot()
+
+    fractions = sorted(maps)
+    vmax = max(float(np.nanmax(m)) for m in maps.values()) or 1.0
+    fig, axes = plt.subplots(
+        1, len(fractions), figsize=(2.2 * len(fractions), 3.0), dpi=110, squeeze=False
+    )
+    for ax, p in zip(axes[0], fractions, strict=True):
+        shown = ax.imshow(maps[p], cmap="viridis", vmin=0, vmax=vmax)
+        ax.set_title(f"P = {p} %", fontsize=9)
+        ax.axis("off")
+    fig.colorbar(shown, ax=axes[0].tolist(), shrink=0.8, label="depth (mm)")
+    fig.suptitle("pill: predicted depth by training fraction (first reporting press)")
+    fig.savefig(path)
+    plt.close(fig)

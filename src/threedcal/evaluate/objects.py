@@ -19,7 +19,7 @@ from threedcal.errors import ConfigError
 from threedcal.evaluate.mesh import (
     Mesh,
     height_field_solid,
-    read_solid_stl,
+    read_solid,
     revolve,
     rotation_x,
     rotation_y,
@@ -206,18 +206,20 @@ def make_object(name: str, **params) -> Mesh:
     return {"hemispheres": hemispheres, "pill": pill, "pawn": pawn}[name](parsed)
 
 
-def load_object(name_or_stl: str | Path) -> Mesh:
-    """A built-in name (`hemispheres`, `pill`, `pawn`) or an STL path → a mesh in the press frame."""
-    ref = str(name_or_stl)
+def load_object(ref: str | Path) -> Mesh:
+    """A built-in name (`hemispheres`, `pill`, `pawn`) or a mesh file (STL, OBJ, PLY, OFF) → a
+    mesh in the press frame."""
+    ref = str(ref)
     if ref in PARAMS:
         return make_object(ref)
-    if not (ref.lower().endswith(".stl") and Path(ref).is_file()):
-        raise ConfigError(object_problem(ref))  # a typo of a built-in name, or a missing file
-    return read_solid_stl(ref)  # what config check reads too (check_object_files)
+    problem = object_problem(ref)
+    if problem:
+        raise ConfigError(problem)  # a typo of a built-in name, or a missing file
+    return read_solid(ref)  # what config check reads too (check_object_files)
 
 
 def check_object_files(config: Mapping, source: str = "config") -> None:
-    """Read every test-object STL of a validated config as the pressing stage will (a closed
+    """Read every test-object mesh file of a validated config as the pressing stage will (a closed
     surface around a volume, finite corners) and check that no two objects of a scene share a
     name; raise one ConfigError naming each bad one by its key, before anything is collected."""
     problems = []
@@ -232,7 +234,7 @@ def check_object_files(config: Mapping, source: str = "config") -> None:
             if str(ref) in PARAMS:
                 continue
             try:
-                read_solid_stl(ref)
+                read_solid(ref)
             except ConfigError as exc:
                 problems.append(f"scenes.{name}.objects[{i}]: {exc}")
     if problems:

@@ -362,10 +362,11 @@ def power_figure(power: pd.DataFrame, path: str | Path, title: str) -> None:
     """Power against replicates for each P: solid = detect a +margin change, dashed = show
     equivalence at no change; one colour per validation spacing; the study's design ringed.
     R = 1 stands apart (crosses): its test cannot see the replicate variance and is too liberal."""
-    import matplotlib
+    from matplotlib import ticker
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from threedcal.plotting import pyplot
+
+    plt = pyplot()
 
     fractions = sorted(power["P"].unique())
     fig, axes = plt.subplots(
@@ -404,7 +405,7 @@ def power_figure(power: pd.DataFrame, path: str | Path, title: str) -> None:
         ticks = sorted(part["replicates"].unique())
         ax.set(xscale="log", xlabel="replicates R", title=f"P = {p} %", ylim=(-0.02, 1.02))
         ax.set_xticks(ticks, [str(r) for r in ticks])
-        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.xaxis.set_minor_locator(ticker.NullLocator())
     axes[0, 0].set_ylabel("power")
     axes[0, -1].legend(fontsize=6, loc="lower right")
     fig.suptitle(

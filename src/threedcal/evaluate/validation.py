@@ -19,17 +19,9 @@ import pandas as pd
 from threedcal.dataset.splits import subset_size
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
+from threedcal.plotting import pyplot
 
 WINDOW_SCALE = 1.5
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def coordinate_mse(estimator, trainset: TrainingSet, split: str = "val") -> pd.DataFrame:
@@ -113,7 +105,7 @@ def loss_curves_figure(
 ) -> None:
     """Fig. 3B: training and validation loss against epoch for every P (mean over replicates, band
     from the lowest to the highest replicate)."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
     fractions = sorted({p for p, _ in losses})
     colours = plt.cm.viridis(np.linspace(0, 0.9, len(fractions)))
@@ -147,7 +139,7 @@ def loss_curves_figure(
 def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, title: str) -> None:
     """Fig. 4A: validation MSE over the gel for each P, the mean over replicates at each coordinate;
     crosses mark replicate 0's training coordinates of that P."""
-    plt = _pyplot()
+    plt = pyplot()
     fractions = sorted(table["P"].unique())
     columns = min(len(fractions), 3)
     rows = int(np.ceil(len(fractions) / columns))
@@ -203,7 +195,7 @@ def kde_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
     from the lowest to the highest), the replicates' means dashed with their range shaded."""
     from scipy.stats import gaussian_kde
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
     fractions = sorted(table["P"].unique())
     colours = plt.cm.viridis(np.linspace(0, 0.9, len(fractions)))
@@ -234,7 +226,7 @@ def kde_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
 def std_figure(tables: Mapping[str, pd.DataFrame], path: str | Path) -> None:
     """Fig. 4C: standard deviation of validation MSE against P, every scene on one axis (mean over
     replicates, bars from the lowest to the highest replicate)."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.6), dpi=120)
     for scene, table in sorted(tables.items()):
         if "replicate" not in table:
@@ -294,7 +286,7 @@ def cost_table(
 
 def cost_figure(costs: pd.DataFrame, path: str | Path, title: str) -> None:
     """Validation error against the estimated probing time and the measured training time."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, sharey=True)
     for ax, column, label in zip(
         axes,
@@ -343,7 +335,9 @@ def stats_stage(
     table (+ figure), costs and the Fig. 3B/4 figures. `settings` is the config's `stats` section."""
     import json
 
-    from threedcal.evaluate.ablation import ablation_tests, recommend, spatial_blocks, tests_figure
+    from threedcal.evaluate.ablation import ablation_tests, spatial_blocks
+    from threedcal.evaluate.ablation_figure import tests_figure
+    from threedcal.evaluate.ablation_reading import recommend
     from threedcal.evaluate.power import power_figure, power_table
 
     trainset = TrainingSet.load(trainset_dir)

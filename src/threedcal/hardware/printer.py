@@ -344,16 +344,8 @@ class MarlinHost:
             if text is None:
                 if answer:  # an error (and maybe Resend) whose `ok` was lost: it is the answer
                     outcome, answer = self._settle(n, answer), _Answer()
-                elif retries >= self.retries:
-                    raise PrinterTimeout(
-                        f"{self.port_name}: no reply to line N{n} {command!r} after "
-                        f"{retries} retransmission(s) and {allowance:.1f} s each; is the printer "
-                        "on, at the profile's baud rate, and running Marlin?"
-                    )
                 else:
-                    retries += 1
-                    self.stats.timeouts += 1
-                    self._transmit(n, data)  # safe: Marlin refuses a line number it has run
+                    retries = self._retransmit_after_silence(n, data, retries, allowance)
                     deadline = self._now() + allowance
                     continue
             elif "\ufffd" in text or not text.isprintable():
@@ -378,18 +370,8 @@ class MarlinHost:
                     self.stats.busy += 1
                     deadline = max(deadline, self._now() + self.reply_timeout_s)
                     continue
-                elif kind is Reply.FATAL:
-                    self.homed = False
-                    raise PrinterHalted(
-                        f"{self.port_name}: the printer halted during {command!r}: {text} "
-                        "(needs a reset: power-cycle or reconnect, then home again)"
-                    )
-                elif kind is Reply.START:
-                    self.homed = False
-                    raise PrinterReset(
-                        f"{self.port_name}: the printer reset itself during line N{n} {command!r} "
-                        "(it printed 'start'); its position is lost: stop, reconnect and home again"
-                    )
+                elif kind in (Reply.FATAL, Reply.START):
+                    self._stopped(kind, text, n)
                 elif kind in (Reply.UNKNOWN_COMMAND, Reply.ERROR):
                     answer.refusal = text
                     continue
@@ -411,16 +393,49 @@ class MarlinHost:
             if outcome == "ran":
                 return output
             if outcome == "refused":
-                self.stats.resends += 1
-                refusals += 1
-                if refusals > max(10, 4 * self.retries):
-                    raise PrinterError(
-                        f"{self.port_name}: line N{n} {command!r} was refused {refusals} times in a "
-                        "row; the serial link is too noisy (cable, USB hub, baud rate?)"
-                    )
-                self._transmit(n, data)
+                refusals = self._resend_refused(n, data, refusals)
                 deadline = self._now() + allowance
             # "stale": an answer owed to an earlier copy; keep waiting for this line's own
+
+    def _retransmit_after_silence(self, n: int, data: bytes, retries: int, allowance: float) -> int:
+        """Send line n again after no reply in time (safe: Marlin refuses a line number it has
+        run); a PrinterTimeout once the profile's retries are spent. Returns the retries made."""
+        if retries >= self.retries:
+            raise PrinterTimeout(
+                f"{self.port_name}: no reply to line N{n} {self._history[n]!r} after "
+                f"{retries} retransmission(s) and {allowance:.1f} s each; is the printer "
+                "on, at the profile's baud rate, and running Marlin?"
+            )
+        self.stats.timeouts += 1
+        self._transmit(n, data)
+        return retries + 1
+
+    def _resend_refused(self, n: int, data: bytes, refusals: int) -> int:
+        """Send a refused line n again (a checksum error or a Resend); a link that refuses it over
+        and over is too noisy to go on. Returns the refusals so far."""
+        self.stats.resends += 1
+        refusals += 1
+        if refusals > max(10, 4 * self.retries):
+            raise PrinterError(
+                f"{self.port_name}: line N{n} {self._history[n]!r} was refused {refusals} times "
+                "in a row; the serial link is too noisy (cable, USB hub, baud rate?)"
+            )
+        self._transmit(n, data)
+        return refusals
+
+    def _stopped(self, kind, text: str, n: int) -> None:
+        """The printer halted (a fatal error) or reset itself during line n: it cannot go on."""
+        self.homed = False
+        command = self._history[n]
+        if kind is Reply.FATAL:
+            raise PrinterHalted(
+                f"{self.port_name}: the printer halted during {command!r}: {text} "
+                "(needs a reset: power-cycle or reconnect, then home again)"
+            )
+        raise PrinterReset(
+            f"{self.port_name}: the printer reset itself during line N{n} {command!r} "
+            "(it printed 'start'); its position is lost: stop, reconnect and home again"
+        )
 
     def _settle(self, n: int, answer: _Answer, printed: bool = False) -> str:
         """What one complete answer says about line n: "ran", "refused" or "stale".

@@ -67,10 +67,11 @@ def ball_eval(
     (threedcal.model.crossval).
     """
     from threedcal.model import crossval
+    from threedcal.model import folds as cv_folds
 
-    settings = crossval.CVSettings.of(**cv)
+    settings = cv_folds.CVSettings.of(**cv)
     ts = TrainingSet.load(trainset_dir)
-    folds = crossval.read_folds(folds_path, ts)
+    folds = cv_folds.read_folds(folds_path, ts)
     for method, paths in models.items():
         if len(paths) != settings.folds:
             raise ConfigError(
@@ -89,7 +90,7 @@ def ball_eval(
         "lookup": summary.get("lookup"),
         "protocol": crossval.protocol(folds, settings, seed),
         "label_spread_from_duplicates": crossval.label_spread_from_duplicates(
-            folds, crossval.contact_radius_px(ts)
+            folds, cv_folds.contact_radius_px(ts)
         ),
         "label_noise_floor": crossval.label_noise_floor(ts, settings, seed),
         "error_sources": {

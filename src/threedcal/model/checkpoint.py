@@ -1,16 +1,20 @@
 """Checkpoints: one self-contained file with the weights and everything inference needs.
 
 A threedcal checkpoint is a plain dict of tensors, numbers and strings (so it loads with
-``torch.load(weights_only=True)`` — never unpickling code): preset and its arguments, state_dict,
-blank frame, px/mm, image shape and the input/output normalisation. The authors' published TouchNet
-weights (a bare state_dict) load too: they are recognised by their parameter names and get the
-authors' normalisation (coordinate channels 1…W and 1…H; gradients of the opposite sign).
+``torch.load(weights_only=True)`` — never unpickling code): format and version, preset and its
+arguments, state_dict and the input/output normalisation, then what the sensor's kind needs: a
+vision model's blank frame, px/mm, image shape and camera; a ReSkin model's input names
+(threedcal.reskin.model, preset `RESKIN_PRESET`). The authors' published TouchNet weights (a bare
+state_dict) load too: they are recognised by their parameter names and get the authors'
+normalisation (coordinate channels 1…W and 1…H; gradients of the opposite sign).
+
+Nothing beyond torch's own allow-list of safe types is unpickled (threedcal adds none to it); a
+refused file is named with the globals torch found in it (`get_unsafe_globals_in_checkpoint`).
 """
 
 from __future__ import annotations
 
 import pickle
-import re
 from pathlib import Path
 from typing import Any
 
@@ -57,25 +61,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         raise CheckpointError(
             f"{path}: is empty (0 bytes), not a checkpoint; an interrupted copy? copy it again or retrain"
         )
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        # PyTorch's own text advises loading unsafely; it is never quoted. What it found is.
-        found = _UNSAFE_GLOBAL.search(str(exc))
-        if found is None:
-            raise CheckpointError(
-                f"{path}: refused to load: not a readable checkpoint (a damaged or foreign file: "
-                f"{_unpickler_reason(exc)})"
-            ) from None
-        raise CheckpointError(
-            f"{path}: refused to load: it holds a pickled Python object ({found.group(1)}) "
-            "besides tensors, numbers and strings, and loading it could run code; threedcal loads "
-            "only plain checkpoints (as its training writes them)"
-        ) from None
-    except Exception as exc:  # truncated, corrupt, or not a torch.save file at all
-        raise CheckpointError(
-            f"{path}: refused to load: not a readable checkpoint ({_first_line(exc)})"
-        ) from None
+    data = _load_plain(path)
     if isinstance(data, dict) and data.get("format") == FORMAT:
         if data.get("format_version") != FORMAT_VERSION:
             raise CheckpointError(
@@ -102,14 +88,44 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 # What a threedcal checkpoint must hold, and of which type (training writes all of them).
 REQUIRED_KEYS = {"preset": str, "state_dict": dict, "normalisation": dict}
-_UNSAFE_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
-_UNPICKLER_ERROR = re.compile(r"WeightsUnpickler error:\s*(.+)")
+# The ReSkin MLP's preset (threedcal.reskin.model): its checkpoint's arguments and normalisation.
+RESKIN_PRESET = "reskin_mlp"
+RESKIN_KEYS = {
+    "preset_args": ("n_inputs", "hidden"),
+    "normalisation": ("input_scale_ut", "in_mean", "in_std", "out_mean", "out_std"),
+}
 
 
-def _unpickler_reason(exc: BaseException) -> str:
-    """The unpickler's own reason from PyTorch's message (not its advice), e.g. `Unsupported operand 0`."""
-    found = _UNPICKLER_ERROR.search(str(exc))
-    return found.group(1).strip() if found else "not a pickle"
+def _load_plain(path: Path):
+    """torch.load with weights_only=True: tensors, numbers, strings and containers, nothing else."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        unsafe = _unsafe_globals(path)
+        if not unsafe:
+            raise CheckpointError(
+                f"{path}: refused to load: not a readable checkpoint (a damaged or foreign file)"
+            ) from None
+        # PyTorch's own text advises loading unsafely; it is never quoted. What it found is.
+        raise CheckpointError(
+            f"{path}: refused to load: it holds a pickled Python object ({', '.join(unsafe)}) "
+            "besides tensors, numbers and strings, and loading it could run code; threedcal loads "
+            "only plain checkpoints (as its training writes them)"
+        ) from None
+    except Exception as exc:  # truncated, corrupt, or not a torch.save file at all
+        raise CheckpointError(
+            f"{path}: refused to load: not a readable checkpoint ({_first_line(exc)})"
+        ) from None
+
+
+def _unsafe_globals(path: Path) -> list[str]:
+    """The globals outside torch's allow-list that a torch.save file would unpickle (its last
+    name part, e.g. `print`); none for a file torch cannot read as a checkpoint."""
+    try:
+        found = torch.serialization.get_unsafe_globals_in_checkpoint(path)
+    except Exception:  # noqa: BLE001 - not a zip checkpoint: nothing torch can list
+        return []
+    return [name.rpartition(".")[2] for name in found]
 
 
 def _check_keys(path: Path, data: dict) -> None:
@@ -126,6 +142,12 @@ def _check_keys(path: Path, data: dict) -> None:
             )
     if "resume_key" in data:
         return  # a training state (checkpoint.pt): what inference needs is not required
+    if data["preset"] == RESKIN_PRESET:
+        for key, names in RESKIN_KEYS.items():
+            missing = [n for n in names if n not in (data.get(key) or {})]
+            if missing:
+                raise CheckpointError(f"{path}: ReSkin model without {key} {', '.join(missing)}")
+        return
     sign = data["normalisation"].get("gradient_sign")
     if not isinstance(sign, int | float) or sign not in (1, -1):
         raise CheckpointError(f"{path}: normalisation.gradient_sign must be 1 or -1, got {sign!r}")
@@ -185,6 +207,12 @@ def _first_line(exc: BaseException) -> str:
 
 
 def model_from_checkpoint(checkpoint: dict[str, Any]) -> torch.nn.Module:
+    """The vision network a checkpoint holds, its weights loaded."""
+    if checkpoint["preset"] == RESKIN_PRESET:
+        raise CheckpointError(
+            "a ReSkin model (magnetic readings in, contact out): it takes no images "
+            "(threedcal.reskin.model.predict reads it)"
+        )
     args = checkpoint.get("preset_args", {})
     if not isinstance(args, dict):
         raise CheckpointError(f"preset_args must be a dict, got {type(args).__name__}")

@@ -67,10 +67,9 @@ def compare_presets(
 
 
 def presets_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
     for ax, column, label in zip(

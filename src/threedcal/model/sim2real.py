@@ -129,18 +129,28 @@ def sensor_profile(scene: Mapping) -> dict:
     return profile
 
 
-def sim2real_inputs(name: str, scene: Mapping, results: str = "results") -> dict[str, list[str]]:
+def sim2real_inputs(name: str, scene: Mapping) -> dict[str, list[str]]:
     """The models sim2real_eval scores: "{condition}_k{k}" -> fold models, "scene" -> the scene's
     cross-validated models (ball_eval's) of the same folds."""
+    from threedcal.scenes import CV_MODEL_DIR, SIM2REAL_MODEL_DIR, target
+
     settings = SimToRealSettings.from_scene(scene)
     folds = chosen_folds(settings, int(scene["cv"]["folds"]))
-    root = f"{results}/{name}"
+
+    def model(pattern: str, **wildcards) -> str:
+        path = target(f"{pattern}/model.pt", name)
+        for key, value in wildcards.items():
+            path = path.replace(f"{{{key}}}", str(value))
+        return path
+
     out = {
-        f"{condition}_k{k}": [f"{root}/sim2real/{condition}/k{k}/fold{f}/model.pt" for f in folds]
+        f"{condition}_k{k}": [
+            model(SIM2REAL_MODEL_DIR, condition=condition, k=k, fold=f) for f in folds
+        ]
         for condition in CONDITIONS
         for k in settings.k
     }
-    out["scene"] = [f"{root}/cv/model/fold{f}/model.pt" for f in folds]
+    out["scene"] = [model(CV_MODEL_DIR, method="model", fold=f) for f in folds]
     return out
 
 
@@ -255,7 +265,7 @@ def fold_profile(profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, fold: i
 def fitted_to_frames(profile: Mapping, ts: TrainingSet, frames: Sequence[int], where: str):
     """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to these frames of the
     model-ready set, with their contact circles, and its blank."""
-    from threedcal.model.crossval import contact_radius_px
+    from threedcal.model.folds import contact_radius_px
     from threedcal.sim.fit import fit_optics
     from threedcal.sim.realism import BallLabel
 
@@ -283,7 +293,7 @@ def write_simulated(
 ) -> TrainingSet:
     """The simulated set of one fold in `out_dir`; with `profile: fitted` also the fitted profile
     (profile.yaml, headed by the frames it was fitted on: frameNNNNN, the set's frame numbers)."""
-    from threedcal.model.crossval import read_folds
+    from threedcal.model.folds import read_folds
 
     settings = SimToRealSettings.of(**sim_to_real)
     real = TrainingSet.load(real_dir)
@@ -365,7 +375,7 @@ def train_k(
     """One fold's model on k real images: fine-tuned from `pretrained` (sim_real) or from scratch
     (real_only), both for finetune_epochs x pool / k epochs, pool the fold's training images (the
     same steps at every k)."""
-    from threedcal.model.crossval import fold_trainset, read_folds
+    from threedcal.model.folds import fold_trainset, read_folds
     from threedcal.model.train import train
 
     if condition not in CONDITIONS:
@@ -464,10 +474,9 @@ def summarise_k(
 def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
     """Error against k (log axis; 'all' at the mean training-set size), both conditions with their
     95 % intervals, and the scene's own model as a band."""
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     pooled_rows = errors[errors["fold"] == "all"]
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
@@ -528,7 +537,7 @@ def sim2real_eval(
     `models["{condition}_k{k}"]` lists that model's fold checkpoints in the order of the chosen
     folds; `scene_models` the scene's cross-validated models (ball_eval's) of the same folds.
     """
-    from threedcal.model.crossval import CVSettings, read_folds
+    from threedcal.model.folds import CVSettings, read_folds
 
     settings = SimToRealSettings.of(**sim_to_real)
     cv_settings = CVSettings.of(**cv)

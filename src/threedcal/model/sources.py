@@ -1,12 +1,16 @@
-"""Frame sources for `threedcal live`: a camera, a folder of images, or a model-ready dataset.
+"""Frame sources for `threedcal live`: the sensor's camera, a video file, a folder of images, or a
+model-ready dataset.
 
-Each is an iterator of RGB uint8 frames (H, W, 3). The simulated bench becomes one more source when
-it lands.
+Each is an iterator of RGB uint8 frames (H, W, 3). The camera is opened as collection opens it
+(threedcal.rig.open_camera): converted by its sensor profile (crop, rotation, size) and checked
+frame by frame; a dropped or black frame is passed over with a warning, and a camera that stops
+giving frames, or takes longer than the profile's timeout, ends the stream with an error.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import logging
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -14,10 +18,12 @@ import numpy as np
 from threedcal.errors import ConfigError
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp"}
+# A live camera may drop a frame now and then; this many in a row and the stream stops.
+MAX_MISSED_FRAMES = 10
 
 
 def folder_frames(path: Path) -> Iterator[np.ndarray]:
-    from threedcal.dataset.importers import read_rgb
+    from threedcal.images import read_rgb
 
     names = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not names:
@@ -39,12 +45,13 @@ def trainset_frames(path: Path) -> Iterator[np.ndarray]:
         yield np.asarray(frame)
 
 
-def camera_frames(index: int | str) -> Iterator[np.ndarray]:
+def video_frames(path: Path) -> Iterator[np.ndarray]:
+    """A video file's frames as recorded, RGB; its end ends the stream."""
     import cv2
 
-    capture = cv2.VideoCapture(index)
+    capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
-        raise ConfigError(f"camera {index!r}: cannot open (OpenCV device index or path)")
+        raise ConfigError(f"{path}: OpenCV cannot read it as a video")
     try:
         while True:
             ok, frame = capture.read()
@@ -55,15 +62,48 @@ def camera_frames(index: int | str) -> Iterator[np.ndarray]:
         capture.release()
 
 
-def open_source(spec: str) -> Iterator[np.ndarray]:
-    """`spec`: a camera index (0), a folder of images, or a results/{scene}/dataset/trainset folder."""
-    if spec.isdigit():
-        return camera_frames(int(spec))
+def camera_frames(camera) -> Iterator[np.ndarray]:
+    """Frames of an (unopened) `threedcal.hardware.camera.Camera` until it fails for good:
+    `MAX_MISSED_FRAMES` dropped or black frames in a row, or one read past its timeout."""
+    from threedcal.hardware.camera import BlackFrame, DroppedFrame
+
+    with camera:
+        missed = 0
+        while True:
+            try:
+                frame, _ = camera.read_one()
+            except (DroppedFrame, BlackFrame) as exc:
+                missed += 1
+                if missed >= MAX_MISSED_FRAMES:
+                    raise type(exc)(f"{exc} ({missed} in a row: live stops)") from None
+                logging.getLogger("threedcal").warning("live: %s; passed over", exc)
+                continue
+            missed = 0
+            yield frame
+
+
+def is_camera(spec: str) -> bool:
+    """A camera index (0) or a device (/dev/video0, /dev/v4l/by-id/...), not a file or folder."""
+    return spec.isdigit() or (spec.startswith("/dev/") and not Path(spec).is_dir())
+
+
+def open_source(spec: str, sensor: Mapping | None = None) -> Iterator[np.ndarray]:
+    """`spec`: a camera (index such as 0, or a /dev/video device: `sensor`, its profile, is then
+    needed), a video file, a folder of images, or a results/{scene}/dataset/trainset folder."""
     path = Path(spec)
     if path.is_dir() and (path / "frames.npy").is_file():
         return trainset_frames(path)
     if path.is_dir():
         return folder_frames(path)
-    if path.exists():  # a video file
-        return camera_frames(str(path))
-    raise ConfigError(f"live source {spec!r}: not a camera index, folder or video file")
+    if is_camera(spec):
+        if sensor is None:
+            raise ConfigError(
+                f"live source {spec!r} is a camera: give --sensor (the sensor profile says how "
+                "its frames are cropped, turned and sized, as at collection)"
+            )
+        from threedcal.rig import open_camera
+
+        return camera_frames(open_camera(sensor, spec))
+    if path.is_file():
+        return video_frames(path)
+    raise ConfigError(f"live source {spec!r}: not a camera index or device, folder or video file")

@@ -132,7 +132,7 @@ def ablation_section(stats_dir: Path) -> list[str]:
     tests_path = stats_dir / "tests.csv"
     if not tests_path.is_file():
         return []
-    from threedcal.evaluate.ablation import family_comparison, placebo_summary
+    from threedcal.evaluate.ablation_reading import family_comparison, placebo_summary
     from threedcal.evaluate.power import needed_design
 
     tests = pd.read_csv(tests_path)

@@ -7,14 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from threedcal.plotting import pyplot
 
 
 def _chip_positions_plan(sensor: Mapping) -> np.ndarray:
@@ -26,7 +19,7 @@ def _chip_positions_plan(sensor: Mapping) -> np.ndarray:
 def readings_figure(dataset, sensor: Mapping, path: str | Path, title: str = "") -> None:
     """Top: the change of bx, by, bz of every chip over the run (no-contact mean subtracted).
     Bottom: the largest change at each probe point of the shallowest depth, over the probe area."""
-    plt = _pyplot()
+    plt = pyplot()
     names = [str(v) for v in dataset["value"].values]
     readings = dataset["readings"].values.astype(float)
     change = readings - dataset["blank_readings"].values.astype(float).mean(axis=0)
@@ -80,7 +73,7 @@ def eval_figure(
 ) -> None:
     """Left (Fig. 7B): held-out probe points — ground truth as circles, the mean prediction of each
     point's readings as a cross, one colour per depth. Right: distribution of per-reading errors."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax, ax_cdf) = plt.subplots(
         1, 2, figsize=(12, 5.6), dpi=110, gridspec_kw={"width_ratios": [1.25, 1]}
     )

@@ -3,7 +3,8 @@
 Inputs are compressed with asinh(b / input_scale_ut): a dipole's field falls as 1/r³, so a chip
 right under the ball changes by hundreds of µT while a far one changes by a few; the compression
 lets both inform the fit without either swamping it. Inputs and targets are then standardised with
-the training set's statistics, which the checkpoint keeps. Training is deterministic: seeded
+the training set's statistics, which the checkpoint keeps (threedcal.model.checkpoint: the one
+checkpoint format of every threedcal model, preset `reskin_mlp`). Training is deterministic: seeded
 weights and batch order, `torch_threads` threads, deterministic algorithms — the same settings
 give the same bytes of the checkpoint.
 """
@@ -117,16 +118,21 @@ def train_mlp(
             row["test_mse_mm2"] = float(np.mean((guess - monitor[1]) ** 2))
         rows.append(row)
         bar.set_postfix(loss=f"{row['train_loss']:.4f}")
+    from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, RESKIN_PRESET
+
     checkpoint = {
-        "kind": "threedcal.reskin.mlp",
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "preset": RESKIN_PRESET,
+        "preset_args": {"n_inputs": int(x.shape[1]), "hidden": list(settings.hidden)},
         "state_dict": {k: v.detach().clone() for k, v in model.state_dict().items()},
-        "n_inputs": int(x.shape[1]),
-        "hidden": list(settings.hidden),
-        "input_scale_ut": float(settings.input_scale_ut),
-        "in_mean": in_mean.tolist(),
-        "in_std": in_std.tolist(),
-        "out_mean": out_mean.tolist(),
-        "out_std": out_std.tolist(),
+        "normalisation": {
+            "input_scale_ut": float(settings.input_scale_ut),
+            "in_mean": in_mean.tolist(),
+            "in_std": in_std.tolist(),
+            "out_mean": out_mean.tolist(),
+            "out_std": out_std.tolist(),
+        },
         "names": list(names or []),
         "targets": list(TARGETS),
         "settings": {
@@ -151,40 +157,32 @@ def _predict(model, inputs, in_mean, in_std, out_mean, out_std, settings_or_scal
 def predict(checkpoint: Mapping[str, Any], inputs: np.ndarray) -> np.ndarray:
     """(N, F) baseline-subtracted readings → (N, 3) x_mm, y_mm, depth_mm."""
     inputs = np.asarray(inputs, dtype=np.float64)
-    if inputs.ndim != 2 or inputs.shape[1] != checkpoint["n_inputs"]:
+    args, norm = checkpoint["preset_args"], checkpoint["normalisation"]
+    if inputs.ndim != 2 or inputs.shape[1] != args["n_inputs"]:
         raise ConfigError(
-            f"reskin model expects (N, {checkpoint['n_inputs']}) readings, got {inputs.shape}"
+            f"reskin model expects (N, {args['n_inputs']}) readings, got {inputs.shape}"
         )
-    model = build_mlp(checkpoint["n_inputs"], tuple(checkpoint["hidden"]))
+    model = build_mlp(args["n_inputs"], tuple(args["hidden"]))
     model.load_state_dict(checkpoint["state_dict"])
     return _predict(
         model,
         inputs,
-        np.asarray(checkpoint["in_mean"]),
-        np.asarray(checkpoint["in_std"]),
-        np.asarray(checkpoint["out_mean"]),
-        np.asarray(checkpoint["out_std"]),
-        float(checkpoint["input_scale_ut"]),
+        np.asarray(norm["in_mean"]),
+        np.asarray(norm["in_std"]),
+        np.asarray(norm["out_mean"]),
+        np.asarray(norm["out_std"]),
+        float(norm["input_scale_ut"]),
     )
 
 
-def save_checkpoint(checkpoint: Mapping[str, Any], path: str | Path) -> None:
-    import torch
+def read_reskin_model(path: str | Path) -> dict[str, Any]:
+    """A ReSkin model's checkpoint (threedcal.model.checkpoint.read_checkpoint: read safely,
+    checked); any other model is refused, naming the file."""
+    from threedcal.model.checkpoint import RESKIN_PRESET, read_checkpoint
 
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    torch.save(dict(checkpoint), path)
-
-
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Read with weights_only=True: a file holding anything but tensors and plain data is refused."""
-    import pickle
-
-    import torch
-
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, OSError) as exc:
-        raise ConfigError(f"{path}: not a loadable ReSkin checkpoint ({exc})") from exc
-    if not isinstance(checkpoint, dict) or checkpoint.get("kind") != "threedcal.reskin.mlp":
-        raise ConfigError(f"{path}: not a threedcal ReSkin model (kind {checkpoint.get('kind')!r})")
+    checkpoint = read_checkpoint(path)
+    if checkpoint.get("preset") != RESKIN_PRESET:
+        raise ConfigError(
+            f"{path}: not a threedcal ReSkin model (preset {checkpoint.get('preset')!r})"
+        )
     return checkpoint

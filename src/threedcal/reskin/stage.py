@@ -23,8 +23,9 @@ def train_stage(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Split the store's readings by coordinate, train the MLP on the training side, write them."""
+    from threedcal.model.checkpoint import save_checkpoint
     from threedcal.reskin.data import load_readings, split_by_coordinate, splits_table
-    from threedcal.reskin.model import ReSkinSettings, save_checkpoint, train_mlp
+    from threedcal.reskin.model import ReSkinSettings, train_mlp
 
     config = ReSkinSettings.from_config(settings)
     data = load_readings(store)
@@ -42,7 +43,7 @@ def train_stage(
         progress=progress,
     )
     checkpoint["baseline"] = data.baseline.tolist()
-    save_checkpoint(checkpoint, model_path)
+    save_checkpoint(model_path, checkpoint)
     Path(losses_path).parent.mkdir(parents=True, exist_ok=True)
     pd.DataFrame(rows).to_csv(losses_path, index=False, float_format="%.6g")
     splits_table(data, test).to_csv(splits_path, index=False)
@@ -63,10 +64,10 @@ def eval_stage(
     from threedcal.reskin.data import load_readings
     from threedcal.reskin.evaluate import evaluate_split
     from threedcal.reskin.figures import eval_figure
-    from threedcal.reskin.model import load_checkpoint, predict
+    from threedcal.reskin.model import predict, read_reskin_model
 
     data = load_readings(store)
-    checkpoint = load_checkpoint(model_path)
+    checkpoint = read_reskin_model(model_path)
     splits = pd.read_csv(splits_path)
     held = splits.loc[splits["split"] == "test", ["x_mm", "y_mm"]].to_numpy(float)
     keys = np.round(data.targets[:, :2].astype(float), 6)

@@ -7,7 +7,7 @@ its public names (``from threedcal.sim import GelSimulator, Sphere``) load on fi
 """
 
 # The simulator's public names, imported on first use (PEP 562) so the package itself stays light.
-__all__ = ["Flat", "GelSimulator", "HeightMap", "Indenter", "SimBench", "Sphere"]
+__all__ = ["Flat", "GelSimulator", "Relief", "Indenter", "SimBench", "Sphere"]
 
 
 def __getattr__(name: str):
@@ -15,10 +15,10 @@ def __getattr__(name: str):
         from threedcal.sim.optics import GelSimulator
 
         return GelSimulator
-    if name in ("Indenter", "Sphere", "Flat", "HeightMap"):
-        from threedcal.sim.indenters import Flat, HeightMap, Indenter, Sphere
+    if name in ("Indenter", "Sphere", "Flat", "Relief"):
+        from threedcal.sim.indenters import Flat, Indenter, Relief, Sphere
 
-        return {"Indenter": Indenter, "Sphere": Sphere, "Flat": Flat, "HeightMap": HeightMap}[name]
+        return {"Indenter": Indenter, "Sphere": Sphere, "Flat": Flat, "Relief": Relief}[name]
     if name == "SimBench":
         from threedcal.sim.bench import SimBench
 

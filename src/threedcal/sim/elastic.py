@@ -418,23 +418,13 @@ def solve_contact(
     def conv(q: np.ndarray) -> np.ndarray:
         return kernel.convolve(q, single).astype(np.float64)
 
-    if initial is not None and initial.shape == w.shape:
-        p = np.where(admissible, np.maximum(initial, 0.0), 0.0)
-    else:
-        p = zero.copy()
-    if not p.any():
-        # first guess: sqrt(w - top/2), scaled to fit u = w in least squares. For a paraboloid on a
-        # half-space this is Hertz's solution (contact a^2 = R d where w > d/2, p ~ sqrt(a^2 - r^2))
-        q = np.sqrt(np.maximum(w - 0.5 * top, 0.0))
-        kq = conv(q)
-        fit = w > 0
-        p = q * (float(kq[fit] @ w[fit]) / max(float(kq[fit] @ kq[fit]), 1e-300))
+    p = _start_pressure(w, admissible, top, initial, conv)
     u = conv(p)
     scale = tol * top
     t = zero.copy()
     g_old, delta, converged, iterations = 1.0, 0.0, False, 0
     self_influence = float(kernel.influence(1, 1)[0, 0])
-    lags = None
+    influence = _Influence(kernel, w.shape)
     while iterations < max_iter:
         iterations += 1
         gap = u - w
@@ -459,27 +449,53 @@ def solve_contact(
             p[overlap] = -gap[overlap] * (tau if tau > 0 else 1.0 / self_influence)
         else:
             delta = 1.0
-        # u = K p, updated by linearity: the CG step moved it by -tau r; the few nodes the projection
-        # or the new contact points set apart add their own influence (a full convolution if many)
-        changed = np.flatnonzero(p != step)
-        if changed.size > _SPARSE_UPDATES:
-            u = conv(p)
-        else:
-            u = u - tau * r
-            if changed.size:
-                if lags is None:
-                    lags = _mirrored(kernel.influence(*w.shape))
-                ny, nx = w.shape
-                for i, j in zip(*np.unravel_index(changed, w.shape), strict=True):
-                    u += (p[i, j] - step[i, j]) * lags[
-                        ny - 1 - i : 2 * ny - 1 - i, nx - 1 - j : 2 * nx - 1 - j
-                    ]
+        u = influence.moved(u, p, step, tau, r, conv)
     force = float(p.sum()) * kernel.spacing_mm**2
     return ContactResult(p, u, force, iterations, converged, scale)
 
 
+def _start_pressure(w, admissible, top: float, initial, conv) -> np.ndarray:
+    """A warm start (`initial`, a previous pressure on the same grid), else a first guess:
+    sqrt(w - top/2), scaled to fit u = w in least squares. For a paraboloid on a half-space this is
+    Hertz's solution (contact a^2 = R d where w > d/2, p ~ sqrt(a^2 - r^2))."""
+    if initial is not None and initial.shape == w.shape:
+        p = np.where(admissible, np.maximum(initial, 0.0), 0.0)
+    else:
+        p = np.zeros(w.shape)
+    if not p.any():
+        q = np.sqrt(np.maximum(w - 0.5 * top, 0.0))
+        kq = conv(q)
+        fit = w > 0
+        p = q * (float(kq[fit] @ w[fit]) / max(float(kq[fit] @ kq[fit]), 1e-300))
+    return p
+
+
+class _Influence:
+    """u = K p kept up to date by linearity within one solve."""
+
+    def __init__(self, kernel: LayerKernel, shape: tuple[int, int]):
+        self.kernel, self.shape, self.lags = kernel, shape, None
+
+    def moved(self, u, p, step, tau: float, r, conv) -> np.ndarray:
+        """The CG step moved u by -tau r; the few nodes the projection or the new contact points
+        set apart (p != step) add their own influence (a full convolution if many)."""
+        changed = np.flatnonzero(p != step)
+        if changed.size > _SPARSE_UPDATES:
+            return conv(p)
+        u = u - tau * r
+        if changed.size:
+            if self.lags is None:
+                self.lags = _mirrored(self.kernel.influence(*self.shape))
+            ny, nx = self.shape
+            for i, j in zip(*np.unravel_index(changed, self.shape), strict=True):
+                u += (p[i, j] - step[i, j]) * self.lags[
+                    ny - 1 - i : 2 * ny - 1 - i, nx - 1 - j : 2 * nx - 1 - j
+                ]
+        return u
+
+
 @dataclass
-class Press:
+class ElasticPress:
     """One solved press. Its node lattice is centred on the indenter: node (i, j) sits at
     (x0 + j s, y0 + i s) mm with (x0, y0) = `origin_mm`, so the discretisation is symmetric about
     the axis wherever the press sits. `domain` = (row0, col0) of the pressure grid's first node."""
@@ -576,7 +592,7 @@ class ElasticGel:
         self.max_iter = int(max_iter)
         self._tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def press(self, interference, bounds_mm, origin_mm=(0.0, 0.0)) -> Press | None:
+    def press(self, interference, bounds_mm, origin_mm=(0.0, 0.0)) -> ElasticPress | None:
         """Solve the contact of the indenter `interference` confined to `bounds_mm` (x0, x1, y0, y1)
         on the lattice through `origin_mm`.
 
@@ -615,7 +631,7 @@ class ElasticGel:
             result = solve_contact(
                 self.kernel, w, initial=initial, tol=self.tol, max_iter=self.max_iter
             )
-            solved = Press(self, origin, domain, result, interference)
+            solved = ElasticPress(self, origin, domain, result, interference)
             needed = rise * result.force_n
             if margin >= needed or sub == (0, w_all.shape[0], 0, w_all.shape[1]):
                 break
@@ -654,7 +670,7 @@ class ElasticGel:
         return float(r[above[-1]]) if above.size else 0.0
 
 
-def _placed(previous: Press, domain: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+def _placed(previous: ElasticPress, domain: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
     """The previous pressure moved onto a new domain of the same lattice (zero where it had none)."""
     out = np.zeros(shape)
     r0, c0 = previous.domain

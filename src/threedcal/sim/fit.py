@@ -29,7 +29,7 @@ Not fitted (kept from the profile): wrap, cast shadows, paint texture, the gel's
 mechanics, per-frame flicker (one frame per press here: no repeated frames of a hold to see it).
 
 A contact's place and size come from the dataset's labels, or, in an unlabelled folder, from the
-frame minus the background (`realism.locate_contact`); the ball's depth is then the one whose
+frame minus the background (`realism.locate_ball`); the ball's depth is then the one whose
 geometric contact radius is that radius.
 """
 
@@ -513,27 +513,18 @@ def _fit_noise(profile, data, frames, labels, ball_px, correlation_range_px) -> 
 
 
 # ------------------------------------------------------------------------- the split
-def press_groups(labels: Sequence, group_px: float = 4.0) -> list[list[int]]:
+def image_groups(labels: Sequence, group_px: float = 4.0) -> list[list[int]]:
     """Indices of images grouped by press: images whose contact centres lie within `group_px` of
-    each other (the same place pressed again, or the same frame twice) share a group (transitively)."""
-    n = len(labels)
-    parent = list(range(n))
+    each other (the same place pressed again, or the same frame twice) share a group (transitively,
+    threedcal.model.folds.linked_groups), groups in the order of their first image."""
+    from threedcal.model.folds import linked_groups
 
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i in range(n):
-        for j in range(i + 1, n):
-            (xi, yi), (xj, yj) = labels[i].center_px, labels[j].center_px
-            if math.hypot(xi - xj, yi - yj) <= group_px:
-                parent[root(i)] = root(j)
-    groups: dict[int, list[int]] = {}
-    for i in range(n):
-        groups.setdefault(root(i), []).append(i)
-    return sorted(groups.values())
+    if not len(labels):
+        return []
+    centres = np.array([label.center_px for label in labels], dtype=float)
+    offsets = centres[:, None, :] - centres[None, :, :]
+    group = linked_groups(np.hypot(offsets[..., 0], offsets[..., 1]) <= group_px)
+    return [np.flatnonzero(group == g).tolist() for g in range(int(group.max()) + 1)]
 
 
 MIN_IMAGES = 4
@@ -547,7 +538,7 @@ def split_halves(labels: Sequence, seed: int, group_px: float = 4.0, *, where: s
             f"{where or 'dataset'}: {len(labels)} contact images; fitting on one half and "
             f"comparing on the other needs at least {MIN_IMAGES}"
         )
-    groups = press_groups(labels, group_px)
+    groups = image_groups(labels, group_px)
     if len(groups) < 2:
         raise ConfigError(f"{where or 'dataset'}: every image is one press; cannot split")
     order = np.random.default_rng(int(seed)).permutation(len(groups))

@@ -82,7 +82,7 @@ class Flat(Indenter):
         return f"Flat(radius_mm={self.radius_mm})"
 
 
-class HeightMap(Indenter):
+class Relief(Indenter):
     """Any shape given as a relief map: `relief_mm[row, col]` = how far the surface protrudes (mm).
 
     The map's centre pixel sits on the indenter axis; its rows run along +y and its columns along +x
@@ -145,4 +145,4 @@ class HeightMap(Indenter):
         return out.astype(np.float32)
 
     def __repr__(self) -> str:
-        return f"HeightMap(shape={self.relief.shape}, px_per_mm={self.px_per_mm})"
+        return f"Relief(shape={self.relief.shape}, px_per_mm={self.px_per_mm})"

@@ -7,7 +7,7 @@ Open it through pyserial exactly like a printer::
 The URL names a firmware in this module's registry; the first open creates it from the URL's
 options (``printer``, ``seed``, ``faults``, ``rate``, ``speedup``, ``reset_on_open``), later opens of
 the same name reach the same object. A bench can also build one itself and ``register`` it before
-the host opens the URL. Either way ``get_firmware(name)`` returns the object, whose
+the host opens the URL. Either way ``FIRMWARES.get(name)`` returns the object, whose
 ``position()`` (physical head position now), ``clock.now()`` (simulated seconds),
 ``motion_time_s`` (modelled seconds of motion and homing) and ``executed`` (the command log)
 are what the simulated bench and the tests read.
@@ -46,6 +46,7 @@ from threedcal.errors import ConfigError
 from threedcal.hardware.gcode import parse_host_line
 from threedcal.hardware.motion import MotionModel, Trapezoid
 from threedcal.sim.clock import VirtualClock
+from threedcal.sim.devices import DeviceRegistry
 
 RECOVERABLE_FAULTS = (
     "checksum",
@@ -463,27 +464,10 @@ class SimMarlin:
         return self._keepalives(t, queued), queued
 
 
-# ---- registry: how the pyserial handler and the bench find the same firmware ---------------
-_REGISTRY: dict[str, SimMarlin] = {}
-
-
-def register(name: str, firmware: SimMarlin) -> SimMarlin:
-    """Make `firmware` the one behind ``simmarlin://<name>``."""
-    _REGISTRY[name] = firmware
-    return firmware
-
-
-def get_firmware(name: str) -> SimMarlin:
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        raise KeyError(
-            f"no simulated firmware named {name!r} (open simmarlin://{name} first)"
-        ) from None
-
-
-def forget(name: str) -> None:
-    _REGISTRY.pop(name, None)
+# How the pyserial handler and the bench find the same firmware.
+FIRMWARES: DeviceRegistry[SimMarlin] = DeviceRegistry(
+    "simmarlin", "simulated firmware", "open simmarlin://NAME first"
+)
 
 
 def url(name: str, **options: Any) -> str:
@@ -509,12 +493,12 @@ def firmware_for_url(port_url: str) -> SimMarlin:
         raise ConfigError(
             f"{port_url}: unknown option(s) {', '.join(unknown)} (allowed: {', '.join(_URL_OPTIONS)})"
         )
-    if name in _REGISTRY:
-        firmware = _REGISTRY[name]
+    if name in FIRMWARES:
+        firmware = FIRMWARES.get(name)
         if parts.query and firmware.url_query is not None and parts.query != firmware.url_query:
             raise ConfigError(
                 f"{port_url}: simulated firmware {name!r} exists with other options "
-                f"({firmware.url_query!r}); open it without options or forget({name!r}) first"
+                f"({firmware.url_query!r}); open it without options or withdraw it first"
             )
         return firmware
     try:
@@ -533,7 +517,7 @@ def firmware_for_url(port_url: str) -> SimMarlin:
     except ValueError as exc:
         raise ConfigError(f"{port_url}: {exc}") from exc
     firmware.url_query = parts.query
-    return register(name, firmware)
+    return FIRMWARES.serve(name, firmware)
 
 
 class FirmwareBench:
@@ -556,11 +540,11 @@ class FirmwareBench:
             printer, seed=seed, faults=faults, rate=fault_rate, speedup=speedup
         )
         self.name = f"{prefix}-{uuid.uuid4().hex[:10]}"
-        register(self.name, self.firmware)
+        FIRMWARES.serve(self.name, self.firmware)
         self.url = f"simmarlin://{self.name}"
 
     def close(self) -> None:
-        forget(self.name)
+        FIRMWARES.withdraw(self.name)
 
     def __enter__(self):
         return self

@@ -452,7 +452,7 @@ class GelSimulator:
 
     # ----------------------------------------------------------------- elastic gel
     def press(self, indenter: Indenter, center_px, rotation_deg: float, depth_mm: float):
-        """The elastic contact solution (threedcal.sim.elastic.Press) of this pose, or None if the
+        """The elastic contact solution (threedcal.sim.elastic.ElasticPress) of this pose, or None if the
         indenter does not touch the gel. Node coordinates are mm from the image centre."""
         if self._elastic is None:
             raise ConfigError(

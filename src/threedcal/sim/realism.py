@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.images import read_rgb
 
 CHANNELS = "RGB"
 TOLERANCE = {
@@ -78,7 +79,7 @@ class BallLabel:
     image: str
     center_px: tuple[float, float]
     radius_px: float
-    located: bool = False  # True: found in frame minus background (locate_contact), not labelled
+    located: bool = False  # True: found in frame minus background (locate_ball), not labelled
 
 
 @dataclass(frozen=True)
@@ -96,15 +97,6 @@ class BallDataset:
 
     def read(self, name: str) -> np.ndarray:
         return read_rgb(self.root / name)
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ConfigError(f"{path}: cannot read as an image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def load_ball_dataset(root: str | Path) -> BallDataset:
@@ -129,7 +121,7 @@ def load_ball_dataset(root: str | Path) -> BallDataset:
         names = sorted(p.name for p in root.glob("*.png") if p.name != "background.png")
         if not names:
             raise ConfigError(f"{root}: no contact images (*.png besides background.png)")
-        located = [locate_contact(read_rgb(root / n), bg, ball_mm * scale, n) for n in names]
+        located = [locate_ball(read_rgb(root / n), bg, ball_mm * scale, n) for n in names]
         return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], located, False)
     labels = []
     try:
@@ -266,10 +258,14 @@ def halo_radii(img, background, center_px, ball_radius_px: float) -> tuple[float
     return out[0], out[1]
 
 
-def locate_contact(img, background, ball_radius_px: float, name: str = "") -> BallLabel:
-    """A contact found in an unlabelled frame: the largest region where the contact magnitude
-    exceeds half its 99.9th percentile, holes filled; centre its centroid, radius that of the disc
-    of its area. Raises ConfigError when the frame shows no contact above the noise."""
+def locate_ball(img, background, ball_radius_px: float, name: str = "") -> BallLabel:
+    """A ball's label found in an unlabelled real frame: the largest region where the contact
+    magnitude exceeds half its 99.9th percentile, holes filled; centre its centroid, radius that of
+    the disc of its area. Raises ConfigError when the frame shows no contact above the noise.
+
+    Not the registration's locator (threedcal.dataset.contacts): this one works on the change less
+    the frame's lighting drift (real frames drift from their background shot) and is what the
+    realism table and the optics fit were measured with; the registration's refines the rim."""
     import cv2
 
     m = contact_magnitude(img, background)
@@ -375,7 +371,7 @@ def compare(
         )
         seen = label
         if label.located:  # find the rendered contact the way the real one was found
-            seen = locate_contact(frame, sim_bg, ball_px, f"render of {label.image}")
+            seen = locate_ball(frame, sim_bg, ball_px, f"render of {label.image}")
         simulated.append(image_figures(frame, sim_bg, seen, ball_px))
     rows = []
     for fig in FIGURES:

@@ -38,6 +38,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.sim.devices import DeviceRegistry
 from threedcal.sim.marlin import FirmwareBench
 
 _BUFFER_S = 1.0  # the OS keeps about this much of the stream; older lines are lost (overrun)
@@ -328,27 +329,10 @@ class SimReSkin:
         return self._time(index) + len(self.line(index)) * self.byte_s
 
 
-# ---- registry: how the pyserial handler and the bench find the same board --------------------
-_REGISTRY: dict[str, SimReSkin] = {}
-
-
-def register(name: str, board: SimReSkin) -> SimReSkin:
-    """Make `board` the one behind ``simreskin://<name>``."""
-    _REGISTRY[name] = board
-    return board
-
-
-def get_board(name: str) -> SimReSkin:
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        raise KeyError(
-            f"no simulated ReSkin named {name!r} (a ReSkinBench registers one)"
-        ) from None
-
-
-def forget(name: str) -> None:
-    _REGISTRY.pop(name, None)
+# How the pyserial handler and the bench find the same board.
+BOARDS: DeviceRegistry[SimReSkin] = DeviceRegistry(
+    "simreskin", "simulated ReSkin", "a ReSkinBench serves one"
+)
 
 
 def board_for_url(port_url: str) -> SimReSkin:
@@ -357,7 +341,7 @@ def board_for_url(port_url: str) -> SimReSkin:
     if parts.scheme.lower() != "simreskin" or not parts.netloc:
         raise ConfigError(f"expected simreskin://NAME, got {port_url!r}")
     try:
-        return get_board(parts.netloc)
+        return BOARDS.get(parts.netloc)
     except KeyError as exc:
         raise ConfigError(str(exc.args[0])) from None
 
@@ -389,9 +373,9 @@ class ReSkinBench(FirmwareBench):
         self.board = SimReSkin(
             sensor, self.firmware, probe_radius_mm=probe_radius_mm, seed=seed, truth=self.truth
         )
-        register(self.name, self.board)
+        BOARDS.serve(self.name, self.board)
         self.sensor_url = f"simreskin://{self.name}"
 
     def close(self) -> None:
         super().close()
-        forget(self.name)
+        BOARDS.withdraw(self.name)

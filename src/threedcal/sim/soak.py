@@ -17,7 +17,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from threedcal.errors import ConfigError
-from threedcal.sim.marlin import RECOVERABLE_FAULTS, SimMarlin, forget, parse_faults, register
+from threedcal.sim.marlin import FIRMWARES, RECOVERABLE_FAULTS, SimMarlin, parse_faults
 
 COLUMNS = (
     ("class", 15),
@@ -138,6 +138,17 @@ def recoverable(kinds) -> tuple[str, ...]:
     return kinds
 
 
+def _position_reported(host, printer_error) -> bool:
+    """M114 gave the commanded position (to the firmware's 0.006 mm), not another or none."""
+    try:
+        position = host.position()
+    except printer_error:
+        return False  # "M114 gave no position line"
+    return all(
+        math.isclose(a, b, abs_tol=0.006) for a, b in zip(position, host.commanded, strict=True)
+    )
+
+
 def run_soak(
     faults: int,
     seed: int = 0,
@@ -156,7 +167,7 @@ def run_soak(
     check_soak_arguments(faults, rate, speedup)
     kinds = recoverable(kinds)
     name = f"soak-{seed}-{id(object())}"
-    firmware = register(
+    firmware = FIRMWARES.serve(
         name, SimMarlin("ender3", seed=seed, faults=kinds, rate=rate, speedup=speedup)
     )
     rng = random.Random(seed)
@@ -186,22 +197,14 @@ def run_soak(
                 moves += 1
                 if moves % 10 == 0:
                     host.wait_until_idle()
-                try:
-                    position = host.position()
-                    if any(
-                        not math.isclose(a, b, abs_tol=0.006)
-                        for a, b in zip(position, host.commanded, strict=True)
-                    ):
-                        bad_reports += 1
-                except PrinterError:
-                    bad_reports += 1  # "M114 gave no position line"
+                bad_reports += not _position_reported(host, PrinterError)
                 bar.update(sum(firmware.faults_injected.values()) - bar.n)
             host.wait_until_idle()
             sent = [(n, c) for n, c in sorted(host._history.items()) if n >= 1]
             acked_at = {n: t for n, t in host.ack_times.items() if n >= 1}
             sends = host.transmissions
     finally:
-        forget(name)
+        FIRMWARES.withdraw(name)
     executed = [(n, c) for n, c in firmware.executed if n is not None and n >= 1]
     lost, duplicated, reordered = compare_logs(sent, executed)
     faulted = {n for n, _ in firmware.fault_log}
