@@ -80,7 +80,7 @@ def pretrained_input(wildcards):
     scene = config["scenes"][wildcards.scene]
     if (scene.get("model") or {}).get("init") != "pretrained":
         return {}
-    from threedcal.model.pretrained import shipped_weights
+    from threedcal.pretrained import shipped_weights
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])["name"]

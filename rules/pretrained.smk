@@ -10,9 +10,9 @@ rule pretrain:
         losses=f"{PRETRAINED_DIR}/losses.csv",
         figure=f"{PRETRAINED_DIR}/losses.png",
     log:
-        "results/pretrained/logs/{sensor}.log",
+        "results/pretrained/logs/pretrain_{sensor}.log",
     benchmark:
-        "results/pretrained/benchmarks/{sensor}.tsv"
+        "results/pretrained/benchmarks/pretrain_{sensor}.tsv"
     wildcard_constraints:
         sensor=one_of(config["pretraining"]["sensors"]),
     conda:

@@ -56,7 +56,7 @@ def test_unknown_key_names_the_key_path_and_allowed_keys():
 def test_bad_enum_value_lists_allowed_values():
     message = error_of(config_with(model={"preset": "huge"}))
     assert (
-        "scenes.s.model.preset: 'huge' is not allowed (allowed: touchnet, compact, compact_tiny, context, multiscale, lookup)"
+        "scenes.s.model.preset: 'huge' is not allowed (allowed: touchnet, compact, compact_tiny, context, context_half, multiscale, lookup)"
         in message
     )
 
@@ -110,8 +110,12 @@ def test_training_fractions_default_to_one_full_model():
 def test_ablation_takes_a_list_or_fractions_with_replicates():
     plain = validate_config(config_with(ablation=[80, 5]))["scenes"]["s"]
     full = validate_config(config_with(ablation={"fractions": [5, 80], "replicates": 3}))
-    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1}
-    assert full["scenes"]["s"]["ablation"] == {"fractions": [5, 80], "replicates": 3}
+    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1, "convergence": False}
+    assert full["scenes"]["s"]["ablation"] == {
+        "fractions": [5, 80],
+        "replicates": 3,
+        "convergence": False,
+    }
     assert model_keys(full["scenes"]["s"]) == [(5, 0), (5, 1), (5, 2), (80, 0), (80, 1), (80, 2)]
     assert ablation_replicates(validate_config(config_with())["scenes"]["s"]) == 1
     assert "scenes.s.ablation.replicates: 0 is less than the minimum of 1" in error_of(
@@ -276,7 +280,10 @@ def test_train_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     settings = TrainSettings.of()
     for f in fields:
         if f.name in model:
-            assert getattr(settings, f.name) == model[f.name]["default"], f.name
+            default = model[f.name]["default"]
+            if model[f.name].get("type") == "object":  # a block: its keys' defaults
+                default = {k: v["default"] for k, v in model[f.name]["properties"].items()}
+            assert getattr(settings, f.name) == default, f.name
     assert settings.seed == schema["properties"]["seed"]["default"]
     validated = load_config(Path(__file__).parent / "config/test.yaml")
     scene = next(iter(validated["scenes"].values()))

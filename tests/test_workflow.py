@@ -57,7 +57,7 @@ def test_bad_config_fails_at_parse_time_naming_the_key(tmp_path):
     assert result.returncode != 0
     output = result.stdout + result.stderr
     assert (
-        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, context, multiscale, lookup)"
+        "scenes.s.model.preset: 'big' is not allowed (allowed: touchnet, compact, compact_tiny, context, context_half, multiscale, lookup)"
         in output
     )
     assert not (tmp_path / "results").exists()

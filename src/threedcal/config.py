@@ -107,7 +107,7 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
     if check_files and (scene.get("model") or {}).get("init") == "pretrained":
         # (the workflow finds them when it plans a training: `make pretrained` builds them)
-        from threedcal.model.pretrained import shipped_weights
+        from threedcal.pretrained import shipped_weights
 
         try:
             shipped_weights(sensor.get("name"))

@@ -1,4 +1,4 @@
-"""The weights shipped for `model.init: pretrained` (threedcal.model.pretrained) and their command."""
+"""The weights shipped for `model.init: pretrained` (threedcal.pretrained), how they are made and their command."""
 
 import json
 
@@ -9,7 +9,7 @@ from threedcal.cli import main
 from threedcal.config import load_config
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
-from threedcal.model.pretrained import (
+from threedcal.pretrained import (
     SHIPPED_DIR,
     provenance,
     settings_digest,
@@ -44,7 +44,7 @@ def test_weights_are_found_by_sensor_and_refused_for_another_frame(tmp_path):
 
 
 def test_init_pretrained_starts_from_the_shipped_weights_of_the_sets_sensor(tmp_path, monkeypatch):
-    import threedcal.model.pretrained as pretrained
+    import threedcal.pretrained as pretrained
 
     shipped = fake_shipped(tmp_path / "p")
     monkeypatch.setattr(pretrained, "SHIPPED_DIR", shipped)
@@ -76,7 +76,7 @@ def test_the_shipped_weights_are_what_the_repositorys_recipe_makes(sensor):
 def test_the_command_installs_rebuilt_weights_and_says_whether_they_changed(
     tmp_path, monkeypatch, capsys
 ):
-    import threedcal.model.pretrained as pretrained
+    import threedcal.pretrained as pretrained
 
     built = fake_shipped(tmp_path / "built_flat")
     results = tmp_path / "results"
@@ -91,3 +91,12 @@ def test_the_command_installs_rebuilt_weights_and_says_whether_they_changed(
     assert "mini.pt: unchanged (the same bytes)" in capsys.readouterr().out
     assert main(["pretrained", "install", str(tmp_path / "nothing")]) == 1
     assert "no */model.pt to install" in capsys.readouterr().err
+
+
+def test_the_settings_digest_is_the_recipes_not_where_the_clone_lies():
+    profile = load_profile("sensor", "digit_fots")
+    moved = {**profile, "source": "/elsewhere/digit_fots.yaml"}
+    recipe = load_config("config.yaml")["pretraining"]
+    assert settings_digest(recipe, moved) == settings_digest(recipe, profile)
+    changed = {**profile, "name": "another"}
+    assert settings_digest(recipe, changed) != settings_digest(recipe, profile)

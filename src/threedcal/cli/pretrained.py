@@ -11,8 +11,8 @@ from threedcal.cli import Command
 
 
 def _show(args: argparse.Namespace) -> int:
-    from threedcal.model import pretrained
-    from threedcal.model.pretrained import provenance, shipped_sensors
+    import threedcal.pretrained as pretrained
+    from threedcal.pretrained import provenance, shipped_sensors
 
     SHIPPED_DIR = pretrained.SHIPPED_DIR
     sensors = shipped_sensors()
@@ -36,7 +36,7 @@ def _show(args: argparse.Namespace) -> int:
 def _install(args: argparse.Namespace) -> int:
     """Copy results/pretrained/{sensor}/ into the package, saying which files changed."""
     from threedcal.errors import ConfigError
-    from threedcal.model import pretrained
+    import threedcal.pretrained as pretrained
 
     SHIPPED_DIR = pretrained.SHIPPED_DIR
     built = Path(args.results)

@@ -259,10 +259,10 @@ def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.M
 
 def init_path(init: str, ts: TrainingSet) -> str | Path:
     """`model.init`'s checkpoint: a path, or `pretrained` — the weights this package ships for
-    the dataset's sensor (threedcal.model.pretrained)."""
+    the dataset's sensor (threedcal.pretrained)."""
     if init != "pretrained":
         return init
-    from threedcal.model.pretrained import shipped_weights
+    from threedcal.pretrained import shipped_weights
 
     return shipped_weights((ts.meta or {}).get("sensor"), ts.image_shape)
 
