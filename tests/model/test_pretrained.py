@@ -9,6 +9,7 @@ from threedcal.cli import main
 from threedcal.config import load_config
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
+from threedcal.model.train import TrainSettings, train
 from threedcal.pretrained import (
     SHIPPED_DIR,
     provenance,
@@ -16,7 +17,6 @@ from threedcal.pretrained import (
     shipped_sensors,
     shipped_weights,
 )
-from threedcal.model.train import TrainSettings, train
 from threedcal.profiles import load_profile
 
 

@@ -35,8 +35,8 @@ def _show(args: argparse.Namespace) -> int:
 
 def _install(args: argparse.Namespace) -> int:
     """Copy results/pretrained/{sensor}/ into the package, saying which files changed."""
-    from threedcal.errors import ConfigError
     import threedcal.pretrained as pretrained
+    from threedcal.errors import ConfigError
 
     SHIPPED_DIR = pretrained.SHIPPED_DIR
     built = Path(args.results)

@@ -66,5 +66,3 @@ def settings_digest(pretraining: Mapping, profile: Mapping) -> str:
     content = {k: v for k, v in profile.items() if k != "source"}
     text = canonical_json({"pretraining": dict(pretraining), "profile": content})
     return hashlib.sha256(text.encode()).hexdigest()
-
-
