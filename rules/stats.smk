@@ -115,7 +115,9 @@ rule convergence:
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
         twice_losses=lambda wildcards: [
-            target(f"{CONVERGENCE_RUN}/losses.csv", wildcards.scene).replace("{p}", str(p))
+            target(f"{CONVERGENCE_RUN}/losses.csv", wildcards.scene).replace(
+                "{p}", str(p)
+            )
             for p in convergence_fractions(config["scenes"][wildcards.scene])
         ],
         trainset=TRAINSET,
