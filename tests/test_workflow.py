@@ -74,7 +74,9 @@ def test_an_unreadable_test_object_stl_fails_at_parse_time_naming_the_key(tmp_pa
     bad = {"scenes": {"s": {"sensor": "digit", "printer": "ender3", "objects": [str(sheet)]}}}
     result = snakemake(tmp_path, write_config(tmp_path, bad), "--dry-run", check=False)
     assert result.returncode != 0
-    assert f"scenes.s.objects[0]: {sheet}: the mesh is not a closed" in result.stdout + result.stderr
+    assert (
+        f"scenes.s.objects[0]: {sheet}: the mesh is not a closed" in result.stdout + result.stderr
+    )
     assert not (tmp_path / "results").exists()
 
 
