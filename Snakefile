@@ -44,6 +44,7 @@ from threedcal.scenes import (
     SIM2REAL,
     SIM2REAL_MODEL_DIR,
     SIM2REAL_PRETRAINED_DIR,
+    SIM2REAL_SIMSET,
     SPLITS,
     STAGING_STORE,
     STATS,

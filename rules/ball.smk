@@ -95,7 +95,7 @@ rule sim2real_simulate:
         trainset=TRAINSET,
         folds=CV_FOLDS,
     output:
-        directory("results/{scene}/sim2real/fold{fold}/simset"),
+        directory(SIM2REAL_SIMSET),
     log:
         "results/{scene}/logs/sim2real_simulate_fold{fold}.log",
     benchmark:
@@ -118,7 +118,7 @@ rule sim2real_simulate:
 
 rule sim2real_pretrain:
     input:
-        simset="results/{scene}/sim2real/fold{fold}/simset",
+        simset=SIM2REAL_SIMSET,
     output:
         model=f"{SIM2REAL_PRETRAINED_DIR}/model.pt",
         losses=f"{SIM2REAL_PRETRAINED_DIR}/losses.csv",

@@ -111,6 +111,7 @@ RESKIN_EVAL = {"metrics": f"{SCENE}/reskin_eval.json", "figure": f"{SCENE}/reski
 # and the sim-to-real stage (threedcal.model.sim2real).
 CV_FOLDS = f"{SCENE}/cv/folds.csv"
 CV_MODEL_DIR = f"{SCENE}/cv/{{method}}/fold{{fold}}"
+SIM2REAL_SIMSET = f"{SCENE}/sim2real/fold{{fold}}/simset"
 SIM2REAL_PRETRAINED_DIR = f"{SCENE}/sim2real/fold{{fold}}/pretrained"
 SIM2REAL_MODEL_DIR = f"{SCENE}/sim2real/{{condition}}/k{{k}}/fold{{fold}}"
 BALL_EVAL = {

@@ -783,11 +783,9 @@ def write_losses(path: Path, rows: list[dict]) -> None:
 
 
 def plot_losses(path: Path, rows: list[dict], title: str) -> None:
-    import matplotlib
+    from threedcal.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
     epochs = [r["epoch"] for r in rows]
     for key, label in (("train_loss", "train"), ("val_loss", "validation")):
