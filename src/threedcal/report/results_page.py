@@ -183,7 +183,8 @@ def provenance_lines(results: Path, commit: str | None) -> list[str]:
         "Written by `threedcal report results-page` (`make results-page`) from the `results/` "
         f"folder of one finished study: {'; '.join(f for f in facts if f)}. Figures vary with the "
         "host (a CPU's floating-point kernels, its speed), so a study on another machine gives "
-        "other digits; the tables' layout stays. Do not edit this page: regenerate it.",
+        "other digits; the tables' layout stays. Do not edit this page: regenerate it with "
+        "`make results-page` (`RESULTS=path` for a study run elsewhere).",
         "",
     ]
 
@@ -193,7 +194,9 @@ def reading_lines() -> list[str]:
         f"Every table names its protocol, and its column *{SIM_COLUMN}* says whether the "
         "simulated bench rendered both the frames a model trained on and those it was tested on "
         f"(`{SIMULATED}`), or whether real images were involved. Intervals are 95 % unless a "
-        "column says otherwise.",
+        "column says otherwise. The figures (PNG) that draw these tables sit beside their files "
+        "in `results/` and in the study's report (`make report`); [outputs](outputs.md) lists "
+        "every file.",
         "",
     ]
 
