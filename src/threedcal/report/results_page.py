@@ -20,9 +20,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.evaluate.ablation import REFERENCE_P
+from threedcal.config import convergence_fractions, training_fractions
+from threedcal.config import is_imported as config_is_imported
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, sim2real_rows
+from threedcal.scenes import has_ablation, has_objects, has_sim2real
 
 TITLE = "Results of the default study"
 # The fraction whose test-object figures lead the page (the paper's Table II reports P = 20 %).
@@ -47,17 +49,28 @@ def load_scenes(results: str | Path) -> dict[str, dict]:
 
 
 def _config(record: Mapping) -> dict:
-    return dict(record.get("config") or {})
+    """The scene's config as the workflow's predicates read it (threedcal.scenes, .config); a
+    record that wrote `import: null` for a scene that imports nothing counts as not imported."""
+    config = dict(record.get("config") or {})
+    if not config.get("import"):
+        config.pop("import", None)
+    return config
 
 
 def _sensor_type(record: Mapping) -> str:
+    """The recorded sensor profile's type (not looked up again: a profile given by path may not
+    resolve where the page is written)."""
     sensor = (record.get("profiles") or {}).get("sensor") or {}
     return str(sensor.get("type", "vision"))
 
 
+def is_magnetic(record: Mapping) -> bool:
+    return _sensor_type(record) == "magnetic"
+
+
 def is_imported(record: Mapping) -> bool:
     """Real images imported from a folder (no printer, no simulator)."""
-    return bool(_config(record).get("import"))
+    return config_is_imported(_config(record))
 
 
 def is_simulated(record: Mapping) -> bool:
@@ -67,7 +80,7 @@ def is_simulated(record: Mapping) -> bool:
 
 def frames_of(record: Mapping) -> str:
     """Where a scene's frames (a ReSkin's readings) came from, in words."""
-    readings = "readings" if _sensor_type(record) == "magnetic" else "frames"
+    readings = "readings" if is_magnetic(record) else "frames"
     if is_imported(record):
         return f"real images ({_config(record)['import'].get('path', 'imported')})"
     if is_simulated(record):
@@ -80,37 +93,6 @@ def simulated_cell(record: Mapping) -> str:
     if is_simulated(record):
         return SIMULATED
     return "no: real images" if is_imported(record) else "no: real sensor frames"
-
-
-def _fractions(record: Mapping) -> list[int]:
-    ablation = _config(record).get("ablation") or {}
-    if isinstance(ablation, list):
-        return sorted(int(p) for p in ablation)
-    return sorted(int(p) for p in ablation.get("fractions") or [])
-
-
-def has_ablation(record: Mapping) -> bool:
-    fractions = _fractions(record)
-    return len(fractions) > 1 and REFERENCE_P in fractions
-
-
-def has_objects(record: Mapping) -> bool:
-    return bool(_config(record).get("objects")) and not is_imported(record)
-
-
-def has_convergence(record: Mapping) -> bool:
-    ablation = _config(record).get("ablation") or {}
-    return (
-        has_ablation(record) and isinstance(ablation, Mapping) and bool(ablation.get("convergence"))
-    )
-
-
-def has_sim2real(record: Mapping) -> bool:
-    return is_imported(record) and bool((_config(record).get("sim_to_real") or {}).get("enabled"))
-
-
-def is_magnetic(record: Mapping) -> bool:
-    return _sensor_type(record) == "magnetic"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -223,18 +205,18 @@ def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
 def _objects_of(scenes: Mapping[str, dict]) -> list[str]:
     names: dict[str, None] = {}
     for record in scenes.values():
-        if has_objects(record):
+        if has_objects(_config(record)):
             names.update(dict.fromkeys(str(o) for o in _config(record)["objects"]))
     return list(names)
 
 
 def objects_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     """Type 2 MAE per object at P = 20 %, both protocols; then the printer protocol over every P."""
-    chosen = {name: r for name, r in scenes.items() if has_objects(r)}
+    chosen = {name: r for name, r in scenes.items() if has_objects(_config(r))}
     if not chosen:
         return []
     objects = _objects_of(chosen)
-    fractions = sorted({p for r in chosen.values() for p in _fractions(r)}) or [REFERENCE_P]
+    fractions = sorted({p for r in chosen.values() for p in training_fractions(_config(r))})
     reported = REPORTED_P if REPORTED_P in fractions else max(fractions)
     head_rows, by_p_rows, notes = [], [], []
     for name, record in chosen.items():
@@ -307,7 +289,7 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     """Validation MSE per fraction against P = 80 %, the recommendation, the placebo's spread."""
     from threedcal.evaluate.ablation_reading import placebo_summary
 
-    chosen = {name: r for name, r in scenes.items() if has_ablation(r)}
+    chosen = {name: r for name, r in scenes.items() if has_ablation(_config(r))}
     if not chosen:
         return []
     rows, notes = [], []
@@ -405,7 +387,7 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
 
 
 def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
-    chosen = {name: r for name, r in scenes.items() if has_convergence(r)}
+    chosen = {name: r for name, r in scenes.items() if convergence_fractions(_config(r))}
     if not chosen:
         return []
     rows = []
@@ -508,7 +490,9 @@ def real_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
         ),
         "",
     ]
-    lines += sim2real_section({n: r for n, r in chosen.items() if has_sim2real(r)}, results)
+    lines += sim2real_section(
+        {n: r for n, r in chosen.items() if has_sim2real(_config(r))}, results
+    )
     return lines
 
 
