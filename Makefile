@@ -10,7 +10,7 @@ CORES  ?= 2
 # The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: all smoke setup test lint bench report clean cluster-test cluster-clean pretrained
+.PHONY: all smoke setup test lint bench report results-page clean cluster-test cluster-clean pretrained
 
 all: $(STAMP)
 	@start=$$(date +%s); \
@@ -82,6 +82,12 @@ bench: $(STAMP) $(PY3DCAL_FAST_POISSON)
 report: $(STAMP)
 	$(BIN)/snakemake --profile workflow/profiles/default --cores $(CORES) all
 	$(BIN)/snakemake --profile workflow/profiles/default --report report.html
+
+# docs/results.md from a finished study's results folder (`make all` first; RESULTS=path for a
+# study run elsewhere): every table with its protocol, the commit and host that made it.
+RESULTS ?= results
+results-page: $(STAMP)
+	$(BIN)/threedcal report results-page $(RESULTS) --out docs/results.md
 
 clean:
 	rm -rf .snakemake results report.html

@@ -39,6 +39,7 @@ GROUP_HELP = {
     "objects": "test objects: CAD, STL files, ground-truth depth",
     "reskin": "the ReSkin magnetic sensor: serial check",
     "pretrained": "the weights shipped for model.init: pretrained",
+    "report": "pages from a finished study's results folder",
 }
 
 

@@ -60,6 +60,22 @@ def stage_times(results: str | Path) -> pd.DataFrame:
     ]
 
 
+def study_span(results: str | Path) -> tuple[float, float] | None:
+    """(first job's start, last job's end) in seconds since the epoch, from the benchmark files:
+    each is written when its job ends (its modification time), `s` seconds after the job began.
+    None without benchmark files. A study resumed over several sessions spans them all, and a
+    copied results folder carries the copy's times unless the copy kept them."""
+    starts, ends = [], []
+    for path in Path(results).glob("**/benchmarks/*.tsv"):
+        table = pd.read_csv(path, sep="\t")
+        if table.empty:
+            continue
+        end = path.stat().st_mtime
+        starts.append(end - float(table.iloc[-1]["s"]))
+        ends.append(end)
+    return (min(starts), max(ends)) if ends else None
+
+
 def stage_time_lines(table: pd.DataFrame, limit: int = 15) -> list[str]:
     """Markdown: the `limit` longest stages, then the rest in one line, then the total."""
     if table.empty:

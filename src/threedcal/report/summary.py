@@ -16,7 +16,8 @@ from threedcal.report.stage_times import stage_time_lines, stage_times
 from threedcal.scenes import has_sim2real
 
 
-def _json(path: Path) -> dict | None:
+def read_json(path: Path) -> dict | None:
+    """A results JSON file, or None where the study has not written it."""
     return json.loads(path.read_text()) if path.is_file() else None
 
 
@@ -38,7 +39,7 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
     root = results / name
     lines = [f"## {name}", "", f"{scene.get('description', '')}".strip(), ""]
     facts: list[tuple[str, str]] = [("sensor", str(scene["sensor"]))]
-    summary = _json(root / "collect" / "summary.json")
+    summary = read_json(root / "collect" / "summary.json")
     if summary:
         hours = summary["estimated_hardware_s"] / 3600
         facts += [
@@ -52,7 +53,7 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
                 f"{summary['duration_s']:.1f} s, {_fmt(summary['frames_per_s'], 1)} frames/s",
             ),
         ]
-    registration = _json(root / "dataset" / "registration.json")
+    registration = read_json(root / "dataset" / "registration.json")
     if registration:
         error = registration.get("error_px")
         facts.append(
@@ -67,10 +68,10 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
     recommendation = root / "stats" / "recommendation.txt"
     if recommendation.is_file():
         facts.append(("recommendation", recommendation.read_text().strip()))
-    fps = _json(root / "models" / "inference.json")
+    fps = read_json(root / "models" / "inference.json")
     if fps:
         facts.append(("depth inference (P=80 model, CPU)", f"{fps['frames_per_s']:.1f} frames/s"))
-    ball = _json(root / "ball_eval.json")
+    ball = read_json(root / "ball_eval.json")
     if ball:
         learned, lookup = ball.get("model", ball), ball.get("lookup", {})
         folds = ball.get("protocol", {}).get("folds")
@@ -85,7 +86,7 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
                 + (f", {folds} grouped folds" if folds else ""),
             )
         )
-    reskin = _json(root / "reskin_eval.json")
+    reskin = read_json(root / "reskin_eval.json")
     if reskin:
         facts.append(
             (
@@ -116,14 +117,28 @@ def sim2real_section(errors: pd.DataFrame) -> list[str]:
         "| k real images | condition | gradient RMSE | cap depth MAE µm |",
         "|---|---|---|---|",
     ]
+    lines += [
+        f"| {k} | {condition} | {rmse} | {mae} |"
+        for k, condition, rmse, mae in sim2real_rows(pooled)
+    ]
+    return lines + [""]
+
+
+def sim2real_rows(pooled: pd.DataFrame) -> list[tuple[str, str, str, str]]:
+    """(k, condition, gradient RMSE [95 %], cap depth MAE µm [95 %]) of errors.csv's pooled rows."""
+    rows = []
     for row in pooled.itertuples(index=False):
         k = row.k if row.k != "all" else f"all ({row.n_train:.0f})"
-        lines.append(
-            f"| {k} | {row.condition} | {row.gradient_rmse:.3f} "
-            f"[{row.gradient_rmse_lo:.3f}, {row.gradient_rmse_hi:.3f}] | "
-            f"{row.cap_depth_mae_um:.0f} [{row.cap_depth_mae_um_lo:.0f}, {row.cap_depth_mae_um_hi:.0f}] |"
+        rows.append(
+            (
+                k,
+                row.condition,
+                f"{row.gradient_rmse:.3f} [{row.gradient_rmse_lo:.3f}, {row.gradient_rmse_hi:.3f}]",
+                f"{row.cap_depth_mae_um:.0f} [{row.cap_depth_mae_um_lo:.0f}, "
+                f"{row.cap_depth_mae_um_hi:.0f}]",
+            )
         )
-    return lines + [""]
+    return rows
 
 
 def ablation_section(stats_dir: Path) -> list[str]:
@@ -244,7 +259,7 @@ def write_summary(config: Mapping, results: str | Path, out: str | Path) -> str:
         *stage_time_lines(stage_times(results)),
         "",
     ]
-    environment = _json(results / "environment.json")
+    environment = read_json(results / "environment.json")
     if environment:
         lines += ["## Run environment", "", "| | |", "|---|---|"]
         lines += [f"| {k} | {v} |" for k, v in environment.items() if not isinstance(v, dict)]

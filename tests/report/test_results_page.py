@@ -1,0 +1,420 @@
+"""The results page (docs/results.md) written from a results folder: against synthetic results
+trees in the formats the study writes, and the committed page's layout against the generator's."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from collections.abc import Mapping
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from threedcal.config import load_config, validate_config
+from threedcal.evaluate.ablation import TEST_COLUMNS
+from threedcal.model.sim2real import ERROR_COLUMNS
+from threedcal.report.results_page import (
+    SIM_COLUMN,
+    page_layout,
+    results_page,
+    study_commit,
+    write_results_page,
+)
+from threedcal.report.stage_times import study_span
+from threedcal.scenes import (
+    has_ablation,
+    has_objects,
+    has_sim2real,
+    is_magnetic_scene,
+    write_scene_record,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+BENCH_HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+# One fixed end time for every benchmark file, so the page's date is known.
+END = 1_800_000_000  # 2027-01-15 08:00 UTC
+
+
+def bench(path: Path, wall: float, end: float = END) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(BENCH_HEADER + f"{wall}\t0:00:00\t500\t0\t0\t0\t0\t0\t0\t{wall / 2}\n")
+    os.utime(path, (end, end))
+
+
+def write_objects(root: Path, scene: Mapping) -> None:
+    """objects/errors.csv: per object, P and protocol, each figure with its _lo/_hi."""
+    rows = []
+    for i, obj in enumerate(scene["objects"]):
+        for p in scene["ablation"]["fractions"]:
+            for protocol, shift in (("printer", 0.0), ("paper", -20.0)):
+                row = {"object": obj, "P": p, "protocol": protocol, "presses": 10, "replicates": 3}
+                for metric, value in (
+                    ("overall_um", 20.0),
+                    ("type1_um", 5.0),
+                    ("type2_um", 60.0 + 10 * i + p / 10 + shift),
+                ):
+                    row |= {metric: value, f"{metric}_lo": value - 4, f"{metric}_hi": value + 4}
+                rows.append(row | {"depth_ratio": 1.0})
+    (root / "objects").mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(root / "objects/errors.csv", index=False)
+
+
+def write_stats(root: Path, scene: Mapping) -> None:
+    """stats/: error_vs_cost.csv, tests.csv (four families), recommendation.txt, convergence.csv."""
+    stats = root / "stats"
+    stats.mkdir(parents=True, exist_ok=True)
+    fractions = scene["ablation"]["fractions"]
+    pd.DataFrame(
+        [
+            {
+                "P": p,
+                "points": 13 * p,
+                "mean_mse": 0.008 + 0.001 / p,
+                "mean_mse_low": 0.007,
+                "mean_mse_high": 0.010,
+                "replicates": 3,
+                "probing_h": 0.0125 * p,
+                "training_min": 1.5,
+            }
+            for p in fractions
+        ]
+    ).to_csv(stats / "error_vs_cost.csv", index=False)
+    common = {"replicates": 3, "n": 267, "blocks": 6}
+    rows = []
+    for p in fractions[:-1]:
+        for replicate in range(3):
+            for test in ("t", "mannwhitney"):
+                rows.append(
+                    {"family": "paper", "test": test, "P": p, "replicate": replicate}
+                    | {"against": replicate, "relative_change": 0.3, "significant": p == 1}
+                    | {"conclusion": "worse" if p == 1 else "no significant difference"}
+                )
+        change = 0.30 if p == 1 else 0.05
+        rows.append(
+            {"family": "paired", "test": "block_mixed_t", "P": p, **common}
+            | {"estimate": change / 100, "relative_change": change, "ci_low": -0.1}
+            | {"ci_high": 0.2, "p_adjusted": 0.4, "significant": False}
+            | {"conclusion": "no significant difference"}
+        )
+        rows.append(
+            {"family": "equivalence", "test": "tost", "P": p, **common}
+            | {"estimate": change / 100, "relative_change": change, "ci_low": -0.05}
+            | {"ci_high": 0.15, "significant": False}
+            | {"conclusion": "not equivalent: the interval is wider than the margin allows"}
+        )
+    rows += [
+        {"family": "placebo", "test": test, "P": 80, "replicate": 1, "against": 0}
+        | {"relative_change": -0.12, "significant": test == "mannwhitney"}
+        for test in ("t", "mannwhitney")
+    ]
+    pd.DataFrame(rows, columns=TEST_COLUMNS).to_csv(stats / "tests.csv", index=False)
+    (stats / "recommendation.txt").write_text("probe at least 1040 points (P = 80 %): ...\n")
+    if scene["ablation"].get("convergence"):
+        pd.DataFrame(
+            {
+                "P": [fractions[0], 80],
+                "study_steps": [1280, 1068],
+                "study_seconds": [110.2, 91.7],
+                "study_mse": [0.0126, 0.0070],
+                "twice_steps": [2560, 2136],
+                "twice_seconds": [184.6, 198.5],
+                "twice_mse": [0.0098, 0.0040],
+                "change": [-0.2205, -0.4256],
+            }
+        ).to_csv(stats / "convergence.csv", index=False)
+
+
+def write_real(root: Path, scene: Mapping) -> None:
+    """ball_eval.json and, with sim_to_real, sim2real/errors.csv."""
+    model = {
+        "gradient_rmse": 0.0896,
+        "cap_depth_mae_um": 79.1,
+        "interval95": {"gradient_rmse": [0.0842, 0.0954], "cap_depth_mae_um": [65.1, 94.4]},
+        "n_test_images": 42,
+    }
+    lookup = model | {"gradient_rmse": 0.322, "cap_depth_mae_um": 155.9, "interval95": {}}
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "ball_eval.json").write_text(
+        json.dumps(model | {"preset": "multiscale", "lookup": lookup, "protocol": {"folds": 6}})
+    )
+    if not has_sim2real(scene):
+        return
+    rows = []
+    for k, condition, mae in (("8", "sim+real", 91.0), ("8", "real-only", 110.0)):
+        for fold in ("0", "1", "2", "all"):
+            rows.append(
+                {"k": k, "n_train": 8, "condition": condition, "fold": fold}
+                | {"n_test_images": 7, "gradient_rmse": 0.1, "cap_depth_mae_um": mae}
+                | {"gradient_rmse_lo": 0.09, "gradient_rmse_hi": 0.11}
+                | {"cap_depth_mae_um_lo": mae - 10, "cap_depth_mae_um_hi": mae + 10}
+            )
+    (root / "sim2real").mkdir()
+    pd.DataFrame(rows, columns=list(ERROR_COLUMNS)).to_csv(
+        root / "sim2real/errors.csv", index=False
+    )
+
+
+def write_reskin(root: Path) -> None:
+    figures = {"median_error_mm": 0.256, "p90_error_mm": 0.670, "depth_mae_mm": 0.0772}
+    per_depth = {
+        "1": {"median_error_mm": 0.276, "p90_error_mm": 0.764, "depth_mae_mm": 0.0466},
+        "2": {"median_error_mm": 0.279, "p90_error_mm": 1.001, "depth_mae_mm": 0.0982},
+    }
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "reskin_eval.json").write_text(
+        json.dumps(
+            figures
+            | {"n_test_coordinates": 38, "n_test_readings": 1140, "per_depth": per_depth}
+            | {"mean_error_mm": 0.34, "seed": 0}
+        )
+    )
+
+
+def build_results(results: Path, config: Mapping, skip: tuple[str, ...] = ()) -> Path:
+    """A finished study's results folder for `config` (validated), every file the page reads in
+    the study's format; `skip`: leaves (relative to results/) not to write."""
+    for name, scene in config["scenes"].items():
+        root = results / name
+        write_scene_record(name, scene, root / "scene.json")
+        if is_magnetic_scene(scene):
+            write_reskin(root)
+        else:
+            (root / "models").mkdir(parents=True, exist_ok=True)
+            (root / "models/inference.json").write_text(
+                json.dumps(
+                    {"preset": scene["model"]["preset"], "frames_per_s": 15.59}
+                    | {"ms_per_frame": 64.12, "image_shape": [320, 240], "torch_threads": 1}
+                )
+            )
+        if scene.get("import"):
+            write_real(root, scene)
+        if has_objects(scene):
+            write_objects(root, scene)
+        if has_ablation(scene):
+            write_stats(root, scene)
+            for p in scene["ablation"]["fractions"]:
+                bench(root / f"benchmarks/train_P{p}_r0.tsv", 60.0)
+        bench(root / "benchmarks/scene.tsv", 1.0, END - 600)
+    environment = {"platform": "Linux-test", "processor": "x86_64", "cpu_count": 2, "seed": 0}
+    environment |= {"scene_seeds": {name: 0 for name in config["scenes"]}}
+    environment |= {"software": {"python": "3.11.7", "threedcal": "0.1.0", "torch": "2.13.0"}}
+    (results / "environment.json").write_text(json.dumps(environment))
+    if config.get("integration_study", {}).get("enabled"):
+        from threedcal.depth.study import reading
+
+        table = pd.DataFrame(
+            {
+                "method": ["poisson_dst", "poisson_dct"],
+                "scenario": ["hemisphere", "hemisphere"],
+                "H": [240, 240],
+                "W": [320, 320],
+                "dtype": ["float32", "float32"],
+                "ms_per_frame": [1.75, 1.05],
+                "rmse": [0.0623, 0.0620],
+            }
+        )
+        (results / "integration").mkdir()
+        (results / "integration/reading.md").write_text(reading(table))
+    bench(results / "benchmarks/summary.tsv", 2.0)
+    for leaf in skip:
+        (results / leaf).unlink()
+    return results
+
+
+SMALL = {
+    "seed": 0,
+    "integration_study": {"enabled": True},
+    "scenes": {
+        "sim": {
+            "sensor": "digit",
+            "printer": "ender3",
+            "objects": ["pill", "pawn"],
+            "ablation": {"fractions": [1, 20, 80], "replicates": 3, "convergence": True},
+        },
+        "real": {
+            "sensor": "gelsight_mini",
+            "import": {"format": "ball_folder", "path": "data/gelsight_ball_fots"},
+            "sim_to_real": {"enabled": True, "folds": [0, 1, 2]},
+        },
+        "mag": {"sensor": "reskin", "printer": "ender3", "plan": {"pattern": "cross"}},
+    },
+}
+
+
+@pytest.fixture
+def small(tmp_path):
+    config = validate_config(SMALL)
+    return build_results(tmp_path / "results", config), config
+
+
+def section(text: str, heading: str) -> str:
+    start = text.index(f"\n{heading}\n")
+    end = text.find("\n## ", start + 1)
+    return text[start : end if end > 0 else None]
+
+
+def test_committed_page_has_the_generators_layout(tmp_path):
+    """docs/results.md and the generator agree on every heading and table column (not on the
+    figures, which vary by host): regenerate the page (`make results-page`) after changing
+    either."""
+    results = build_results(tmp_path / "results", load_config(REPO / "config.yaml"))
+    generated = page_layout(results_page(results, commit="`test`"))
+    committed = page_layout((REPO / "docs/results.md").read_text())
+    assert committed == generated
+
+
+def test_every_table_names_its_protocol_and_whether_the_simulator_made_its_frames(small):
+    text = results_page(small[0], commit="`test`")
+    figures = [
+        "## Test objects: Type 2 MAE (µm), P = 20 %",
+        "## How many points to probe: validation MSE against P = 80 %",
+        "## Has the training converged? Twice the budget",
+        "## Real frames: cross-validated accuracy",
+        "## ReSkin: where the probe touched",
+        "## Inference speed",
+        "## Depth integrators",
+    ]
+    for heading in figures:
+        part = section(text, heading)
+        headers = [line for line in page_layout(part) if line.startswith("|")]
+        assert "Protocol" in part or all("protocol" in h for h in headers), heading
+        if heading != "## Depth integrators":  # analytic fields, said in its protocol line
+            assert all(SIM_COLUMN in h or "test readings" in h for h in headers), heading
+    assert "no simulator and no model" in section(text, "## Depth integrators")
+
+
+def test_the_page_reads_each_figure_from_the_results(small):
+    results, _ = small
+    text = results_page(results, commit="`abc1234`")
+    # provenance: commit, host, the last job's end (benchmark files), versions
+    assert "commit `abc1234`; host Linux-test, x86_64, 2 CPUs" in text
+    assert "last job ended 2027-01-15 08:00 UTC; threedcal 0.1.0, torch 2.13.0" in text
+    # scenes in the study's order, each with where its frames came from
+    assert "| `sim` | digit | simulated bench (frames) | yes |" in text
+    assert (
+        "| `real` | gelsight_mini | real images (data/gelsight_ball_fots) | no: real images |"
+        in text
+    )
+    assert "| `mag` | reskin | simulated bench (readings) | yes |" in text
+    assert text.index("| `sim` |") < text.index("| `real` |") < text.index("| `mag` |")
+    # objects at P = 20 %: Type 2 with intervals, printer first, then paper
+    assert "| scene | sensor | " + SIM_COLUMN + " | protocol | pill | pawn |" in text
+    assert "| `sim` | digit | yes | **printer** | 62 [58, 66] | 72 [68, 76] |" in text
+    assert "| `sim` | digit | yes | paper | 42 [38, 46] | 52 [48, 56] |" in text
+    assert "| `sim` | yes | printer | pill | 60 | 62 | 68 |" in text  # P = 1, 20, 80
+    assert "`sim`: 10 reporting presses per object, 3 replicate model(s) per P" in text
+    # the ablation: MSE per P with its replicates' range, the tests against P = 80
+    assert (
+        "| `sim` | yes | 1 | 13 | 0.00900 [0.00700, 0.01000] | +30.0 % [-10.0 %, +20.0 %], no "
+        "significant difference (p = 0.4) | not equivalent: the interval is wider than the "
+        "margin allows [-5.0 %, +15.0 %] | 3/3 / 3/3 |" in text
+    )
+    assert "| `sim` | yes | 80 | 1040 | 0.00801 [0.00700, 0.01000] | (the reference) |" in text
+    assert "- `sim` (simulated frames): probe at least 1040 points (P = 80 %): ...." in text
+    assert "Placebo: the paper's tests between two trainings of P = 80 %" in text
+    assert "their mean MSE differ by 12.0 %." in text
+    # convergence
+    assert "| `sim` | yes | 80 | 1068 | 0.00700 | 2136 | 0.00400 | -42.6 % |" in text
+    # real frames and sim-to-real: no simulator, or a simulator that pretrained only
+    real = section(text, "## Real frames: cross-validated accuracy")
+    assert (
+        "| `real` | no: real images | 6-fold grouped cross-validation | model (multiscale) | "
+        "0.090 [0.084, 0.095] | 79 [65, 94] | 42 |" in real
+    )
+    assert "| colour lookup | 0.322 | 156 | 42 |" in real
+    assert (
+        "| `real` | held-out real images of folds 0, 1, 2 | no: pretrained on simulated presses, "
+        "fine-tuned and tested on real images | sim+real, k = 8 | 0.100 [0.090, 0.110] | "
+        "91 [81, 101] |" in real
+    )
+    assert "| no: real images | real-only, k = 8 |" in real
+    # ReSkin per depth, then all
+    reskin = section(text, "## ReSkin: where the probe touched")
+    assert "simulator made training and test readings" in reskin
+    assert (
+        "| `mag` | yes | 38 held-out probe coordinates (1140 readings) | 2 | 0.28 | 1.00 | 0.098 |"
+        in reskin
+    )
+    assert "| all | 0.26 | 0.67 | 0.077 |" in reskin
+    # inference: vision scenes only
+    speed = section(text, "## Inference speed")
+    assert "| `sim` | yes | compact | 15.6 | 64.1 | 320 × 240 | 1 |" in speed
+    assert "`mag`" not in speed
+    # where the time went: the span of the jobs and the stage table
+    time = section(text, "## Where the time goes")
+    assert "From the first job's start to the last job's end 10.0 min" in time
+    assert "| train | sim | 3 | 3.0 |" in time
+    assert "## Run environment" in text
+
+
+def test_a_missing_file_leaves_a_row_that_says_so_and_the_layout_stays(tmp_path):
+    config = validate_config(SMALL)
+    full = results_page(build_results(tmp_path / "a/results", config), commit="`x`")
+    missing = ("sim/stats/convergence.csv", "real/ball_eval.json", "mag/reskin_eval.json")
+    partial = results_page(build_results(tmp_path / "b/results", config, missing), commit="`x`")
+    assert page_layout(partial) == page_layout(full)
+    assert (
+        "| `sim` | yes | — | not in these results (`results/sim/stats/convergence.csv`) |"
+        in partial
+    )
+    assert "not in these results (`results/real/ball_eval.json`)" in partial
+    assert "not in these results (`results/mag/reskin_eval.json`)" in partial
+
+
+def test_sections_follow_what_the_scenes_ran(tmp_path):
+    """A study of one simulated scene without an ablation: no objects, ablation, real-data or
+    ReSkin section."""
+    config = validate_config({"scenes": {"one": {"sensor": "digit", "printer": "ender3"}}})
+    text = results_page(build_results(tmp_path / "results", config))
+    headings = [line for line in page_layout(text) if line.startswith("#")]
+    assert headings == [
+        "# Results of the default study",
+        "## Scenes",
+        "## Inference speed",
+        "## Where the time goes",
+        "## Run environment",
+    ]
+    assert "commit not recorded" in text
+
+
+def test_write_refuses_a_folder_without_scene_records_and_the_cli_writes_the_page(
+    small, tmp_path, capsys
+):
+    from threedcal.cli import main
+    from threedcal.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="no scene records"):
+        write_results_page(tmp_path / "empty", tmp_path / "page.md")
+    results, _ = small
+    out = tmp_path / "page.md"
+    assert (
+        main(["report", "results-page", str(results), "--out", str(out), "--commit", "c0ffee"]) == 0
+    )
+    assert "commit `c0ffee`" in out.read_text()
+    assert main(["report", "stage-times", str(results)]) == 0
+    assert "| train | sim | 3 |" in capsys.readouterr().out
+
+
+def test_the_commit_is_the_checkout_holding_the_results(tmp_path):
+    assert study_commit(tmp_path / "results") is None  # not a git checkout
+
+    def git(*args):
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "config.yaml").write_text("seed: 0\n")
+    git("add", "config.yaml")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "study")
+    commit = study_commit(tmp_path / "results")
+    assert commit.startswith("`") and "local changes" not in commit
+    (tmp_path / "config.yaml").write_text("seed: 1\n")
+    assert "with local changes" in study_commit(tmp_path / "results")
+
+
+def test_the_study_span_runs_from_the_first_jobs_start_to_the_last_jobs_end(tmp_path):
+    assert study_span(tmp_path) is None
+    bench(tmp_path / "a/benchmarks/collect.tsv", 100.0, END - 1000)
+    bench(tmp_path / "benchmarks/summary.tsv", 2.0, END)
+    assert study_span(tmp_path) == pytest.approx((END - 1100, END))
