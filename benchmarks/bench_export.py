@@ -24,30 +24,11 @@ from bench_model import estimator  # the same freshly initialised 240 x 320 mode
 
 from threedcal.images import read_rgb
 from threedcal.model.export import export_onnx, onnx_gradients, onnx_session
+from threedcal.model.machine import host_line
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "digit_frames_fots"
 PRESETS = ("compact", "context_half", "context", "multiscale")
 BLOCK = 10  # calls per block; torch and onnxruntime alternate block by block
-
-
-def host_flags() -> str:
-    """The CPU's AVX-512 flags and the ISA limits set for torch (onnxruntime's MLAS picks its
-    kernels from CPUID alone: ONEDNN_MAX_CPU_ISA / ATEN_CPU_CAPABILITY do not limit it)."""
-    import os
-    import re
-
-    try:
-        flags = sorted(set(re.findall(r"avx512\w*", Path("/proc/cpuinfo").read_text())))
-    except OSError:
-        flags = []
-    limits = [
-        f"{k}={os.environ[k]}"
-        for k in ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY")
-        if k in os.environ
-    ]
-    return (" ".join(flags) or "no avx512") + (
-        f"; torch limited: {', '.join(limits)}" if limits else ""
-    )
 
 
 def median_ms(runs: dict, rounds: int) -> dict[str, float]:
@@ -78,7 +59,9 @@ def main() -> None:
     import onnxruntime
 
     print(f", onnxruntime {onnxruntime.__version__}")
-    print(f"host: {host_flags()}")
+    print(
+        f"host: {host_line()} (onnxruntime picks its kernels from CPUID alone: the limits bind torch only)"
+    )
     print(f"{'preset':<12}{'torch f/s':>10}{'onnx f/s':>10}{'onnx/torch':>12}")
     with tempfile.TemporaryDirectory() as tmp:
         for preset in PRESETS:

@@ -32,7 +32,7 @@ from threedcal.model import DEFAULT_PRESET, PRESET_NAMES
 from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
-from threedcal.model.machine import cpu_capability, native_bfloat16, resolve_precision
+from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
 from threedcal.model.train import training_autocast
 
@@ -58,25 +58,6 @@ BALL_SETTINGS = dict(
     background_patches=32,
     skirt_reach=2.5,
 )
-
-
-def host() -> str:
-    """The CPU's model name and vector instruction sets (what every speed figure depends on)."""
-    name, flags = "unknown CPU", set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                name = value.strip()
-            elif key.strip() == "flags":
-                flags = set(value.split())
-    except OSError:
-        pass
-    vector = sorted(f for f in flags if f.startswith(("avx512", "amx")) or f in ("avx2", "fma"))
-    return (
-        f"{name}; flags: {' '.join(vector) or 'none found'}; torch dispatches {cpu_capability()}; "
-        f"native bfloat16: {'yes' if native_bfloat16() else 'no'}"
-    )
 
 
 def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> DepthEstimator:
@@ -189,7 +170,7 @@ def main() -> None:
     parser.add_argument("--accuracy", type=Path, help="ball_folder dataset for the accuracy table")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    print(f"host: {host()}")
+    print(f"host: {host_line()}")
     rng = np.random.default_rng(0)
     blank = rng.uniform(60, 200, (HEIGHT, WIDTH, 3)).astype(np.float32)
     frame = np.clip(blank + rng.normal(0, 20, blank.shape), 0, 255).astype(np.uint8)

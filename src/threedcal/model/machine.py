@@ -94,3 +94,40 @@ def describe() -> dict:
         "cores": usable_cores(),
         "torch": str(torch.__version__),
     }
+
+
+def cpu_flags() -> tuple[str, list[str]]:
+    """The CPU's model name and its vector instruction sets (AVX2, FMA, AVX-512, AMX) as Linux
+    lists them: what every speed figure, and a torch result's last bits, depend on."""
+    from pathlib import Path
+
+    name, flags = "unknown CPU", set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                name = value.strip()
+            elif key.strip() == "flags":
+                flags = set(value.split())
+    except OSError:
+        pass
+    vector = sorted(f for f in flags if f.startswith(("avx512", "amx")) or f in ("avx2", "fma"))
+    return name, vector
+
+
+def isa_limits() -> dict[str, str]:
+    """The run-time caps set on torch's and numpy's kernels (an AVX2 machine emulated on a newer one)."""
+    names = ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "OPENBLAS_CORETYPE")
+    return {k: os.environ[k] for k in names if k in os.environ}
+
+
+def host_line() -> str:
+    """One line naming the host for a benchmark's figures."""
+    name, vector = cpu_flags()
+    limits = ", ".join(f"{k}={v}" for k, v in isa_limits().items())
+    return (
+        f"{name}; flags: {' '.join(vector) or 'none found'}"
+        + (f"; limited by {limits}" if limits else "")
+        + f"; torch dispatches {cpu_capability()}; native bfloat16: "
+        + ("yes" if native_bfloat16() else "no")
+    )

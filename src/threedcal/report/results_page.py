@@ -143,7 +143,15 @@ def provenance_lines(results: Path, commit: str | None) -> list[str]:
         for part in (
             environment.get("platform"),
             environment.get("processor"),
+            environment.get("cpu"),
             f"{environment['cpu_count']} CPUs" if environment.get("cpu_count") else None,
+            f"flags {environment['cpu_flags']}" if environment.get("cpu_flags") else None,
+            f"limited by {environment['isa_limits']}"
+            if environment.get("isa_limits", "none") != "none"
+            else None,
+            f"torch dispatches {environment['torch_cpu_capability']}"
+            if environment.get("torch_cpu_capability")
+            else None,
         )
         if part
     )

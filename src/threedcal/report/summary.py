@@ -274,11 +274,18 @@ def environment(config: Mapping) -> dict[str, Any]:
     """Versions, threads, seeds and hardware of this run (for the report and summary)."""
     import torch
 
+    from threedcal.model.machine import cpu_capability, cpu_flags, isa_limits, native_bfloat16
     from threedcal.scenes import package_versions
 
+    cpu, flags = cpu_flags()
     return {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
+        "cpu": cpu,
+        "cpu_flags": " ".join(flags),
+        "isa_limits": ", ".join(f"{k}={v}" for k, v in isa_limits().items()) or "none",
+        "torch_cpu_capability": cpu_capability(),
+        "native_bfloat16": native_bfloat16(),
         "cpu_count": os.cpu_count(),
         "cuda": torch.cuda.is_available(),
         "seed": config.get("seed"),
