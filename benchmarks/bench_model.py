@@ -39,9 +39,10 @@ from threedcal.model.train import training_autocast
 HEIGHT, WIDTH = 240, 320
 # The model's frame is the camera's pooled by this (dataset.downscale, as the preset is trained).
 POOLING = {"context_half": 2}
-# (batch, patch px) of a training step as the default study trains each preset; the rest (64, 64).
+# (patches, patch px) of a training step as the default study trains each preset (context_half:
+# 4 frames x 4 patches of 48 px, config.yaml's simulated scenes); the rest (64, 64).
 STEP_SHAPES = {
-    "context_half": (16, 32),
+    "context_half": (16, 48),
     "context": (16, 64),
     "multiscale": (8, 128),
     "touchnet": (2, 64),
