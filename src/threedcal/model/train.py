@@ -11,7 +11,6 @@ training coordinates stops falling.
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 import logging
@@ -39,6 +38,7 @@ from threedcal.model.checkpoint import (
     save_checkpoint,
 )
 from threedcal.model.drift import drift_offset, remove_drift
+from threedcal.model.loss_log import plot_losses, write_losses
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import describe as describe_machine
 from threedcal.model.machine import resolve_precision
@@ -56,7 +56,6 @@ RESUME_NAME = "checkpoint.pt"
 # a P = 1 % job runs 320 short epochs, and saving after each cost 5 % of its time. An interrupted
 # job redoes at most this much, and ends with the same bytes either way.
 RESUME_EVERY_S = 20.0
-LOSS_COLUMNS = ("epoch", "step", "train_loss", "val_loss", "seconds", "lr")
 
 
 def _or(value, default):
@@ -770,34 +769,3 @@ def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -
 
 def _init_args(settings: TrainSettings, ts: TrainingSet) -> dict:
     return dict(read_checkpoint(init_path(settings.init, ts)).get("preset_args", {}))
-
-
-def write_losses(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=LOSS_COLUMNS)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow(
-                {k: (f"{v:.8g}" if isinstance(v, float) else v) for k, v in row.items()}
-            )
-
-
-def plot_losses(path: Path, rows: list[dict], title: str) -> None:
-    from threedcal.plotting import pyplot
-
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
-    epochs = [r["epoch"] for r in rows]
-    for key, label in (("train_loss", "train"), ("val_loss", "validation")):
-        points = [(e, r[key]) for e, r in zip(epochs, rows, strict=True) if math.isfinite(r[key])]
-        if points:
-            ax.plot(*zip(*points, strict=True), marker="o", ms=3, label=label)
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("MSE of gradients")
-    if all(r["train_loss"] > 0 for r in rows):
-        ax.set_yscale("log")
-    ax.set_title(title)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
