@@ -1,4 +1,4 @@
-"""Every Python and shell example in README.md and docs/*.md runs, so an example that breaks fails CI.
+"""Every Python and shell example in README.md and docs/**/*.md runs, so an example that breaks fails CI.
 
 Blocks run in page order in a scratch workspace that links the repository's files (`.venv`,
 `Snakefile`, `config/`, `data/`, ...); a page's Python blocks share one namespace, and a YAML block
@@ -27,7 +27,7 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+PAGES = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
 LINKED = ("Snakefile", "rules", "scripts", "workflow", "config", "config.yaml", "data", "src")
 LINKED += ("benchmarks", "tests", "Makefile", "pyproject.toml")
 FENCE = re.compile(
