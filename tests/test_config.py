@@ -298,10 +298,10 @@ def test_train_settings_have_no_defaults_of_their_own_the_schema_fills_them():
 def test_configuration_page_is_the_schema_reference_and_every_key_is_described():
     from threedcal.schema import schema_keys, with_reference
 
-    page = Path(__file__).resolve().parents[1] / "docs/configuration.md"
+    page = Path(__file__).resolve().parents[1] / "docs/reference/configuration.md"
     assert page.read_text() == with_reference(page.read_text()), (
-        "docs/configuration.md is out of date with the schema: run "
-        "`.venv/bin/threedcal config reference --write docs/configuration.md`"
+        "docs/reference/configuration.md is out of date with the schema: run "
+        "`.venv/bin/threedcal config reference --write docs/reference/configuration.md`"
     )
     keys = schema_keys("config")
     assert len(keys) > 50

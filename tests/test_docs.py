@@ -8,7 +8,8 @@ the line before a fence changes how its block runs:
 
     <!-- docs-test: skip: REASON -->      not run (real hardware, a 45-minute study); REASON required
     <!-- docs-test: setup: CODE -->       Python run first, unseen by the reader (e.g. `frame = ...`)
-    <!-- docs-test: dry-run -->           each `snakemake` line runs with `-n` (what it would do)
+    <!-- docs-test: dry-run -->           each `snakemake` and `make` line runs with `-n` (what it
+                                          would do: the default study takes 20 minutes)
 
 Helpers a setup line may call: `tiny_checkpoint(path)` trains a tiny model there (seconds) and
 `sim_frame()` renders a DIGIT ball press.
@@ -137,6 +138,8 @@ def run_shell(block: dict, page: Path, workspace: Path) -> None:
         words = shlex.split(command)
         if block["directive"] == "dry-run" and "snakemake" in words[0]:
             words.append("-n")
+        elif block["directive"] == "dry-run" and words[0] == "make":
+            words.insert(1, "-n")
         done = subprocess.run(
             words,
             cwd=workspace,

@@ -254,12 +254,44 @@ def schema_keys(kind: str = "config") -> list[tuple[str, dict]]:
 
 
 def reference_table(kind: str = "config") -> str:
-    """A Markdown table of every key: allowed values, default, description (docs/configuration.md)."""
+    """A Markdown table of every key: allowed values, default, description (docs/reference/).
+
+    A block defined once and used in two places (a scene's model and the pretraining's) is listed
+    in full under a scene; the other place names it and shows only its own defaults."""
+    root = load_schema(kind)
+    places: dict[str, list[str]] = {}
     lines = ["| key | allowed | default | meaning |", "|---|---|---|---|"]
-    for path, node in schema_keys(kind):
-        default = f"`{canonical_json(node['default'])}`" if "default" in node else ""
-        meaning = " ".join(str(node.get("description", "")).split()).replace("|", "\\|")
-        lines.append(f"| `{path}` | {_allowed(node)} | {default} | {meaning} |")
+
+    def walk(node: Mapping, path: str, emit: bool) -> None:
+        node = _resolved(node, root)
+        for key, sub in node.get("properties", {}).items():
+            here = f"{path}.{key}" if path else key
+            ref = sub.get("$ref", "").rsplit("/", 1)[-1] if isinstance(sub, Mapping) else ""
+            sub = _resolved(sub, root)
+            block = "properties" in sub
+            if not emit:
+                if ref and block:
+                    places.setdefault(ref, []).append(here)
+                walk(sub, here, emit)
+                continue
+            main = min(places.get(ref, [here]), key=lambda p: (not p.startswith("scenes."), p))
+            own_default = "default" in sub and (not block or main != here)
+            default = f"`{canonical_json(sub['default'])}`" if own_default else ""
+            meaning = " ".join(str(sub.get("description", "")).split()).replace("|", "\\|")
+            if block and ref and main != here:
+                meaning += f" (keys as `{main}`)"
+            if f"| `{here}` |" not in "\n".join(lines):
+                lines.append(f"| `{here}` | {_allowed(sub)} | {default} | {meaning} |")
+            if main == here or not (block and ref):
+                walk(sub, here, emit)
+        extra = node.get("additionalProperties")
+        if isinstance(extra, Mapping) and ("$ref" in extra or "properties" in extra):
+            walk(extra, f"{path}.<name>", emit)
+        for alternative in [*node.get("oneOf", []), *node.get("anyOf", [])]:
+            walk(alternative, path, emit)
+
+    walk(root, "", emit=False)
+    walk(root, "", emit=True)
     return "\n".join(lines) + "\n"
 
 

@@ -378,3 +378,15 @@ def test_touch_search_sees_through_a_blurred_camera(tmp_path):
 
     sensor = _profile_variant("digit", "elastic-blur6", blurred)
     assert abs(touch_error_with_true_centres(tmp_path, sensor, 11)) <= 0.01
+
+
+@pytest.mark.slow
+def test_a_domed_gels_edge_presses_train_at_the_depth_the_plan_wrote(tmp_path):
+    """Near the DIGIT's edge the plan commands a 1 mm press up to a millimetre deeper (the dome's
+    sag): dataset.max_depth_over_radius (0.75 R = 1.5 mm) reads the plan's 1 mm and keeps it."""
+    plan = {"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1}
+    record = collect_and_register(tmp_path, "digit", plan, 2)
+    raw = open_raw(tmp_path / "raw.zarr")
+    assert float(raw["depth_mm"].max()) > 1.5  # commanded past the limit at the edge
+    assert record["frames_too_deep"] == 0, record
+    assert record["frames_labelled"] == record["frames_in_view"] > 0, record

@@ -53,7 +53,7 @@ def _reference_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--write",
         metavar="PAGE",
-        help="replace the generated table in PAGE (docs/configuration.md)",
+        help="replace the generated table in PAGE (docs/reference/configuration.md)",
     )
 
 

@@ -293,8 +293,17 @@ def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Lab
     max_ratio = scene["dataset"]["max_depth_over_radius"]
     too_deep = np.zeros_like(inside)
     if max_ratio is not None:
-        # the plan's depth, as the user wrote it: the dome's sag would split presses at the limit
-        too_deep = inside & (raw["depth_mm"].values > float(max_ratio) * radius_mm + 1e-9)
+        # the plan's depth, as the user wrote it (its dome compensation undone: a 1 mm press near a
+        # domed gel's edge is commanded deeper, not pressed deeper); measured sags would split
+        # presses that sit at the limit
+        from threedcal.collect.plan import dome_sag_mm
+        from threedcal.profiles import load_profile
+
+        sensor = load_profile("sensor", scene["sensor"])
+        as_written = raw["depth_mm"].values - dome_sag_mm(
+            sensor, raw["x_mm"].values, raw["y_mm"].values
+        )
+        too_deep = inside & (as_written > float(max_ratio) * radius_mm + 1e-3)
     keep = np.flatnonzero(inside & ~too_deep)
     if len(keep) == 0:
         raise ConfigError(
