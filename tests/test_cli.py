@@ -1,10 +1,12 @@
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 import threedcal
 from threedcal.cli import Command, build_parser, main
+from threedcal.errors import ConfigError
 
 
 def test_version_flag_prints_package_version(capsys):
@@ -109,3 +111,43 @@ def test_a_path_the_system_refuses_is_one_line_naming_it(monkeypatch, capsys):
     monkeypatch.setattr(threedcal.cli, "discover_commands", lambda: commands)
     assert main(["write"]) == 1
     assert capsys.readouterr().err == "threedcal: error: results/d.npy: No space left on device\n"
+
+
+def test_cli_reference_page_is_the_parser_and_within_its_word_budget():
+    from threedcal.cli.reference import with_cli_reference
+
+    page = Path(__file__).resolve().parents[1] / "docs/reference/cli.md"
+    text = page.read_text()
+    assert text == with_cli_reference(text), (
+        "docs/reference/cli.md is out of date with the command-line parser: run "
+        "`.venv/bin/threedcal report cli-reference --write docs/reference/cli.md`"
+    )
+    assert len(text.split()) <= 1100, "docs/reference/cli.md: over its 1,100 words; shorten help"
+
+
+def test_cli_reference_lists_every_command_its_arguments_and_defaults():
+    from threedcal.cli.reference import cli_reference
+
+    text = cli_reference()
+    for command in ("collect", "predict", "live", "sim soak", "report cli-reference"):
+        assert f"\n## {command}\n" in f"\n{text}"
+    assert "`threedcal predict --checkpoint CHECKPOINT --image IMAGE --out OUT [options]`" in text
+    assert "- `--contact-mm` (default `0.05`)" in text and "[checkpoint options](#" in text
+    assert text.count("## Checkpoint options") == 1 and "[-h]" not in text
+
+
+def test_cli_reference_needs_its_markers(capsys):
+    from threedcal.cli.reference import with_cli_reference
+
+    with pytest.raises(ConfigError, match="markers"):
+        with_cli_reference("# a page without them\n")
+    assert main(["report", "cli-reference"]) == 0
+    assert "## collect" in capsys.readouterr().out
+
+
+def test_help_shows_each_literal_default_once(capsys):
+    with pytest.raises(SystemExit):
+        main(["sim", "soak", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    # --seed and --rate from their argparse defaults, --kinds and --speedup from their help
+    assert "(default: 0.2)" in out and out.count("default") == 4

@@ -39,7 +39,7 @@ GROUP_HELP = {
     "objects": "test objects: CAD, STL files, ground-truth depth",
     "reskin": "the ReSkin magnetic sensor: serial check",
     "pretrained": "the weights shipped for model.init: pretrained",
-    "report": "pages from a finished study's results folder",
+    "report": "pages: a finished study's results, the command-line reference",
 }
 
 
@@ -78,6 +78,29 @@ def add_force_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def shown_default(action: argparse.Action) -> str | None:
+    """An argument's default as `--help` and the CLI reference show it, or None where there is
+    nothing to show: no default, a flag, an empty string, or help that describes it already."""
+    default = action.default
+    if default in (None, argparse.SUPPRESS, "") or isinstance(default, bool) or action.required:
+        return None
+    if action.help and "default" in action.help:
+        return None
+    return " ".join(map(str, default)) if isinstance(default, list | tuple) else str(default)
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, with each argument's default (where :func:`shown_default` shows one)
+    after its help."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_text = action.help or ""
+        default = shown_default(action)
+        if default is None or help_text == argparse.SUPPRESS:
+            return help_text
+        return f"{help_text} (default: {default.replace('%', '%%')})"
+
+
 def discover_commands() -> list[Command]:
     commands: list[Command] = []
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
@@ -90,6 +113,7 @@ def build_parser(commands: Sequence[Command] | None = None) -> argparse.Argument
     parser = argparse.ArgumentParser(
         prog="threedcal",
         description="Calibrate vision-based tactile sensors with a 3D printer (3D Cal).",
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"threedcal {__version__}")
     groups: dict[tuple[str, ...], argparse._SubParsersAction] = {}
@@ -99,13 +123,18 @@ def build_parser(commands: Sequence[Command] | None = None) -> argparse.Argument
             prefix = command.path[:depth]
             if prefix not in groups:
                 group = groups[prefix[:-1]].add_parser(
-                    prefix[-1], help=GROUP_HELP.get(prefix[-1], f"{prefix[-1]} commands")
+                    prefix[-1],
+                    help=GROUP_HELP.get(prefix[-1], f"{prefix[-1]} commands"),
+                    formatter_class=HelpFormatter,
                 )
                 groups[prefix] = group.add_subparsers(
                     dest=f"command_{depth}", metavar="COMMAND", required=True
                 )
         leaf = groups[command.path[:-1]].add_parser(
-            command.path[-1], help=command.help, description=command.help
+            command.path[-1],
+            help=command.help,
+            description=command.help,
+            formatter_class=HelpFormatter,
         )
         command.configure(leaf)
         leaf.set_defaults(_run=command.run)

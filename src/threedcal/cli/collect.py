@@ -12,13 +12,13 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", required=True, help="scene name in the config")
     parser.add_argument(
         "--out",
-        help="store path (default results/<scene>/raw.zarr); resumed when it exists with the "
-        "same settings, never overwritten",
+        help="store path (default results/<scene>/raw.zarr); resumed if it has the same settings, "
+        "never overwritten",
     )
     parser.add_argument(
         "--estimate",
         action="store_true",
-        help="only print how long the plan takes on the real printer (no capture)",
+        help="only print the plan's duration on the real printer (no capture)",
     )
 
 

@@ -14,14 +14,15 @@ from threedcal.model import BACKGROUND_DRIFT_WARN_DN, CONTACT_DEPTH_MM, POINT_FR
 
 
 def _estimator_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
+    group = parser.add_argument_group("checkpoint options")
+    group.add_argument(
         "--checkpoint", required=True, help="model.pt (or the authors' TouchNet .pth)"
     )
-    parser.add_argument("--blank", help="blank (no-contact) image; needed for the authors' weights")
-    parser.add_argument("--px-per-mm", type=float, help="needed for the authors' weights")
-    parser.add_argument("--device", help="cpu, cuda, ... (default: CUDA when present)")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    parser.add_argument(
+    group.add_argument("--blank", help="blank (no-contact) image; needed for the authors' weights")
+    group.add_argument("--px-per-mm", type=float, help="needed for the authors' weights")
+    group.add_argument("--device", help="cpu, cuda, ... (default: CUDA when present)")
+    group.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    group.add_argument(
         "--registration",
         help="registration.json for --frame-of printer, where the checkpoint carries none",
     )
@@ -29,18 +30,19 @@ def _estimator_args(parser: argparse.ArgumentParser) -> None:
 
 def _points_args(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument("--points", help=what)
-    parser.add_argument(
+    group = parser.add_argument_group("point options")
+    group.add_argument(
         "--frame-of",
         choices=POINT_FRAMES,
         default="sensor",
-        help="the points' frame: sensor (gel plane, x right, y down the image, z into the gel) "
-        "or printer (G-code axes); docs/deploy.md",
+        help="sensor (gel plane; x right, y down the image, z into the gel) or printer (G-code "
+        "axes)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--contact-mm",
         type=float,
         default=CONTACT_DEPTH_MM,
-        help=f"depth above which a point is in contact (default {CONTACT_DEPTH_MM} mm)",
+        help="depth (mm) above which a point is in contact",
     )
 
 
@@ -405,8 +407,8 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--sensor",
-        help="the camera's sensor profile (name or YAML): its frames are cropped, turned and "
-        "sized by it, as at collection",
+        help="sensor profile (name or YAML) that crops, turns and sizes the camera's frames, as "
+        "at collection",
     )
     parser.add_argument("--frames", type=int, default=0, help="stop after this many (0: all)")
     parser.add_argument("--out", help="write frame | depth side by side to a .gif or .mp4")
@@ -424,7 +426,7 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=BACKGROUND_DRIFT_WARN_DN,
         help="warn when the no-contact region drifts this far from the blank (grey levels RMS, "
-        f"beyond a uniform shift; default {BACKGROUND_DRIFT_WARN_DN})",
+        "beyond a uniform shift)",
     )
 
 

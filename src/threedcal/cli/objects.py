@@ -69,15 +69,11 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         "--objects",
         nargs="+",
         metavar="OBJECT",
-        help="built-in names (hemispheres, pill, pawn) or STL paths (default: the three built-ins)",
+        help="built-in names (hemispheres, pill, pawn; default: all three) or STL paths",
     )
-    parser.add_argument(
-        "--sensor", default="digit", help="sensor profile for the preview grid (default: digit)"
-    )
+    parser.add_argument("--sensor", default="digit", help="sensor profile for the preview grid")
     parser.add_argument("--px-per-mm", type=float, help="override the sensor's px/mm")
-    parser.add_argument(
-        "--indentation-mm", type=float, default=1.0, help="preview depth (default: 1.0)"
-    )
+    parser.add_argument("--indentation-mm", type=float, default=1.0, help="preview depth (mm)")
     add_force_option(parser)
 
 

@@ -62,9 +62,7 @@ def _configure_check(parser: argparse.ArgumentParser) -> None:
         required=True,
         help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (simmarlin://x)",
     )
-    parser.add_argument(
-        "--printer", default="ender3", help="printer profile name or YAML path (default: ender3)"
-    )
+    parser.add_argument("--printer", default="ender3", help="printer profile name or YAML path")
     parser.add_argument(
         "--home", action="store_true", help="home all axes (G28) before reading the position"
     )
@@ -77,14 +75,12 @@ def _configure_soak(parser: argparse.ArgumentParser) -> None:
         required=True,
         help="inject at least this many faults of each class",
     )
-    parser.add_argument(
-        "--seed", type=int, default=0, help="seed of the faults and the moves (default 0)"
-    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the faults and the moves")
     parser.add_argument(
         "--rate",
         type=float,
         default=0.2,
-        help="fault probability per line, in (0, 1] (default 0.2)",
+        help="fault probability per line, in (0, 1]",
     )
     parser.add_argument(
         "--kinds",
@@ -109,8 +105,8 @@ COMMANDS = [
     ),
     Command(
         ("sim", "soak"),
-        "drive the host against the fake firmware with N injected faults of each class; print a "
-        "table per class; fail if a command is lost, repeated, reordered or acknowledged before it ran",
+        "drive the host against the fake firmware with N faults per class; fail if a command is "
+        "lost, repeated, reordered or acknowledged too early",
         _soak,
         _configure_soak,
     ),

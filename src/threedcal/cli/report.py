@@ -1,5 +1,6 @@
 """`threedcal report results-page` and `threedcal report stage-times`: pages from a finished
-study's results/ folder (threedcal.report)."""
+study's results/ folder (threedcal.report); `threedcal report cli-reference`: the command-line
+reference page (threedcal.cli.reference)."""
 
 from __future__ import annotations
 
@@ -23,15 +24,12 @@ def _results_page_args(parser: argparse.ArgumentParser) -> None:
         "results",
         nargs="?",
         default="results",
-        help="a finished study's results folder (default: results)",
+        help="a finished study's results folder",
     )
-    parser.add_argument(
-        "--out", default="docs/results.md", help="the page to write (default: docs/results.md)"
-    )
+    parser.add_argument("--out", default="docs/results.md", help="the page to write")
     parser.add_argument(
         "--commit",
-        help="the commit that produced the results (default: HEAD of the git checkout holding "
-        "the results folder, where there is one)",
+        help="the commit that made the results (default: HEAD of their git checkout, if any)",
     )
 
 
@@ -42,11 +40,23 @@ def _stage_times(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cli_reference(args: argparse.Namespace) -> int:
+    from threedcal.cli.reference import cli_reference, with_cli_reference
+
+    if args.write is None:
+        print(cli_reference(), end="")
+        return 0
+    page = Path(args.write)
+    page.write_text(with_cli_reference(page.read_text()))
+    print(f"{page}: reference regenerated from the command-line parser")
+    return 0
+
+
 COMMANDS = [
     Command(
         ("report", "results-page"),
-        "write the results page (docs/results.md) from a finished study's results folder: "
-        "every table with its protocol and whether the simulator made its frames",
+        "write the results page from a finished study's results folder: each table with its "
+        "protocol and whether the simulator made its frames",
         _results_page,
         _results_page_args,
     ),
@@ -54,8 +64,16 @@ COMMANDS = [
         ("report", "stage-times"),
         "print where a study's time went: its jobs' benchmark files summed per stage",
         _stage_times,
+        lambda p: p.add_argument("results", nargs="?", default="results", help="results folder"),
+    ),
+    Command(
+        ("report", "cli-reference"),
+        "print the command-line reference (Markdown), or regenerate it in a page with --write",
+        _cli_reference,
         lambda p: p.add_argument(
-            "results", nargs="?", default="results", help="results folder (default: results)"
+            "--write",
+            metavar="PAGE",
+            help="replace the generated reference in PAGE (docs/reference/cli.md)",
         ),
     ),
 ]

@@ -11,7 +11,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--port",
         required=True,
-        help="the board's serial device (/dev/ttyACM0, COM4) or pyserial URL; 'sim' = the simulated board",
+        help="serial device (/dev/ttyACM0, COM4), pyserial URL, or 'sim' (the simulated board)",
     )
     parser.add_argument("--sensor", default="reskin", help="magnetic sensor profile (name or YAML)")
     parser.add_argument("--count", type=int, default=5, help="readings to print (>= 1)")

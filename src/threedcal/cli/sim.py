@@ -22,24 +22,24 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gel-mechanics",
         choices=["geometric", "elastic"],
-        help="the simulated gel's mechanics in place of the profile's gel.mechanics",
+        help="the simulated gel's mechanics, overriding the profile's gel.mechanics",
     )
     parser.add_argument("--seed", type=int, default=0, help="the renderer's seed")
     parser.add_argument(
         "--split-seed",
         type=int,
         default=0,
-        help="which presses go to the fitting half and which to the compared half",
+        help="seed of the split into fitting and compared halves",
     )
     parser.add_argument(
         "--in-sample",
         action="store_true",
-        help="compare the profile as it is with every image (no fit, no split)",
+        help="compare the unfitted profile with every image (no split)",
     )
     parser.add_argument(
         "--write-fitted",
         metavar="PATH",
-        help="also write the profile fitted on the fitting half as YAML (not with --in-sample)",
+        help="also write the fitted profile as YAML (not with --in-sample)",
     )
 
 
