@@ -92,7 +92,7 @@ results-page: $(STAMP)
 clean:
 	rm -rf .snakemake results report.html
 
-# The tiny study on a one-node Slurm started here, against a local run (docs/cluster.md). Needs root
+# The tiny study on a one-node Slurm started here, against a local run (docs/how-to/slurm.md). Needs root
 # and apt-get: installs slurm-wlm, slurmdbd, munge and mariadb-server once (the names it added are
 # kept in .cache/cluster/apt-installed.txt; `make cluster-clean` purges them) and the pip extra
 # [cluster]; starts every daemon under a temporary directory and stops each by PID at the end.

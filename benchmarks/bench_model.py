@@ -48,7 +48,7 @@ STEP_SHAPES = {
     "touchnet": (2, 64),
 }
 # The settings the accuracy table trains with, as an imported ball scene's `model:` section would set
-# them (docs/models.md, "Choosing a preset"); chosen on an inner validation split of the training images.
+# them (docs/explanation/models.md, "Choosing a preset"); chosen on an inner validation split of the training images.
 BALL_SETTINGS = dict(
     lr=3e-3,
     lr_schedule="cosine",

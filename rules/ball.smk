@@ -1,4 +1,4 @@
-# Stage `ball_eval`: the cross-validated real-data evaluation of imported scenes (docs/real_data.md):
+# Stage `ball_eval`: the cross-validated real-data evaluation of imported scenes (docs/explanation/real-data.md):
 # grouped folds, one model per (method, fold), then the pooled figures with intervals.
 
 
@@ -85,7 +85,7 @@ rule ball_eval:
         "../scripts/ball_eval.py"
 
 
-# Stage `sim2real` (scenes with sim_to_real.enabled; docs/real_data.md): simulated presses of the
+# Stage `sim2real` (scenes with sim_to_real.enabled; docs/explanation/real-data.md): simulated presses of the
 # scene's sensor profile -> a pretrained model -> per fold and k, fine-tuned and real-only models
 # -> error against k.
 

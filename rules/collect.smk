@@ -3,7 +3,7 @@
 # params, --forcerun, --rerun-incomplete), so it never learns the store's name. The library fills it
 # under results/{scene}/.partial/ (a killed run resumes there, with the same settings only) and moves
 # it into place when complete. A rerun with a finished store writes summary.json again and leaves
-# the store alone, or stops naming the settings that changed (see docs/reliability.md).
+# the store alone, or stops naming the settings that changed (see docs/explanation/reliability.md).
 # Downstream rules read summary.json, which names the store and the digest of its frame settings.
 
 

@@ -1,6 +1,6 @@
 # Target `pretrained` (not part of `all`; `make pretrained` runs it and installs the result): the
 # weights the package ships for `model.init: pretrained`, one network per built-in vision sensor,
-# trained on simulated presses of many units (docs/models.md, Pretrained weights).
+# trained on simulated presses of many units (docs/explanation/models.md, Pretrained weights).
 
 
 rule pretrain:

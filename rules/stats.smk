@@ -1,7 +1,7 @@
 # Stage `stats`: per-coordinate validation error of every model (P, replicate) of a scene's ablation,
 # the tests against P = 80 (the paper's, paired, equivalence), the recommendation, the power of the
 # design and the paper's Fig. 3B / 4 figures; the cross-scene spread figure (Fig. 4C). See
-# docs/statistics.md.
+# docs/explanation/statistics.md.
 
 
 rule stats:

@@ -1,5 +1,5 @@
 """CPU seconds of the ablation's statistics on a finished study: the three test families and the
-power table, from its validation_mse.csv (docs/statistics.md, "Cost").
+power table, from its validation_mse.csv (docs/explanation/statistics.md, "Cost").
 
     .venv/bin/python docs/diagnostics/ablation_stats_cost.py WORKDIR SCENE [SIMULATIONS]
 """

@@ -1,5 +1,5 @@
 """Train one model of a scene with changed settings and score it on the test objects' tuning
-presses: how docs/labels.md chose `model.loss` and `dataset.max_depth_over_radius`.
+presses: how docs/explanation/labels.md chose `model.loss` and `dataset.max_depth_over_radius`.
 
 Usage (from a study's folder, after its `dataset` and `object_presses` stages):
     python docs/diagnostics/choose_on_tuning.py SCENE P NAME [--model KEY=VALUE ...]

@@ -15,7 +15,7 @@ three depths and prints, per depth, in px:
   absorbs).
 
 Usage (about a minute on 2 cores): `.venv/bin/python docs/diagnostics/dome_contact_centres.py
-[elastic|geometric]`. Findings: docs/simulator.md, Gel mechanics, Measured.
+[elastic|geometric]`. Findings: docs/explanation/simulator.md, Gel mechanics, Measured.
 """
 
 from __future__ import annotations

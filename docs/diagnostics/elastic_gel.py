@@ -1,5 +1,5 @@
 """The elastic gel (threedcal.sim.elastic) measured: its checks, its contact, its label error, and
-what registration makes of it. Every figure of docs/simulator.md's gel-mechanics section:
+what registration makes of it. Every figure of docs/explanation/simulator.md's gel-mechanics section:
 
     .venv/bin/python docs/diagnostics/elastic_gel.py derive        # the layer compliance, by sympy
     .venv/bin/python docs/diagnostics/elastic_gel.py checks        # docs/figures/elastic_checks.png

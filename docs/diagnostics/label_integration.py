@@ -1,4 +1,4 @@
-"""Integrate perfect labels of a pressed ball and compare with the true depth (docs/labels.md).
+"""Integrate perfect labels of a pressed ball and compare with the true depth (docs/explanation/labels.md).
 
     .venv/bin/python docs/diagnostics/label_integration.py
 

@@ -1,5 +1,5 @@
 """Mean validation MSE of a scene's models at several learning rates and seeds, on a study folder
-that is *not* the reported one (docs/models.md, "The learning rate, chosen on an independent
+that is *not* the reported one (docs/explanation/models.md, "The learning rate, chosen on an independent
 collection").
 
     .venv/bin/python docs/diagnostics/learning_rate.py WORKDIR SCENE P[,P...] LR[,LR...] SEED[,SEED...] \

@@ -1,4 +1,4 @@
-"""Could the Mini's halo be light rather than a dent? (docs/simulator.md, "Realism out of sample").
+"""Could the Mini's halo be light rather than a dent? (docs/explanation/simulator.md, "Realism out of sample").
 
     .venv/bin/python docs/diagnostics/optical_halo.py [TENSION_N_PER_MM]
 

@@ -1,4 +1,4 @@
-"""The methods table of docs/real_data.md: several model settings under the cross-validated protocol.
+"""The methods table of docs/explanation/real-data.md: several model settings under the cross-validated protocol.
 
     .venv/bin/python docs/diagnostics/real_cv_methods.py data/gelsight_ball_fots [METHOD ...]
 
@@ -32,7 +32,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.presets_study import depth_ms_per_frame
 from threedcal.model.train import TrainSettings, train
 
-# fots_ball's settings before this study (chosen on an inner split; docs/models.md, Choosing a preset).
+# fots_ball's settings before this study (chosen on an inner split; docs/explanation/models.md, Choosing a preset).
 sys.path.insert(0, str(Path(__file__).parents[2] / "benchmarks"))
 from bench_model import BALL_SETTINGS as BALL  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Nested cross-validation of the multiscale training budget (docs/real_data.md, "Choosing settings").
+"""Nested cross-validation of the multiscale training budget (docs/explanation/real-data.md, "Choosing settings").
 
     .venv/bin/python docs/diagnostics/real_nested_cv.py data/gelsight_ball_fots [drawn|refined]
 

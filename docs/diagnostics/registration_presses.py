@@ -5,13 +5,13 @@ For each sensor, seed and (depth, spacing) variant: a plan of registration-like 
 simulated bench, registered by the dataset stage (`register_store`), then the RMS / max error
 against the bench's hidden truth over a 0.25 mm lattice of the probe area, where it lies in view.
 Seeds other than the default study's 0: the figures the study reports are not the ones this chose
-on (docs/registration.md, Registration presses). Usage (about a minute per run on 2 cores):
+on (docs/explanation/registration.md, Registration presses). Usage (about a minute per run on 2 cores):
 
     .venv/bin/python docs/diagnostics/registration_presses.py [--elastic] digit 11 0.4 1.0 [...]
 
 arguments in fours: sensor, seed, depth_mm, spacing_mm. `--elastic`: the bench simulates the gel as
-an elastic layer (`bench.gel_mechanics: elastic`; docs/simulator.md, Gel mechanics). `--kappa2`: the
-stage's lens fit frees κ₂ too (as before the stage kept κ₁ alone; docs/registration.md, The lens).
+an elastic layer (`bench.gel_mechanics: elastic`; docs/explanation/simulator.md, Gel mechanics). `--kappa2`: the
+stage's lens fit frees κ₂ too (as before the stage kept κ₁ alone; docs/explanation/registration.md, The lens).
 `--frames N`: N frames per press, the contact located in their mean (default: the plan's 3; the
 study's registration presses take `plan.registration.frames`, 1 by default).
 

@@ -17,7 +17,7 @@ has it — its bench, first-contact search and registration presses — with the
 (registration is the slow part; the touch search does not depend on it). `--law elastic` swaps the
 simulator's rigid contact for the Hertz solution (a² = Rd, the surface sinking around the
 contact), `--law skirt` widens its skirt. The fitted DIGIT's search with 1 and with 4 frames a
-step (docs/registration.md, Four frames a step):
+step (docs/explanation/registration.md, Four frames a step):
 
     .venv/bin/python docs/diagnostics/touch_height.py --sensors digit_fots --plans study \
         --seeds 11 12 13 14 21 22 23 24 31 32 33 34 --touch-frames 4

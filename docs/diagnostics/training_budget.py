@@ -1,5 +1,5 @@
 """How a scene's models improve with the training budget: replicate 0 of each P trained at several
-`epochs_base` values on a finished study's trainset (docs/statistics.md, "The training budget").
+`epochs_base` values on a finished study's trainset (docs/explanation/statistics.md, "The training budget").
 
     .venv/bin/python docs/diagnostics/training_budget.py WORKDIR SCENE P[,P...] EPOCHS_BASE[,...] \
         [--score] [--replicate R]

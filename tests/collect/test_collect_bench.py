@@ -222,7 +222,7 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
     assert abs(record["rotation_deg"] - truth["seating_rotation_deg"]) < 0.2
     # the default first-contact search: the touch height within the target, 0.02 mm (measured
     # -0.012: the geometric gel's raised rim bends the contact signal's power law; 0.001-0.004 mm
-    # on the DIGIT's geometric and elastic gels, docs/registration.md)
+    # on the DIGIT's geometric and elastic gels, docs/explanation/registration.md)
     assert record["touch_method"] == "search"
     assert abs(record["touch_offset_error_mm"]) <= 0.02, record
 
@@ -246,7 +246,7 @@ def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_pa
 
 def assert_search_found_the_touch(record, folder, within_mm=0.01):
     """Within `within_mm` of the hidden touch height (the issue's target 0.02 mm; mean 3.3 um on
-    the DIGIT and 8.8 um on the Mini over seeds 0-2 in docs/registration.md), the affine from the
+    the DIGIT and 8.8 um on the Mini over seeds 0-2 in docs/explanation/registration.md), the affine from the
     grid rows, and no touch frame in the training set."""
     assert record["touch_method"] == "search"
     assert abs(record["touch_offset_error_mm"]) <= within_mm, record
@@ -263,7 +263,7 @@ def assert_search_found_the_touch(record, folder, within_mm=0.01):
 @pytest.mark.parametrize(
     "calibration, within_mm",
     # the Mini's touch is found less closely: 8.8 um mean, 14.2 at worst over seeds 0-2 of
-    # docs/registration.md (its table of touch-height errors), 10.4 on this fixture's seed 3; held
+    # docs/explanation/registration.md (its table of touch-height errors), 10.4 on this fixture's seed 3; held
     # to the issue's 0.02 mm
     [("paper_digit_calibration", 0.01), ("paper_mini_calibration", 0.02)],
 )

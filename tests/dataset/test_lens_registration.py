@@ -47,7 +47,7 @@ def test_fit_lensed_recovers_an_exact_lens_and_affine_that_an_affine_cannot():
 def test_a_free_k2_fits_a_locators_edge_bias_and_bends_it_into_the_band_without_contacts():
     """Why the stage fits κ₁ alone: contacts lie 45 px or more inside the frame, and the outermost
     ones are located up to 0.2 px inward (the Mini with its skin: -0.24 px on average beyond 120 px
-    from the lens's centre, -0.05 px nearer it; docs/registration.md, The lens). κ₂ follows them
+    from the lens's centre, -0.05 px nearer it; docs/explanation/registration.md, The lens). κ₂ follows them
     more closely (a smaller residual) and carries that on into the outer band: over the whole frame
     it is far off where κ₁ alone stays within a few tenths of a pixel."""
     lens = RadialLens(centre_px=(161.7, 118.2), kappa1=-7e-7, shape=SHAPE)
@@ -153,7 +153,7 @@ def test_the_elastic_mini_with_its_skin_registers_within_0_3_px_with_k1_alone(tm
     """The skin's shading halo reaches far past the rim. A free κ₂ followed the few outermost
     contacts, located a fraction of a pixel inward, and bent that into the outer band where no
     contact lies (registration presses alone, seeds 11-14: 0.17-0.57 px over the view, up to
-    3.8 px); κ₁ alone extrapolates it mildly (docs/registration.md, The lens)."""
+    3.8 px); κ₁ alone extrapolates it mildly (docs/explanation/registration.md, The lens)."""
     plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("gelsight_mini"), plan, 11)
     assert record["locator"] == "symmetry" and record["contacts_used"] >= 100, record

@@ -626,7 +626,7 @@ def test_multiscale_sees_past_the_contact_at_a_fraction_of_its_cost():
 
 
 def test_depth_integrates_with_one_blas_thread_and_restores_the_pool(monkeypatch):
-    # On the CPU, BLAS's workers would compete with torch's for the cores (docs/models.md).
+    # On the CPU, BLAS's workers would compete with torch's for the cores (docs/explanation/models.md).
     from threadpoolctl import ThreadpoolController
 
     import threedcal.model.inference as inference

@@ -383,7 +383,7 @@ def test_on_the_domed_digit_the_elastic_contact_sits_toward_the_apex():
     of radius R on a dome z = k x², at x0 - 2 k x0 R / (1 + 2 k R) from the apex. The elastic gel
     has that shift to within 15 % (86 % of it here: a sphere, not a paraboloid, on a layer, not a
     half-space), up to ~4 px at the DIGIT's sides, which registration must allow for before the
-    DIGIT can default to it (docs/simulator.md, With registration presses and the lens)."""
+    DIGIT can default to it (docs/explanation/simulator.md, With registration presses and the lens)."""
     sim = elastic_sim("digit")
     dome = sim.profile["gel"]["dome"]
     ball, radius, depth = Sphere(2.0), 2.0, 0.4

@@ -12,7 +12,7 @@ from threedcal.sim.realism import BallLabel, compare, image_figures, load_ball_d
 # The figures that the built-in Mini profile does not meet in sample: its noise is white (no
 # noise_correlation_px), the geometric gel has no broad halo around a contact, and its red contrast
 # is about 10 DN too strong at the extremes, which the real frames' own lighting drift (red -23 to
-# +8 DN) hid until the contrast figures left the drift out (docs/simulator.md, Realism out of sample)
+# +8 DN) hid until the contrast figures left the drift out (docs/explanation/simulator.md, Realism out of sample)
 KNOWN_GAPS = {"noise_acf1", "halo_r50_px", "halo_width_px", "dI_p1_R", "dI_p99_R"}
 
 
@@ -52,7 +52,7 @@ def test_write_fitted_never_overwrites_a_file_and_is_checked_before_the_fit(
 def test_realism_with_the_elastic_gel_and_its_skin_has_the_real_halo(real_data):
     """The Mini with the elastic gel and its skin (realism.gel_mechanics, as the default study's
     bench simulates it; its contact at a given depth is smaller, so each label's depth comes from
-    the elastic gel's own contact radius) has the real halo (docs/simulator.md, A skin under
+    the elastic gel's own contact radius) has the real halo (docs/explanation/simulator.md, A skin under
     tension): in sample only its white noise's correlation and its red contrast (see KNOWN_GAPS)
     are out."""
     text, _ = realism_report(

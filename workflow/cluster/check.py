@@ -1,4 +1,4 @@
-"""The cluster check behind `make cluster-test` (docs/cluster.md): the tiny study on Slurm against a local run.
+"""The cluster check behind `make cluster-test` (docs/how-to/slurm.md): the tiny study on Slurm against a local run.
 
 Needs a Slurm controller that answers (`scontrol ping`) with accounting (`sacct`), partitions and
 resources as workflow/profiles/slurm asks, and the executor plugin (`pip install -e ".[cluster]"`).
@@ -84,7 +84,7 @@ TIMING_COLUMNS = {
     "*/stats/error_vs_time.csv": (["seconds"], "training time of each snapshot"),
     "*/stats/convergence.csv": (["study_seconds", "twice_seconds"], "training times"),
     # Estimated probing time comes from the collection runs that finished, so after a killed run
-    # it leaves out the killed run's share (a gap of the collection summary, docs/cluster.md).
+    # it leaves out the killed run's share (a gap of the collection summary, docs/how-to/slurm.md).
     f"{KILLED_SCENE}/stats/error_vs_cost.csv": (
         ["training_min", "probing_h"],
         "training time; probing estimate without the killed run's share",

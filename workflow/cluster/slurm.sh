@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A throwaway single-node Slurm with accounting (munge, MariaDB, slurmdbd, slurmctld, slurmd) for
-# `make cluster-test` (docs/cluster.md). Every file it writes lives in one state directory; every
+# `make cluster-test` (docs/how-to/slurm.md). Every file it writes lives in one state directory; every
 # daemon it starts is stopped again by the PID it wrote there. Beyond what the apt packages install,
 # nothing outside the state directory is written (no file under /etc, no system service started).
 #

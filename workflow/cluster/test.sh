@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `make cluster-test` (docs/cluster.md): install Slurm (apt) once, start a one-node Slurm with
+# `make cluster-test` (docs/how-to/slurm.md): install Slurm (apt) once, start a one-node Slurm with
 # accounting under a fresh temporary directory, run workflow/cluster/check.py (the tiny study on
 # Slurm against a local run), then stop every daemon it started, by PID, and delete the directory.
 # KEEP=1 keeps the directory (logs, both runs' results) for a look afterwards.

@@ -286,7 +286,7 @@ def registration_plan(sensor: Mapping, presses: Mapping) -> pd.DataFrame:
 
     Shallow, so that a contact is small: the locators only take contacts that lie whole in the
     frame, and the grid's 1-3 mm presses (radius up to R) leave a band along every edge where
-    the lens fit extrapolates (docs/registration.md, Registration presses). One depth, so that
+    the lens fit extrapolates (docs/explanation/registration.md, Registration presses). One depth, so that
     every contact carries the locator's bias at that depth alike."""
     columns = [*PLAN_COLUMNS, "phase"]
     spacing = float(presses.get("spacing_mm", 0.0))

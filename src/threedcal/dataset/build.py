@@ -127,7 +127,7 @@ def contact_material(scene: Mapping, sensor: Mapping):
     if missing:  # a real gel whose profile lacks its constants: the rim, moved by the overlap
         logging.getLogger(__name__).warning(
             "sensor profile %r has no gel.%s: its domed contacts are registered as a gel that "
-            "follows the ball (rim centres only; docs/registration.md, Domed gels)",
+            "follows the ball (rim centres only; docs/explanation/registration.md, Domed gels)",
             sensor.get("name"),
             " or gel.".join(missing),
         )
@@ -170,7 +170,7 @@ def register_store(
 
     # The registration presses when the plan has them: alone, for their contacts share one depth
     # and so one locator bias, where adding the grid's 1-3 mm contacts mixes biases that the lens
-    # fit then bends to (docs/registration.md, Registration presses).
+    # fit then bends to (docs/explanation/registration.md, Registration presses).
     rows = np.flatnonzero(phase == "register")
     if not len(rows):
         rows = np.flatnonzero(phase == "grid")
@@ -225,7 +225,7 @@ def build_collected(
     The bench's hidden truth (simulated scenes) is read only to report the registration's error.
     The affine comes from the plan's grid rows; the touch height from its first-contact search
     (the touch rows, which only serve that: they are not training frames), or, for a plan
-    without one, from the grid's contact radii (docs/registration.md). The store is read back
+    without one, from the grid's contact radii (docs/explanation/registration.md). The store is read back
     whole and checked first (complete, every point captured, every chunk present and readable;
     `expect_digest`: the frame settings collect/summary.json recorded).
     """
@@ -289,7 +289,7 @@ def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Lab
     )
     # Past d = R the contact stops growing and the rest of the press is a vertical wall the camera
     # looks along: frames that differ only in its height look alike while their rim labels do not.
-    # Such presses serve the registration and the touch height, not the model (docs/labels.md).
+    # Such presses serve the registration and the touch height, not the model (docs/explanation/labels.md).
     max_ratio = scene["dataset"]["max_depth_over_radius"]
     too_deep = np.zeros_like(inside)
     if max_ratio is not None:
@@ -438,7 +438,7 @@ def touch_height(
     store: RegisteredStore, radius_mm: float, method: str, progress: bool = False
 ) -> dict:
     """registration.json's touch fields, by `method`: "search" (the plan's first-contact search,
-    the default) or "rim" (the grid's contact radii; d < R only, see docs/registration.md)."""
+    the default) or "rim" (the grid's contact radii; d < R only, see docs/explanation/registration.md)."""
     from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, estimate_touch, measure_touch_search
 
     fit = store.registration.fit

@@ -112,7 +112,7 @@ def fit_lensed(
     inside the frame, so none is found in its outer band (a contact radius and a margin wide):
     the fit extrapolates there. A free κ₂ follows the locator's error at the few outermost
     contacts and bends it into that band by pixels: `register` fits κ₁ alone
-    (docs/registration.md, The lens)."""
+    (docs/explanation/registration.md, The lens)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     height, width = shape
     centre0 = np.array([(width - 1) / 2, (height - 1) / 2])

@@ -1,4 +1,4 @@
-"""Where a ball's contact lies on a domed gel relative to the ball's axis (docs/registration.md,
+"""Where a ball's contact lies on a domed gel relative to the ball's axis (docs/explanation/registration.md,
 Domed gels)."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ class DomedContacts:
     Off the apex the dome falls away from the ball, which meets the gel first on its apex side: the
     contact, and the centre a locator finds in it, lies toward the apex (by up to ~3.5 px on a
     DIGIT 0.4 mm deep). The affine would take that radial shift for a scale. The rigid overlap
-    w = d − gap − (sag − sag under the axis) predicts it (docs/registration.md, Domed gels):
+    w = d − gap − (sag − sag under the axis) predicts it (docs/explanation/registration.md, Domed gels):
 
     - `area`: the centroid of w > 0, where the rim of a gel that follows the ball is centred;
     - `pressure`: the centroid of the pressure with which the ball presses w into an elastic layer

@@ -19,7 +19,7 @@ spread over the two or three pixels next to it (tests/dataset/test_labels.py).
 ``max_slope_deg`` optionally clamps each label's slope magnitude (direction kept). That is a
 deviation from the paper (the authors label up to about 84°): clamped labels are not the gradient
 of any surface — a perfect model of them integrates the calibration press (R 2 mm, d 1 mm) to a
-peak of 0.904 mm at 45° instead of 1.000 (docs/labels.md).
+peak of 0.904 mm at 45° instead of 1.000 (docs/explanation/labels.md).
 
 On a domed gel (a DIGIT's) the ball meets a surface that falls away from the apex: the gel is
 pushed where the ball lies below the *undeformed* surface, so the depth (from that surface) is

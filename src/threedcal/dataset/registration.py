@@ -65,7 +65,7 @@ def register_camera(
     axis (on the DIGIT's lens a contact 70 px across is off by up to 0.4 px near the frame's edge).
     With `lens`, a first fit (principal point and κ₁) rectifies the frames; the contacts are
     located again there, where they are round, mapped back through it, and the lens refitted to
-    them (docs/registration.md, The lens).
+    them (docs/explanation/registration.md, The lens).
     """
     shape = np.shape(blank)[:2] if lens else None
     located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, dome=dome)
@@ -158,7 +158,7 @@ def _symmetry_from_fit(
     than the true one's for about half the contacts within 30-45 px of the Mini's edge). A lattice
     of presses knows better where each contact is: the affine (and lens) of the first pass, fitted
     over every contact, places each within a fraction of a pixel, and the fit started there stays
-    in the true minimum (docs/registration.md, Symmetric centres on an elastic gel)."""
+    in the true minimum (docs/explanation/registration.md, Symmetric centres on an elastic gel)."""
     guess = fit.apply(np.asarray(xy_mm, dtype=np.float64))
     if back is not None:  # the frames are rectified: start where the ideal frame holds each press
         guess = back.undistort(guess)

@@ -179,7 +179,7 @@ TOUCH_WINDOW_RADII = 3.0
 # A step has contact where its signal exceeds this many times the blanks' own (and twice their largest).
 TOUCH_SIGNAL_SIGMAS = 6.0
 # The depth past the onset the signal is fitted over: 8 steps of 0.02 mm. Chosen on the bench's
-# elastic DIGIT (sharp and 6 px blurred cameras) and geometric DIGIT, seeds 11-14 (docs/registration.md).
+# elastic DIGIT (sharp and 6 px blurred cameras) and geometric DIGIT, seeds 11-14 (docs/explanation/registration.md).
 TOUCH_FIT_SPAN_MM = 0.16
 # The exponents p of signal ∝ (c + δ)^p the search chooses from.
 TOUCH_EXPONENTS = np.round(np.arange(1.0, 3.0001, 0.05), 2)

@@ -2,7 +2,7 @@
 
 Every model — training fraction P, replicate r — is scored on the same validation coordinates
 (validation_mse.csv: one MSE per model and coordinate). Each P < 80 is compared with P = 80 by three
-families of tests (rows of tests.csv, docs/statistics.md says why each choice):
+families of tests (rows of tests.csv, docs/explanation/statistics.md says why each choice):
 
 paper        the paper's tests as published, run on each replicate alone: an independent two-sample
              t-test (Student's, pooled variance) and a two-sided Mann-Whitney U test on the

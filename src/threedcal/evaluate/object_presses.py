@@ -4,7 +4,7 @@ simulated bench or a real rig (threedcal.rig), and one frame is kept per press.
 A session on the simulated bench is a later session on the same, still seated sensor: the same gel
 and paint, fresh camera noise, a lighting drift and a blank captured at its start; each object is
 mounted anew (its true mount off the `pressing.mount` key by hidden errors, `true_mount`). On a
-real rig the user mounts each object when the rig asks. See docs/objects.md.
+real rig the user mounts each object when the rig asks. See docs/explanation/objects.md.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ depth = the registered gel surface − where the commanded Z puts the object's l
 Two sessions, each its own seed stream (`pressing.seed`, apart from the calibration's): `tuning`
 presses, which settings may be chosen on, and `reporting` presses, which are only ever reported.
 Every draw of the pressing streams is made here: the plan, and on the simulated bench each
-session's camera noise and lighting and each object's true mount. See docs/objects.md.
+session's camera noise and lighting and each object's true mount. See docs/explanation/objects.md.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ again, page by page, at every step (tests/model/test_allocator.py counts the fau
 mmap threshold to 32 MB and the trim threshold to 1 GB lets the heap reuse the freed blocks: the
 process keeps its peak memory instead of returning it between steps. The arithmetic is unchanged;
 only where memory comes from. No-op where the C library has no `mallopt` (not glibc). Measured by
-benchmarks/bench_allocator.py (docs/models.md).
+benchmarks/bench_allocator.py (docs/explanation/models.md).
 """
 
 from __future__ import annotations

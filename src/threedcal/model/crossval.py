@@ -1,6 +1,6 @@
 """Cross-validated accuracy on an imported scene's real frames: scores, intervals, label noise.
 
-Protocol (docs/real_data.md):
+Protocol (docs/explanation/real-data.md):
 
 - Every image is tested exactly once: k folds, each fold's model trained on the other folds' images.
 - Presses whose centres lie closer than ``group_fraction`` x their contact radius (and the frames of

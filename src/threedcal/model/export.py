@@ -7,7 +7,7 @@ subtracted and scaled by 1/255, the lighting drift removed (the per-channel medi
 pixel in both directions), the coordinate channels, the network and the gradients' sign. The
 integration to depth (DST Poisson, depth 0 on the border ring) and the geometry stay outside: the
 sidecar gives px/mm, the camera (lens, downscale), the registration and the first-touch height, the
-gel's dome (docs/deploy.md).
+gel's dome (docs/how-to/deploy.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Grouped cross-validation folds of an imported scene's frames (docs/real_data.md).
+"""Grouped cross-validation folds of an imported scene's frames (docs/explanation/real-data.md).
 
 Presses whose centres lie closer than ``group_fraction`` x their contact radius (and the frames of
 one probe coordinate) form a group, and a group never straddles two folds: a nearly repeated press

@@ -40,7 +40,7 @@ def _one_blas_thread():
 
     `depth` integrates on the CPU right after the network ran there, and BLAS's own worker threads
     (the DST's matrix products) then compete with torch's for the same cores: on 2 cores that
-    doubled the time of a 240 x 320 depth frame (docs/models.md)."""
+    doubled the time of a 240 x 320 depth frame (docs/explanation/models.md)."""
     global _blas_controller
     if _blas_controller is None:
         from threadpoolctl import ThreadpoolController

@@ -1,7 +1,7 @@
 """Per-pixel losses between predicted and labelled surface gradients, shape (N, 2, H, W).
 
 A deep press's vertical wall carries gradient labels of 30 and more (cell-averaged, see
-docs/labels.md), so a squared error on gradients spends most of its weight on a few rim pixels whose
+docs/explanation/labels.md), so a squared error on gradients spends most of its weight on a few rim pixels whose
 shading barely differs from a 60-degree slope's. `huber` and `normal` bound what one such pixel
 can pull; all three agree with the squared gradient error for small slopes and small errors, so
 their values read in the same units.

@@ -57,7 +57,7 @@ def native_bfloat16() -> bool:
 
 # Networks whose bfloat16 gradients follow float32's (tests/model/test_model.py checks them at the
 # study's step shape). `multiscale`'s 24-channel dilated convolutions come out NaN in channels-last
-# bfloat16 on torch 2.13 (docs/models.md), so `auto` keeps it, and any network not listed, in float32.
+# bfloat16 on torch 2.13 (docs/explanation/models.md), so `auto` keeps it, and any network not listed, in float32.
 BFLOAT16_SAFE = ("context", "context_half")
 
 

@@ -1,6 +1,6 @@
 """Depth maps → metric 3D points in a stated frame, and the contact mask; PLY through trimesh.
 
-Two frames (docs/deploy.md, with a figure):
+Two frames (docs/how-to/deploy.md, with a figure):
 
 - **sensor**: the gel's rest plane, origin under the model frame's centre pixel ((W - 1) / 2,
   (H - 1) / 2), x along image columns (right), y along image rows (down), z into the gel, mm.

@@ -1,6 +1,6 @@
 """Sim-to-real: pretrain on simulated probing of the sensor's profile, fine-tune on k real images.
 
-For an imported scene (docs/real_data.md, "Sim-to-real"):
+For an imported scene (docs/explanation/real-data.md, "Sim-to-real"):
 
 1. per chosen fold, :func:`fold_profile` fits the sensor profile's optics to the fold's training
    frames and blank frame of the model-ready set (``profile: fitted``, the default; any import
@@ -213,7 +213,7 @@ def simulate_trainset(
 
 
 # Fewest training images a fold's optics are fitted to: with fewer, the LED levels and the shading
-# shape are not determined. (Enough for a gain is more: docs/real_data.md, 8 images give none.)
+# shape are not determined. (Enough for a gain is more: docs/explanation/real-data.md, 8 images give none.)
 MIN_FIT_IMAGES = 3
 
 

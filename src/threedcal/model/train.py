@@ -125,7 +125,7 @@ def scheduled_lr(
     run's steps from lr down to lr/100.
 
     Per step, not per epoch: P = 80 % trains 4 epochs, and a rate held for a whole epoch spent its
-    last quarter at lr/100 (its validation MSE about 5 % worse, docs/statistics.md, The learning-rate
+    last quarter at lr/100 (its validation MSE about 5 % worse, docs/explanation/statistics.md, The learning-rate
     schedule), while P = 1 % (320 epochs) annealed smoothly: the fractions did not get the same
     schedule. A function of the position alone, so a resumed run uses the same rates.
     """
@@ -713,7 +713,7 @@ def _divergence_hint(precision: str) -> str:
         return (
             "model.precision is bfloat16, whose gradients are not finite for some networks on "
             "some CPUs (multiscale's 24-channel dilated convolutions in channels-last, torch "
-            "2.13): set model.precision: float32 (docs/models.md)"
+            "2.13): set model.precision: float32 (docs/explanation/models.md)"
         )
     return "lower model.lr, or look for non-finite labels in the dataset"
 

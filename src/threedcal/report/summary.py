@@ -143,7 +143,7 @@ def sim2real_rows(pooled: pd.DataFrame) -> list[tuple[str, str, str, str]]:
 
 def ablation_section(stats_dir: Path) -> list[str]:
     """The ablation's three test families side by side, disagreements spelled out, and the design
-    the power simulation says each P needs (docs/statistics.md)."""
+    the power simulation says each P needs (docs/explanation/statistics.md)."""
     tests_path = stats_dir / "tests.csv"
     if not tests_path.is_file():
         return []

@@ -22,7 +22,7 @@ limit u = h^3 k^2 p / (3 mu) (pressure-driven flow in the layer, shear-free surf
 Chadwick, SIAM J. Appl. Math. 62, 1520, 2002).
 
 A skin under tension. The gel's painted surface spreads a dent further than the bare layer does (real
-contacts shade the gel well past their rim: docs/simulator.md). It is modelled as a membrane of tension
+contacts shade the gel well past their rim: docs/explanation/simulator.md). It is modelled as a membrane of tension
 T (N/mm) on the layer: the pressure the layer carries is the applied pressure plus T times the surface's
 Laplacian, so
 

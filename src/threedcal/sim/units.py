@@ -34,7 +34,7 @@ def draw_unit(profile: Mapping, seed: int | None) -> dict:
     if not spread:
         raise ConfigError(
             f"sensor profile {profile.get('name')!r} has no unit_variation block: give one "
-            "(docs/simulator.md#unit-to-unit-variation) to draw units of it"
+            "(docs/explanation/simulator.md#unit-to-unit-variation) to draw units of it"
         )
     rng = np.random.default_rng([int(seed), _STREAM])
     unit = copy.deepcopy(dict(profile))
