@@ -456,3 +456,11 @@ def test_config_check_refuses_pretrained_weights_for_a_sensor_without_them(tmp_p
         ConfigError, match=r"scenes.s.model.init: pretrained: no pretrained weights"
     ):
         validate_config({"scenes": {"s": scene}}, check_files=True)
+
+
+def test_a_real_printer_with_the_simulated_camera_is_refused_by_the_config_check():
+    """collect refuses it before the printer moves; the config check names it before anything runs."""
+    message = error_of(config_with(port="/dev/ttyUSB0"))
+    assert "scenes.s" in message and "camera: port '/dev/ttyUSB0' is a real printer" in message
+    ok = validate_config(config_with(port="/dev/ttyUSB0", camera="/dev/video0"))
+    assert ok["scenes"]["s"]["camera"] == "/dev/video0"

@@ -129,6 +129,12 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
             return [f"import.path: {exc}"]
         return []
     problems = []
+    try:  # a real printer with the simulated camera: refused by collect, so named here first
+        from threedcal.rig import check_devices
+
+        check_devices(scene, sensor, source="scene")
+    except ConfigError as exc:
+        problems.append(str(exc).removeprefix("scene."))
     try:
         parse_faults(scene["bench"].get("faults", ""))
     except ConfigError as exc:
