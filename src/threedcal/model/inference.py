@@ -3,7 +3,7 @@ CPU or GPU.
 
 `gradients` and `depth` read frames as the model was trained on them: rectified through the
 camera's lens when the dataset stage fitted one. A camera's own frames go through `rectify` first
-(`threedcal model predict` and `live` do that). `points` places a frame's depth in the sensor's or
+(`threedcal predict` and `live` do that). `points` places a frame's depth in the sensor's or
 the printer's frame (threedcal.model.points)."""
 
 from __future__ import annotations
