@@ -308,7 +308,7 @@ def write_untrained_model(path, preset, blank, model=None, px_per_mm=19.58, **ke
 
 
 def load_file_module(relative: str, name: str):
-    """A repository script that is not a package module (workflow/cluster/*.py, docs/diagnostics)."""
+    """A repository script that is not a package module (workflow/cluster/*.py)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location(name, REPO / relative)

@@ -1,6 +1,7 @@
 """Collection on the simulated bench: crash safety (SIGKILL + resume), serial faults, registration."""
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -305,15 +306,42 @@ def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path
     assert samples["depth_mm"].between(0.9, 1.1).all()
 
 
-def touch_height_diagnostic():
-    """docs/diagnostics/touch_height.py, whose altered contact laws these tests use."""
-    import importlib.util
+# ------------------------------------------------------- contact laws the simulator does not have
+def hertz_surface(self, indenter, center_px, rotation_deg, depth_mm, window):
+    """GelSimulator.surface with the Hertz solution for a sphere on an elastic half-space in place
+    of the rigid gel: a = sqrt(R d); the surface follows d − r²/2R inside,
+    ((2a² − r²) asin(a/r) + a sqrt(r² − a²)) / (π R) outside (it sinks around the contact)."""
+    y0, y1, x0, x1 = window
+    axis_x, axis_y = self.axis_mm(center_px)
+    r = np.hypot(self.X[y0:y1, x0:x1] - axis_x, self.Y[y0:y1, x0:x1] - axis_y)
+    radius = indenter.radius_mm
+    a = math.sqrt(radius * depth_mm)
+    safe = np.maximum(r, a)
+    outside = (
+        (2 * a * a - safe**2) * np.arcsin(np.minimum(a / safe, 1.0))
+        + a * np.sqrt(np.maximum(safe**2 - a * a, 0.0))
+    ) / (math.pi * radius)
+    sink = np.where(r < a, depth_mm - r * r / (2 * radius), outside)
+    return (self.Z0[y0:y1, x0:x1] + sink).astype(np.float32), r < a
 
-    path = REPO / "docs" / "diagnostics" / "touch_height.py"
-    spec = importlib.util.spec_from_file_location("touch_height_diagnostic", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+
+def wide_window(self, indenter, center_px, depth_mm, rotation_deg=0.0):
+    """GelSimulator.window reaching 3 R around the axis: where the Hertz surface still sinks."""
+    reach = 3 * indenter.radius_mm * self.px_per_mm
+    x0, x1 = max(int(center_px[0] - reach), 0), min(int(center_px[0] + reach) + 1, self.width)
+    y0, y1 = max(int(center_px[1] - reach), 0), min(int(center_px[1] + reach) + 1, self.height)
+    return (y0, y1, x0, x1) if x1 - x0 >= 3 and y1 - y0 >= 3 else None
+
+
+def wide_skirt(sensor: str, folder) -> str:
+    """`sensor`'s profile with a skirt three times as wide holding most of the displaced volume."""
+    from threedcal.profiles import resolve_profile
+
+    profile = yaml.safe_load(resolve_profile("sensor", sensor).read_text())
+    profile["gel"].update(skirt_width_per_thickness=0.3, rim_volume_fraction=0.8)
+    path = folder / f"{sensor}_wide_skirt.yaml"
+    path.write_text(yaml.safe_dump(profile))
+    return str(path)
 
 
 def touch_error_with_true_centres(tmp_path, sensor, seed):
@@ -356,11 +384,11 @@ def test_touch_search_does_not_assume_the_contact_law(tmp_path, monkeypatch, sen
     an elastic contact as half as deep: hundreds of micrometres off."""
     from threedcal.sim.optics import GelSimulator
 
-    laws = touch_height_diagnostic()
     if change == "elastic":  # the Hertz solution in place of the rigid gel
-        monkeypatch.setattr(GelSimulator, "surface", laws.elastic_surface)
-        monkeypatch.setattr(GelSimulator, "window", laws.wide_window)
-    sensor = laws.sensor_ref(sensor, change, tmp_path)  # a wide-skirt profile for "skirt"
+        monkeypatch.setattr(GelSimulator, "surface", hertz_surface)
+        monkeypatch.setattr(GelSimulator, "window", wide_window)
+    else:
+        sensor = wide_skirt(sensor, tmp_path)
     assert abs(touch_error_with_true_centres(tmp_path, str(sensor), seed)) <= 0.02
 
 

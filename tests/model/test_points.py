@@ -194,7 +194,7 @@ def test_exact_gradients_of_a_bench_press_come_back_on_the_sphere_where_the_prin
     placed through the model's checkpoint (the fitted registration and touch height): the sphere
     fitted to the contact points lies within 0.1 mm of the printer's ball in X, Y and 20 µm in Z,
     and every contact point within 20 µm of that sphere (measured: 6-17 µm, 4-5 µm, 3.3 µm at
-    most; docs/diagnostics/point_frames.py)."""
+    most; python -m diagnostics.point_frames)."""
     _, model = bench_model
     estimator = DepthEstimator.from_checkpoint(model, device="cpu")
     _, ball, centre_px, depth, sensor = bench_press(*offset, 1.0)

@@ -177,7 +177,7 @@ def _without_ramps(
     shaded on a slope. Across one contact such light varies smoothly, to first order as a ramp,
     whose mirror difference is proportional to the distance from the axis. One such term inside
     the contact and one outside it are fitted and removed. On the Mini's flat gel this takes the
-    symmetric centres' RMS error from 0.16 to 0.09 px (docs/diagnostics/registration_bias.py).
+    symmetric centres' RMS error from 0.16 to 0.09 px (a 2 mm ball 1 mm deep at 63 known centres).
     The two terms have disjoint supports, so each is a one-unknown least-squares fit. `weight`
     is (K, Q): each pair's usability about each axis.
     """

@@ -14,7 +14,7 @@ rigid base displaces the surface by u = C(k) p cos(kx) with
 
 S is derived from the Navier equations of a plane-strain Fourier mode (the rigid-base case of
 Burmister's layered-system solution, J. Appl. Phys. 16, 89 and 126, 1945); the derivation, by sympy,
-is `docs/diagnostics/elastic_gel.py derive`. Limits, each checked in tests/sim/test_sim_elastic.py:
+is `python -m diagnostics.elastic_gel derive`. Limits, each checked in tests/sim/test_sim_elastic.py:
 S -> 1 for kh -> inf (Boussinesq half-space: C = 2/(E* k)); for kh -> 0 a compressible layer acts as
 a Winkler foundation of constrained modulus M = E (1 - nu) / ((1 + nu)(1 - 2nu)), u = p h / M
 (Johnson, Contact Mechanics, 1985, thin bonded layer); an incompressible one follows the lubrication

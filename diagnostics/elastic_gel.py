@@ -1,23 +1,26 @@
 """The elastic gel (threedcal.sim.elastic) measured: its checks, its contact, its label error, and
-what registration makes of it. Every figure of docs/explanation/simulator.md's gel-mechanics section:
+what registration makes of it (the simulator's gel-mechanics explanation):
 
-    .venv/bin/python docs/diagnostics/elastic_gel.py derive        # the layer compliance, by sympy
-    .venv/bin/python docs/diagnostics/elastic_gel.py checks        # docs/figures/elastic_checks.png
-    .venv/bin/python docs/diagnostics/elastic_gel.py contact       # docs/figures/elastic_contact.png
-    .venv/bin/python docs/diagnostics/elastic_gel.py locators      # contact locators on a grid of poses
-    .venv/bin/python docs/diagnostics/elastic_gel.py registration  # the collection bench, both gels
+    .venv/bin/python -m diagnostics.elastic_gel derive        # the layer compliance, by sympy
+    .venv/bin/python -m diagnostics.elastic_gel checks        # elastic_checks.png
+    .venv/bin/python -m diagnostics.elastic_gel contact       # elastic_contact.png
+    .venv/bin/python -m diagnostics.elastic_gel locators      # contact locators on a grid of poses
+    .venv/bin/python -m diagnostics.elastic_gel registration  # the collection bench, both gels
 
-`contact` also prints the label error (gel surface against the rigid ball the labels describe).
-The sensors are the built-in profiles with gel.mechanics set to elastic (everything else as built).
+Figures go to `--out` (default docs/figures). No step names: every step (a few minutes on 2
+cores). `contact` also prints the label error (gel surface against the rigid ball the labels
+describe). The sensors are the built-in profiles with gel.mechanics set to elastic (everything else
+as built). `--smoke`: coarse grids and few depths, seconds (the figures are then not the docs').
 """
 
 from __future__ import annotations
 
+import argparse
 import copy
 import json
 import math
-import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +34,37 @@ from threedcal.sim.elastic import GelMaterial, LayerKernel, layer_factor, solve_
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 
-FIGURES = Path(__file__).resolve().parents[1] / "figures"
+FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
 BALL_MM = 2.0  # the study's probe (config.yaml: probe.radius_mm)
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """How fine and how many: the docs' figures, or a smoke run's seconds."""
+
+    grid_mm: float = 0.05  # the checks' node spacing (paraboloid R = 10 mm)
+    hertz_depths: tuple = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5)
+    chis: tuple = (0.05, 0.1, 0.2, 0.3, 0.4)
+    thin_ratios: tuple = (5, 10, 20)
+    contact_grid_px: int = 1  # every pixel a node
+    contact_depths: tuple = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)
+    label_depths: tuple = (0.5, 1.0, 1.5)
+    locator_grid: tuple = (5, 4)  # columns x rows of known centres
+    registration_spacing_mm: float = 2.0
+
+
+FULL = Sizes()
+SMOKE = Sizes(
+    grid_mm=0.2,
+    hertz_depths=(0.2, 0.4),
+    chis=(0.1, 0.3),
+    thin_ratios=(5, 10),
+    contact_grid_px=4,
+    contact_depths=(0.5, 1.0),
+    label_depths=(1.0,),
+    locator_grid=(3, 2),
+    registration_spacing_mm=4.0,
+)
 
 
 def elastic(name: str, **gel) -> dict:
@@ -49,7 +81,7 @@ def paraboloid(material, R, d, s, extent):
     return res, math.sqrt(res.contact.sum() * s * s / math.pi)
 
 
-def derive() -> None:
+def derive(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
     """The surface compliance of a layer bonded to a rigid base, from the Navier equations of one
     plane-strain Fourier mode (u_x = U(z) sin kx, u_z = W(z) cos kx; z into the gel, the surface at
     z = 0 loaded by p cos kx, shear-free; the base z = h fixed), against sim.elastic.layer_factor."""
@@ -83,25 +115,32 @@ def derive() -> None:
         for v in (0.0, 0.3, 0.49, 0.5)
     )
     print(f"largest difference from threedcal.sim.elastic.layer_factor: {worst:.1e}")
+    return {"layer_factor_difference": worst}
 
 
-def checks() -> None:
+def checks(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    R, s = 10.0, 0.05  # a paraboloid of R = 10 mm on a grid of 0.05 mm
-    hertz_check(axes[0], R, s)
-    bonded_layer_check(axes[1], R, s)
-    thin_layer_check(axes[2], R)
+    R, s = 10.0, sizes.grid_mm  # a paraboloid of R = 10 mm on a grid of 0.05 mm
+    found = hertz_check(axes[0], R, s, sizes.hertz_depths)
+    found.update(bonded_layer_check(axes[1], R, s, sizes.chis))
+    found.update(thin_layer_check(axes[2], R, sizes.thin_ratios))
     fig.tight_layout()
-    fig.savefig(FIGURES / "elastic_checks.png", dpi=110)
-    print(f"wrote {FIGURES / 'elastic_checks.png'}")
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / "elastic_checks.png", dpi=110)
+    plt.close(fig)
+    print(f"wrote {out / 'elastic_checks.png'}")
+    return found
 
 
-def hertz_check(ax, R: float, s: float) -> None:
+def hertz_check(ax, R: float, s: float, depths) -> dict:
     """1. Hertz: a paraboloid on a half-space."""
     m = GelMaterial(1.0, 0.5, math.inf)
-    depths = np.array([0.05, 0.1, 0.2, 0.3, 0.4, 0.5])
+    depths = np.array(depths)
     rows = [paraboloid(m, R, d, s, 1.15 * math.sqrt(2 * R * d)) for d in depths]
     a_err = [a / math.sqrt(R * d) - 1 for (_, a), d in zip(rows, depths, strict=True)]
     f_err = [
@@ -116,14 +155,15 @@ def hertz_check(ax, R: float, s: float) -> None:
     ax.axhspan(-2, 2, color="0.9", label="±2 % (test)")
     ax.set(xlabel="depth d (mm)", ylabel="BEM − Hertz (%)", title="Sphere on a half-space")
     ax.legend()
+    return {"hertz_radius_error": a_err, "hertz_force_error": f_err}
 
 
-def bonded_layer_check(ax, R: float, s: float) -> None:
+def bonded_layer_check(ax, R: float, s: float, chis) -> dict:
     """2. a thick bonded incompressible layer: F / F_Hertz against chi = sqrt(R d) / h."""
     nu, d = 0.5, 0.25
     gamma = -quad(lambda t: float(layer_factor(t, nu)) - 1, 0, 40, limit=200)[0]
     kappa = 4 * gamma / (3 * math.pi)
-    chis = np.array([0.05, 0.1, 0.2, 0.3, 0.4])
+    chis = np.array(chis)
     bem, closed = [], []
     for chi in chis:
         h = math.sqrt(R * d) / chi
@@ -148,12 +188,14 @@ def bonded_layer_check(ax, R: float, s: float) -> None:
         xlabel="χ = sqrt(R d) / h", ylabel="F / F_Hertz", title="Sphere on a bonded layer, ν = 0.5"
     )
     ax.legend()
+    return {"bonded_force_ratio": bem, "bonded_closed_form": closed}
 
 
-def thin_layer_check(ax, R: float) -> None:
+def thin_layer_check(ax, R: float, ratios) -> dict:
     """3. thin layers: the Winkler (nu = 0.3) and Chadwick (nu = 0.5) limits."""
     d = 0.1
-    ratios = np.array([5, 10, 20])
+    ratios = np.array(ratios)
+    found = {}
     for nu, a_lim, style in ((0.3, math.sqrt(2 * R * d), "o-"), (0.5, 2 * math.sqrt(R * d), "s-")):
         fs, as_ = [], []
         for ratio in ratios:
@@ -171,7 +213,8 @@ def thin_layer_check(ax, R: float) -> None:
         print(f"thin layer, nu = {nu} against {name}:")
         for r, f, a in zip(ratios, fs, as_, strict=True):
             print(f"  a/h = {r}: F / F_lim {f:.4f}, a / a_lim {a:.4f}")
-        if nu == 0.5:
+        found[f"thin_force_ratio_nu{nu}"] = fs
+        if nu == 0.5 and len(ratios) > 2:
             print(
                 f"  Richardson (a: O(h/a), F: O((h/a)^2)) from a/h = 10, 20: a {2 * as_[2] - as_[1]:.4f},"
                 f" F {(4 * fs[2] - fs[1]) / 3:.4f}"
@@ -181,21 +224,26 @@ def thin_layer_check(ax, R: float) -> None:
     ax.axhline(1, color="0.5", lw=0.8)
     ax.set(xlabel="h / a", ylabel="BEM / thin-layer limit", title="Thin bonded layers")
     ax.legend(fontsize=8)
+    return found
 
 
-def contact() -> None:
+def contact(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     ball = Sphere(BALL_MM)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    depths = np.array([0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0])
+    depths = np.array(sizes.contact_depths)
+    found = {}
     for k, name in enumerate(("digit", "gelsight_mini")):
-        sim = GelSimulator(elastic(name, elastic_grid_px=1), seed=0)  # every pixel a node
-        s = sim._elastic.spacing_mm
+        sim = GelSimulator(elastic(name, elastic_grid_px=sizes.contact_grid_px), seed=0)
         c = ((sim.width - 1) / 2, (sim.height - 1) / 2)
         radii, forces = [], []
         for d in depths:
             press = sim.press(ball, c, 0.0, float(d))
+            s = press.spacing_mm
             radii.append(math.sqrt(press.result.contact.sum() * s * s / math.pi))
             forces.append(press.force_n)
         geometric = np.sqrt(2 * BALL_MM * depths - depths**2)
@@ -209,6 +257,8 @@ def contact() -> None:
             f"{name} (h = {gel['thickness_mm']} mm, nu = {gel['poisson_ratio']}), ball {BALL_MM} mm:"
         )
         print("\n".join(table))
+        found[name] = {"contact_radius_mm": radii, "geometric_mm": list(geometric)}
+        found[name]["force_n"] = forces
         ax = axes[0]
         ax.plot(depths, radii, "o-", label=f"{name}: elastic")
         if k == 0:
@@ -217,7 +267,7 @@ def contact() -> None:
         # label error: the gel against the rigid ball, at the frame centre, by radius
         ax2 = axes[1 + k]
         print(f"  label error (gel - rigid ball), {name}:")
-        for d in (0.5, 1.0, 1.5):
+        for d in sizes.label_depths:
             win = (0, sim.height, 0, sim.width)
             z, _ = sim.surface(ball, c, 0.0, d, win)
             gel = (z - sim.Z0).astype(np.float64)  # sunk below the undeformed surface, mm
@@ -253,13 +303,18 @@ def contact() -> None:
     axes[0].set(xlabel="depth d (mm)", ylabel="contact radius (mm)", title=f"Ball R = {BALL_MM} mm")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(FIGURES / "elastic_contact.png", dpi=110)
-    print(f"wrote {FIGURES / 'elastic_contact.png'}")
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / "elastic_contact.png", dpi=110)
+    plt.close(fig)
+    print(f"wrote {out / 'elastic_contact.png'}")
+    return found
 
 
-def locators() -> None:
+def locators(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
     """The dataset stage's contact locators (rim, mirror symmetry) on Mini frames of a ball 1 mm deep
     at 20 known sub-pixel centres (5 columns x 4 rows), each gel: error found - true, px."""
+    columns, rows = sizes.locator_grid
+    measured = {}
     from threedcal.dataset.contacts import locate_contact
     from threedcal.dataset.symmetry import refine_by_symmetry
 
@@ -270,8 +325,8 @@ def locators() -> None:
         blank = np.mean([sim.blank(i).astype(np.float32) for i in range(10)], axis=0)
         rng = np.random.default_rng(0)
         truth, frames = [], []
-        for cx in np.linspace(60, sim.width - 61, 5):
-            for cy in np.linspace(60, sim.height - 61, 4):
+        for cx in np.linspace(60, sim.width - 61, columns):
+            for cy in np.linspace(60, sim.height - 61, rows):
                 x, y = cx + rng.uniform(-1, 1), cy + rng.uniform(-1, 1)
                 shots = [
                     sim.render(Sphere(BALL_MM), (x, y), 0, 1.0, frame_index=k) for k in range(2)
@@ -282,18 +337,28 @@ def locators() -> None:
         rim = [locate_contact(f, blank) for f in frames]
         symmetric = refine_by_symmetry(frames, blank, rim).contacts
         for name, found in (("rim", rim), ("symmetry", symmetric)):
-            err = np.array(
-                [(c.x_px - x, c.y_px - y) for (x, y), c in zip(truth, found, strict=True)]
-            )
+            pairs = [(t, c) for t, c in zip(truth, found, strict=True) if c is not None]
+            measured[f"{mechanics}_{name}_found"] = len(pairs)
+            if not pairs:
+                print(f"{mechanics:9s} {name:8s}: no contact found of {len(truth)}")
+                continue
+            err = np.array([(c.x_px - x, c.y_px - y) for (x, y), c in pairs])
             size = np.hypot(err[:, 0], err[:, 1])
-            column = np.array([x for x, _ in truth]) < 80  # the column 60 px from the left edge
+            measured[f"{mechanics}_{name}_rms_px"] = float(np.sqrt(np.mean(size**2)))
+            column = np.array([x for (x, _), _ in pairs]) < 80  # the column 60 px from the left
             print(
-                f"{mechanics:9s} {name:8s}: rms {np.sqrt(np.mean(size**2)):.2f} px; 60 px from the left "
-                f"edge {size[column].mean():.2f} px, elsewhere {size[~column].mean():.2f} px (mean)"
+                f"{mechanics:9s} {name:8s}: rms {np.sqrt(np.mean(size**2)):.2f} px; 60 px from the "
+                f"left edge {_mean(size[column]):.2f} px, elsewhere {_mean(size[~column]):.2f} px "
+                f"(mean); {len(truth) - len(pairs)} of {len(truth)} contacts not found"
             )
+    return measured
 
 
-def registration() -> None:
+def _mean(values: np.ndarray) -> float:
+    return float(values.mean()) if values.size else float("nan")
+
+
+def registration(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
     """tests/collect/test_collect_bench.py's two registration set-ups, with each gel."""
     from threedcal.collect.session import collect_scene
     from threedcal.config import validate_config
@@ -303,16 +368,21 @@ def registration() -> None:
         "gelsight_mini, 1 mm, seating 0.5 mm / 2 deg, touch +0.1 mm": (
             2,
             "gelsight_mini",
-            {"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1},
+            {"spacing_mm": sizes.registration_spacing_mm, "depth_mm": 1.0, "frames": 1},
             {"seating_offset_mm": 0.5, "seating_rotation_deg": 2.0, "touch_offset_mm": 0.1},
         ),
         "digit, 0.5/1.0/1.5 mm, touch +0.1 mm": (
             3,
             "digit",
-            {"spacing_mm": 2.0, "depths_mm": [0.5, 1.0, 1.5], "frames": 1},
+            {
+                "spacing_mm": sizes.registration_spacing_mm,
+                "depths_mm": [0.5, 1.0, 1.5],
+                "frames": 1,
+            },
             {"touch_offset_mm": 0.1},
         ),
     }
+    measured = {}
     for title, (seed, name, plan, bench) in setups.items():
         for mechanics in ("geometric", "elastic"):
             with tempfile.TemporaryDirectory() as tmp:
@@ -341,6 +411,7 @@ def registration() -> None:
                 paths = [tmp / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
                 record = build_collected(scene, tmp / "raw.zarr", *paths, progress=False)
                 truth = json.loads((tmp / "truth.json").read_text())
+            measured[f"{name}_{mechanics}_error_px"] = float(record["error_px"])
             rot = record.get("rotation_deg", math.nan) - truth.get("seating_rotation_deg", 0.0)
             print(
                 f"{title} [{mechanics}]: registration error {record['error_px']:.3f} px "
@@ -354,10 +425,26 @@ def registration() -> None:
                 ),
                 flush=True,
             )
+    return measured
+
+
+STEPS = {"derive": derive, "checks": checks, "contact": contact}
+STEPS.update(locators=locators, registration=registration)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Run the steps named (every step when none); {step: what it measured}."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("steps", nargs="*", choices=[*STEPS, "all"], default=["all"])
+    parser.add_argument("--out", type=Path, help="folder for the figures (docs/figures)")
+    parser.add_argument("--smoke", action="store_true", help="coarse and few: seconds")
+    args = parser.parse_args(argv)
+    sizes = SMOKE if args.smoke else FULL
+    # a smoke run never overwrites the docs' figures
+    out = args.out or (Path(tempfile.mkdtemp(prefix="elastic_gel-")) if args.smoke else FIGURES)
+    chosen = list(STEPS) if "all" in args.steps else args.steps
+    return {name: STEPS[name](sizes, out) for name in chosen}
 
 
 if __name__ == "__main__":
-    what = sys.argv[1] if len(sys.argv) > 1 else "all"
-    for step in (derive, checks, contact, locators, registration):
-        if what in (step.__name__, "all"):
-            step()
+    main()

@@ -1,0 +1,113 @@
+"""The diagnostics package (diagnostics/, not shipped): each module's `--smoke` run writes what it
+says, with finite and plausible figures, and no module reaches into threedcal's private names."""
+
+import ast
+import math
+import sys
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+if str(REPO) not in sys.path:  # `python -m pytest` from the repository has it; a bare `pytest` not
+    sys.path.insert(0, str(REPO))
+
+MODULES = sorted((REPO / "diagnostics").glob("*.py"))
+
+
+def finite(values) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(values, dtype=float))))
+
+
+def test_every_module_uses_public_names_only():
+    """No `_private` attribute or import, no setattr on the library: public functions only; and
+    every module has main(argv) and --smoke, as the package docstring promises."""
+    assert len(MODULES) > 1
+    import diagnostics
+
+    for path in MODULES:
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute):
+                private = node.attr.startswith("_") and not node.attr.startswith("__")
+                assert not private, f"{path.name}:{node.lineno}: .{node.attr}"
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("threedcal"):
+                names = [a.name for a in node.names]
+                assert not [n for n in names if n.startswith("_")], f"{path.name}: {names}"
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
+                assert node.func.id != "setattr", f"{path.name}:{node.lineno}: setattr"
+        if path.name != "__init__.py":
+            source = path.read_text()
+            assert "def main(argv" in source and "--smoke" in source, path.name
+            assert path.stem in diagnostics.__doc__, f"{path.stem} missing from the package docs"
+
+
+@pytest.mark.slow  # about 5 s on 2 cores
+def test_elastic_gel_smoke(tmp_path):
+    from diagnostics import elastic_gel
+
+    found = elastic_gel.main(["--smoke", "--out", str(tmp_path), "checks", "contact", "locators"])
+    assert (tmp_path / "elastic_checks.png").stat().st_size > 10_000
+    assert (tmp_path / "elastic_contact.png").stat().st_size > 10_000
+    checks = found["checks"]
+    # the coarse grid still lands near Hertz and on the thin-layer limits' side of 1
+    assert finite(checks["hertz_radius_error"]) and np.abs(checks["hertz_force_error"]).max() < 0.2
+    assert all(r >= 1 for r in checks["bonded_force_ratio"])  # a bonded layer is stiffer
+    for name in ("digit", "gelsight_mini"):
+        contact = found["contact"][name]
+        radii, geometric = np.array(contact["contact_radius_mm"]), np.array(contact["geometric_mm"])
+        assert finite(radii) and np.all(radii > 0) and np.all(radii < geometric)
+        assert np.all(np.diff(contact["force_n"]) > 0)  # deeper presses push harder
+    locators = found["locators"]
+    assert locators["geometric_rim_found"] == locators["geometric_symmetry_found"] == 6
+    assert locators["geometric_symmetry_rms_px"] < 0.5 and locators["geometric_rim_rms_px"] < 1.0
+
+
+@pytest.mark.slow  # a calibration on the bench and a lookup model: about 10 s on 2 cores
+def test_point_frames_smoke(tmp_path):
+    from diagnostics import point_frames
+
+    (press,) = point_frames.main(["--smoke", "--out", str(tmp_path)])
+    assert (tmp_path / "point_frames.png").stat().st_size > 10_000
+    geometry, model = press["geometry"], press["model"]
+    assert geometry["contact_points"] > 100 and model["contact_points"] > 100
+    # the exact gradients come back on the printer's ball within tens of micrometres
+    assert geometry["xy_um"] < 100 and abs(geometry["z_um"]) < 100 and geometry["rms_um"] < 20
+    assert finite(list(model.values())) and model["xy_um"] < 1000
+
+
+@pytest.mark.slow  # 1-6 s: two lookup folds on the real ball folder, its images pooled 4 x 4
+def test_real_cv_methods_smoke(tmp_path):
+    from diagnostics import real_cv_methods
+
+    table = real_cv_methods.main(["--smoke", "--out", str(tmp_path), "--cache", str(tmp_path)])
+    assert (tmp_path / "real_cv_drawn.png").is_file()
+    assert (tmp_path / "gelsight_ball_fots" / "table.csv").is_file()
+    (row,) = table.to_dict("records")
+    assert row["method"] == "lookup" and row["labels"] == "drawn"
+    assert 0 < row["gradient_lo"] <= row["gradient_rmse"] <= row["gradient_hi"] < 2
+    assert 0 < row["depth_mae_um"] < 2000 and finite([row["ms_per_frame"]])
+
+
+def test_perfect_model_objects_smoke():
+    """A perfect model on a registration as good as the bench's truth: a few micrometres under
+    both protocols (the integrator's and the rasterisation's error alone)."""
+    from diagnostics import perfect_model_objects
+
+    errors = perfect_model_objects.main(["--smoke"])
+    assert set(errors["protocol"]) == {"printer", "paper"} and set(errors["object"]) == {"pill"}
+    assert finite(errors["type2_um"]) and (errors["type2_um"] < 50).all()
+    assert errors["depth_ratio"].between(0.95, 1.05).all()
+
+
+def test_label_integration_smoke(tmp_path):
+    from diagnostics import label_integration
+
+    table = label_integration.main(["--smoke", "--out", str(tmp_path)])
+    assert (tmp_path / "label_integration.csv").is_file() and len(table) == 9
+    exact = table[table["labels"] == "exact"]
+    # exact labels integrate to the true depth at the centre; a 45° clamp loses most of a d = R cap
+    assert (exact["centre_error_um"].abs() < 5).all()
+    clamped = table[(table["labels"] == "45deg") & (table["depth_mm"] == 2.0)]
+    assert math.isfinite(float(clamped["volume_error_pct"].iloc[0]))
+    assert float(clamped["volume_error_pct"].iloc[0]) < -10
