@@ -254,13 +254,14 @@ def schema_keys(kind: str = "config") -> list[tuple[str, dict]]:
 
 
 def reference_table(kind: str = "config") -> str:
-    """A Markdown table of every key: allowed values, default, description (docs/reference/).
+    """A Markdown list of every key: allowed values, default, description (docs/reference/).
 
     A block defined once and used in two places (a scene's model and the pretraining's) is listed
     in full under a scene; the other place names it and shows only its own defaults."""
     root = load_schema(kind)
     places: dict[str, list[str]] = {}
-    lines = ["| key | allowed | default | meaning |", "|---|---|---|---|"]
+    lines: list[str] = []
+    listed: set[str] = set()
 
     def walk(node: Mapping, path: str, emit: bool) -> None:
         node = _resolved(node, root)
@@ -276,12 +277,15 @@ def reference_table(kind: str = "config") -> str:
                 continue
             main = min(places.get(ref, [here]), key=lambda p: (not p.startswith("scenes."), p))
             own_default = "default" in sub and (not block or main != here)
-            default = f"`{canonical_json(sub['default'])}`" if own_default else ""
-            meaning = " ".join(str(sub.get("description", "")).split()).replace("|", "\\|")
+            facts = [_allowed(sub).replace(" \\| ", ", ")]
+            if own_default:
+                facts.append(f"default `{canonical_json(sub['default'])}`")
+            meaning = " ".join(str(sub.get("description", "")).split())
             if block and ref and main != here:
                 meaning += f" (keys as `{main}`)"
-            if f"| `{here}` |" not in "\n".join(lines):
-                lines.append(f"| `{here}` | {_allowed(sub)} | {default} | {meaning} |")
+            if here not in listed:
+                listed.add(here)
+                lines.append(f"- `{here}` ({'; '.join(f for f in facts if f)}): {meaning}")
             if main == here or not (block and ref):
                 walk(sub, here, emit)
         extra = node.get("additionalProperties")
