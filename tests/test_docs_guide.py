@@ -12,7 +12,7 @@ PAGES = [REPO / "README.md", *DOCS]
 WORD_BUDGET = 20_000
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 COMMIT = re.compile(r"(?<![\w/.-])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w-])")
-CITED_PAGE = re.compile(r"docs/[\w/.-]+?\.(?:md|png)")
+CITED_PAGE = re.compile(r"(?<![\w.])(?:docs|diagnostics)/[\w/.-]+?\.(?:md|png|py)")
 
 
 def words(path: Path) -> int:
