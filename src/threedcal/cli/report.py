@@ -13,7 +13,7 @@ def _results_page(args: argparse.Namespace) -> int:
     from threedcal.report.results_page import write_results_page
 
     out = Path(args.out)
-    write_results_page(args.results, out, commit=args.commit)
+    write_results_page(args.results, out)
     print(f"{out}: written from {args.results}")
     return 0
 
@@ -27,11 +27,6 @@ def _results_page_args(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--out", default="docs/results.md", help="the page to write (default: docs/results.md)"
-    )
-    parser.add_argument(
-        "--commit",
-        help="the commit that produced the results (default: HEAD of the git checkout holding "
-        "the results folder, where there is one)",
     )
 
 
