@@ -84,7 +84,7 @@ report: $(STAMP)
 	$(BIN)/snakemake --profile workflow/profiles/default --report report.html
 
 # docs/results.md from a finished study's results folder (`make all` first; RESULTS=path for a
-# study run elsewhere): every table with its protocol, the commit and host that made it.
+# study run elsewhere): every table with its protocol; the threedcal version, host and date.
 RESULTS ?= results
 results-page: $(STAMP)
 	$(BIN)/threedcal report results-page $(RESULTS) --out docs/results.md

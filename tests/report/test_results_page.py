@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -17,9 +17,11 @@ from threedcal.evaluate.ablation import TEST_COLUMNS
 from threedcal.model.sim2real import ERROR_COLUMNS
 from threedcal.report.results_page import (
     SIM_COLUMN,
+    SIM_READINGS,
+    _table,
     page_layout,
     results_page,
-    study_commit,
+    short_equivalence,
     write_results_page,
 )
 from threedcal.report.stage_times import study_span
@@ -110,7 +112,11 @@ def write_stats(root: Path, scene: Mapping) -> None:
         for test in ("t", "mannwhitney")
     ]
     pd.DataFrame(rows, columns=TEST_COLUMNS).to_csv(stats / "tests.csv", index=False)
-    (stats / "recommendation.txt").write_text("probe at least 1040 points (P = 80 %): ...\n")
+    (stats / "recommendation.txt").write_text(
+        "probe at least 1040 points (P = 80 %): no smaller fraction is shown equivalent within a "
+        "10 % margin of mean validation MSE; ... (90 % interval, TOST at alpha = 0.05; 3 "
+        "replicate(s), 6 spatial blocks)\n"
+    )
     if scene["ablation"].get("convergence"):
         pd.DataFrame(
             {
@@ -260,13 +266,36 @@ def test_committed_page_has_the_generators_layout(tmp_path):
     figures, which vary by host): regenerate the page (`make results-page`) after changing
     either."""
     results = build_results(tmp_path / "results", load_config(REPO / "config.yaml"))
-    generated = page_layout(results_page(results, commit="`test`"))
+    generated = page_layout(results_page(results))
     committed = page_layout((REPO / "docs/results.md").read_text())
     assert committed == generated
 
 
+def test_the_committed_page_is_short_and_carries_no_commit():
+    """The docs carry commit hashes only in the changelog; the page stays within its share of
+    the docs' word budget."""
+    text = (REPO / "docs/results.md").read_text()
+    assert len(text.split()) <= 1800
+    assert "commit" not in text.lower()
+    assert not re.search(r"\b[0-9a-f]{7,40}\b", text)
+
+
+def table_blocks(part: str) -> list[tuple[str, str]]:
+    """(the lines above a table since the previous table or heading, its header row) per table."""
+    lines, blocks, above = part.splitlines(), [], []
+    for i, line in enumerate(lines):
+        if line.startswith("#"):
+            above = []
+        elif line.startswith("|") and i + 1 < len(lines) and lines[i + 1].startswith("|---"):
+            blocks.append(("\n".join(above), line))
+            above = []
+        elif not line.startswith("|"):
+            above.append(line)
+    return blocks
+
+
 def test_every_table_names_its_protocol_and_whether_the_simulator_made_its_frames(small):
-    text = results_page(small[0], commit="`test`")
+    text = results_page(small[0])
     figures = [
         "## Test objects: Type 2 MAE (µm), P = 20 %",
         "## How many points to probe: validation MSE against P = 80 %",
@@ -278,87 +307,153 @@ def test_every_table_names_its_protocol_and_whether_the_simulator_made_its_frame
     ]
     for heading in figures:
         part = section(text, heading)
-        headers = [line for line in page_layout(part) if line.startswith("|")]
-        assert "Protocol" in part or all("protocol" in h for h in headers), heading
-        if heading != "## Depth integrators":  # analytic fields, said in its protocol line
-            assert all(SIM_COLUMN in h or "test readings" in h for h in headers), heading
-    assert "no simulator and no model" in section(text, "## Depth integrators")
+        assert "Protocol:" in part, heading
+        if heading == "## Depth integrators":  # analytic fields, said in its protocol line
+            assert "no simulator and no model" in part
+            continue
+        for above, header in table_blocks(part):
+            said = f"{header}\n{above}"
+            assert SIM_COLUMN in said or SIM_READINGS in said, (heading, header)
+
+
+def test_a_column_the_same_on_every_row_becomes_a_line_and_one_that_varies_stays():
+    header = ["scene", SIM_COLUMN, "protocol", "figure"]
+    same = _table(header, [["`a`", "yes", "printer", "1"], ["`b`", "yes", "printer", "2"]])
+    assert same[0] == f"Every row: *{SIM_COLUMN}* yes; *protocol* printer."
+    assert same[2] == "| scene | figure |"
+    varies = _table(header, [["`a`", "yes", "printer", "1"], ["`b`", "no (real images)", "x", "2"]])
+    assert varies[0] == f"| scene | {SIM_COLUMN} | protocol | figure |"
+    # a measured column the same on every row stays a column
+    assert _table(["P %", "figure"], [["1", "5"], ["2", "5"]])[0] == "| P % | figure |"
+
+
+def test_equivalence_verdicts_in_short():
+    assert short_equivalence("equivalent") == "equivalent"
+    assert (
+        short_equivalence("not equivalent: worse by more than the margin")
+        == "not equivalent (worse)"
+    )
+    assert (
+        short_equivalence(
+            "not equivalent: the interval reaches past the margin on the worse side (too little "
+            "power)"
+        )
+        == "not equivalent (power)"
+    )
+    assert (
+        short_equivalence("not equivalent: the estimate lies past the margin on the worse side")
+        == "not equivalent (estimate worse)"
+    )
+    assert short_equivalence("not equivalent: a larger P is not") == "not equivalent (larger P)"
+    assert short_equivalence("something new") == "something new"
 
 
 def test_the_page_reads_each_figure_from_the_results(small):
     results, _ = small
-    text = results_page(results, commit="`abc1234`")
-    # provenance: commit, host, the last job's end (benchmark files), versions
-    assert "commit `abc1234`; host Linux-test, x86_64, 2 CPUs" in text
-    assert "last job ended 2027-01-15 08:00 UTC; threedcal 0.1.0, torch 2.13.0" in text
-    # scenes in the study's order, each with where its frames came from
-    assert "| `sim` | digit | simulated bench (frames) | yes |" in text
-    assert (
-        "| `real` | gelsight_mini | real images (data/gelsight_ball_fots) | no: real images |"
-        in text
-    )
-    assert "| `mag` | reskin | simulated bench (readings) | yes |" in text
+    text = results_page(results)
+    # provenance: threedcal, host, the last job's end (benchmark files); no commit
+    assert "threedcal 0.1.0; host Linux-test, x86_64, 2 CPUs" in text
+    assert "last job ended 2027-01-15 08:00 UTC" in text
+    assert "commit" not in text
+    # scenes in the study's order, each with whether the simulator made its frames
+    assert "| `sim` | digit | ender3 | yes |" in text
+    assert "| `real` | gelsight_mini | — | no (real images, `data/gelsight_ball_fots`) |" in text
+    assert "| `mag` | reskin | ender3 | yes (readings) |" in text
     assert text.index("| `sim` |") < text.index("| `real` |") < text.index("| `mag` |")
-    # objects at P = 20 %: Type 2 with intervals, printer first, then paper
-    assert "| scene | sensor | " + SIM_COLUMN + " | protocol | pill | pawn |" in text
-    assert "| `sim` | digit | yes | **printer** | 62 [58, 66] | 72 [68, 76] |" in text
-    assert "| `sim` | digit | yes | paper | 42 [38, 46] | 52 [48, 56] |" in text
-    assert "| `sim` | yes | printer | pill | 60 | 62 | 68 |" in text  # P = 1, 20, 80
-    assert "`sim`: 10 reporting presses per object, 3 replicate model(s) per P" in text
-    # the ablation: MSE per P with its replicates' range, the tests against P = 80
-    assert (
-        "| `sim` | yes | 1 | 13 | 0.00900 [0.00700, 0.01000] | +30.0 % [-10.0 %, +20.0 %], no "
-        "significant difference (p = 0.4) | not equivalent: the interval is wider than the "
-        "margin allows [-5.0 %, +15.0 %] | 3/3 / 3/3 |" in text
+    # objects at P = 20 %: Type 2 with intervals, printer first, then paper; one scene, one line
+    objects = section(text, "## Test objects: Type 2 MAE (µm), P = 20 %")
+    assert f"Every row: *scene* `sim`; *{SIM_COLUMN}* yes." in objects
+    assert "| protocol | pill | pawn |" in objects
+    assert "| **printer** | 62 [58, 66] | 72 [68, 76] |" in objects
+    assert "| paper | 42 [38, 46] | 52 [48, 56] |" in objects
+    assert "| pill | 60 (1) | 68 (80) |" in objects  # lowest and highest over P = 1, 20, 80
+    assert "10 presses per object and 3 models per P (`sim`)" in objects
+    # the ablation: MSE per P, the paired test's 1 - alpha interval, equivalence in short
+    ablation = section(text, "## How many points to probe: validation MSE against P = 80 %")
+    assert "| 1 (13) | 0.00900 | +30.0 [-10.0, +20.0] | not equivalent (power) [-5.0, +15.0] |" in (
+        ablation
     )
-    assert "| `sim` | yes | 80 | 1040 | 0.00801 [0.00700, 0.01000] | (the reference) |" in text
-    assert "- `sim` (simulated frames): probe at least 1040 points (P = 80 %): ...." in text
-    assert "Placebo: the paper's tests between two trainings of P = 80 %" in text
-    assert "their mean MSE differ by 12.0 %." in text
+    assert "| 80 (1040) | 0.00801 | reference |" in ablation
+    assert "1 − stats.alpha interval (99 % by default)" in ablation
+    # the equivalence level and margin as the recommendation recorded them
+    assert "TOST within the 10 % margin, 90 % interval (1 − 2 × 0.05, as recorded)" in ablation
+    assert "(power) the interval crosses it" in ablation
+    assert "- `sim`: probe at least 1040 points (P = 80 %); placebo t 0/1, U 1/1, means 12.0 %" in (
+        ablation
+    )
     # convergence
-    assert "| `sim` | yes | 80 | 1068 | 0.00700 | 2136 | 0.00400 | -42.6 % |" in text
+    assert "| 80 | 1068 | 0.00700 | 0.00400 | -42.6 % |" in text
     # real frames and sim-to-real: no simulator, or a simulator that pretrained only
     real = section(text, "## Real frames: cross-validated accuracy")
-    assert (
-        "| `real` | no: real images | 6-fold grouped cross-validation | model (multiscale) | "
-        "0.090 [0.084, 0.095] | 79 [65, 94] | 42 |" in real
-    )
+    assert f"*{SIM_COLUMN}* no (real images); *protocol* 6-fold grouped cross-validation." in real
+    assert "| model (multiscale) | 0.090 [0.084, 0.095] | 79 [65, 94] | 42 |" in real
     assert "| colour lookup | 0.322 | 156 | 42 |" in real
+    assert f"*{SIM_COLUMN}*: pretraining only for `sim+real`; no for `real-only`" in real
+    assert "*protocol* held-out real images of folds 0, 1, 2." in real
     assert (
-        "| `real` | held-out real images of folds 0, 1, 2 | no: pretrained on simulated presses, "
-        "fine-tuned and tested on real images | sim+real, k = 8 | 0.100 [0.090, 0.110] | "
-        "91 [81, 101] |" in real
+        "| 8 | 0.100 [0.090, 0.110]; 91 [81, 101] | 0.100 [0.090, 0.110]; 110 [100, 120] | — |"
+        in (real)
     )
-    assert "| no: real images | real-only, k = 8 |" in real
     # ReSkin per depth, then all
     reskin = section(text, "## ReSkin: where the probe touched")
-    assert "simulator made training and test readings" in reskin
-    assert (
-        "| `mag` | yes | 38 held-out probe coordinates (1140 readings) | 2 | 0.28 | 1.00 | 0.098 |"
-        in reskin
+    assert f"*{SIM_READINGS}* yes; *protocol* 38 held-out probe coordinates (1140 readings)" in (
+        reskin
     )
+    assert "| 2 | 0.28 | 1.00 | 0.098 |" in reskin
     assert "| all | 0.26 | 0.67 | 0.077 |" in reskin
-    # inference: vision scenes only
+    # inference: vision scenes only; the threads, the same on every row, in one line
     speed = section(text, "## Inference speed")
-    assert "| `sim` | yes | compact | 15.6 | 64.1 | 320 × 240 | 1 |" in speed
+    assert "Every row: *torch threads* 1." in speed
+    assert "| `sim` | yes | compact | 15.6 | 64.1 | 320×240 |" in speed
     assert "`mag`" not in speed
     # where the time went: the span of the jobs and the stage table
     time = section(text, "## Where the time goes")
-    assert "From the first job's start to the last job's end 10.0 min" in time
-    assert "| train | sim | 3 | 3.0 |" in time
-    assert "## Run environment" in text
+    assert "10.0 min from the first job's start to the last one's end" in time
+    assert "| train (sim) | 3 | 3.0 |" in time
+    assert "From `environment.json`: python 3.11.7, torch 2.13.0; seed 0." in text
+
+
+def test_the_top_stages_then_the_others_and_the_total(tmp_path):
+    results = tmp_path / "results"
+    for i in range(10):
+        bench(results / f"s/benchmarks/stage{i}.tsv", 60.0 * (i + 1))
+    time = section(results_page(results), "## Where the time goes")
+    rows = [line for line in time.splitlines() if line.startswith("| ")][1:]
+    assert len(rows) == 8 + 2
+    assert rows[0].startswith("| stage9 (s) | 1 | 10.0 |")
+    assert rows[-2].startswith("| 2 other stages | 2 | 3.0 |")
+    assert rows[-1] == "| **all** | 10 | 55.0 | 100 % |"
+
+
+def test_the_equivalence_level_without_a_recorded_one_is_the_configs_default(small):
+    results, _ = small
+    (results / "sim/stats/recommendation.txt").write_text("probe at least 1040 points\n")
+    ablation = section(
+        results_page(results), "## How many points to probe: validation MSE against P = 80 %"
+    )
+    assert "1 − 2·stats.equivalence_alpha interval (90 % by default)" in ablation
+    assert "within the recommendation's margin" in ablation
+
+
+def test_the_links_are_to_the_moved_pages(small):
+    links = set(re.findall(r"\]\(([^)]+)\)", results_page(small[0])))
+    assert links == {
+        "reference/outputs.md",
+        "explanation/objects.md",
+        "explanation/statistics.md",
+        "explanation/real-data.md",
+        "explanation/reskin.md",
+        "explanation/depth.md",
+    }
 
 
 def test_a_missing_file_leaves_a_row_that_says_so_and_the_layout_stays(tmp_path):
     config = validate_config(SMALL)
-    full = results_page(build_results(tmp_path / "a/results", config), commit="`x`")
+    full = results_page(build_results(tmp_path / "a/results", config))
     missing = ("sim/stats/convergence.csv", "real/ball_eval.json", "mag/reskin_eval.json")
-    partial = results_page(build_results(tmp_path / "b/results", config, missing), commit="`x`")
+    partial = results_page(build_results(tmp_path / "b/results", config, missing))
     assert page_layout(partial) == page_layout(full)
-    assert (
-        "| `sim` | yes | — | not in these results (`results/sim/stats/convergence.csv`) |"
-        in partial
-    )
+    assert "| — | not in these results (`results/sim/stats/convergence.csv`) |" in partial
     assert "not in these results (`results/real/ball_eval.json`)" in partial
     assert "not in these results (`results/mag/reskin_eval.json`)" in partial
 
@@ -376,7 +471,7 @@ def test_sections_follow_what_the_scenes_ran(tmp_path):
         "## Where the time goes",
         "## Run environment",
     ]
-    assert "commit not recorded" in text
+    assert "commit" not in text
 
 
 def test_write_refuses_a_folder_without_scene_records_and_the_cli_writes_the_page(
@@ -389,28 +484,10 @@ def test_write_refuses_a_folder_without_scene_records_and_the_cli_writes_the_pag
         write_results_page(tmp_path / "empty", tmp_path / "page.md")
     results, _ = small
     out = tmp_path / "page.md"
-    assert (
-        main(["report", "results-page", str(results), "--out", str(out), "--commit", "c0ffee"]) == 0
-    )
-    assert "commit `c0ffee`" in out.read_text()
+    assert main(["report", "results-page", str(results), "--out", str(out)]) == 0
+    assert "threedcal 0.1.0; host Linux-test" in out.read_text()
     assert main(["report", "stage-times", str(results)]) == 0
     assert "| train | sim | 3 |" in capsys.readouterr().out
-
-
-def test_the_commit_is_the_checkout_holding_the_results(tmp_path):
-    assert study_commit(tmp_path / "results") is None  # not a git checkout
-
-    def git(*args):
-        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
-
-    git("init", "-q")
-    (tmp_path / "config.yaml").write_text("seed: 0\n")
-    git("add", "config.yaml")
-    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "study")
-    commit = study_commit(tmp_path / "results")
-    assert commit.startswith("`") and "local changes" not in commit
-    (tmp_path / "config.yaml").write_text("seed: 1\n")
-    assert "with local changes" in study_commit(tmp_path / "results")
 
 
 def test_the_study_span_runs_from_the_first_jobs_start_to_the_last_jobs_end(tmp_path):

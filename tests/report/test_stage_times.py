@@ -51,7 +51,7 @@ def test_jobs_of_a_stage_add_up_per_scene_longest_first(tmp_path):
     assert table.iloc[2]["wall_s"] == 20.0
     lines = stage_time_lines(table, limit=2)
     assert lines[2] == "| train | a | 2 | 2.5 | 74 % | 4.5 | 1.7 | 700 |"
-    assert lines[4].startswith("| 2 other stages | (study) | 2 | 0.4 | 11 % |")
+    assert lines[4].startswith("| 2 other stages | — | 2 | 0.4 | 11 % |")
     assert lines[-1] == "| **all** | | 5 | 3.4 | 100 % | 5.4 | | |"
 
 

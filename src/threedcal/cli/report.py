@@ -14,7 +14,7 @@ def _results_page(args: argparse.Namespace) -> int:
     from threedcal.report.results_page import write_results_page
 
     out = Path(args.out)
-    write_results_page(args.results, out, commit=args.commit)
+    write_results_page(args.results, out)
     print(f"{out}: written from {args.results}")
     return 0
 
@@ -27,10 +27,6 @@ def _results_page_args(parser: argparse.ArgumentParser) -> None:
         help="a finished study's results folder",
     )
     parser.add_argument("--out", default="docs/results.md", help="the page to write")
-    parser.add_argument(
-        "--commit",
-        help="the commit that made the results (default: HEAD of their git checkout, if any)",
-    )
 
 
 def _stage_times(args: argparse.Namespace) -> int:

@@ -3,18 +3,22 @@
 `threedcal report results-page` (and `make results-page`) call `write_results_page`. The scenes are
 read from their own records (`results/{scene}/scene.json`, in the order of `environment.json`), so
 the page needs no config and says only what that study ran. Every table says which protocol made
-its figures and whether the simulator made both the training and the test frames.
+its figures and whether the simulator made both the training and the test frames: in a column, or,
+where every row has the same value, in one line above the table (`DESCRIPTIVE` columns only).
+
+Provenance is the threedcal version, the host and the date of the last job, all from the study's
+own files; no commit hash (the docs carry hashes only in the changelog).
 
 A page section exists when some scene asks for it (its recorded config), whatever its files hold;
 a missing file leaves a row that says so. So the page's layout (`page_layout`: headings and table
-columns) depends on the scenes alone, and tests/report/test_results_page.py compares the committed
-page's layout with the generator's.
+columns) depends on the scenes and on which descriptive columns are the same on every row, and
+tests/report/test_results_page.py compares the committed page's layout with the generator's.
 """
 
 from __future__ import annotations
 
 import datetime
-import subprocess
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -32,7 +36,13 @@ REPORTED_P = 20
 SIMULATED = "yes"
 # The column every table carries: did the simulator render both the frames trained on and those tested?
 SIM_COLUMN = "simulator made training and test frames"
+SIM_READINGS = SIM_COLUMN.replace("frames", "readings")
+# Columns that describe a table's rows rather than measure them: one whose value is the same on
+# every row becomes a line above the table instead of a repeated cell.
+DESCRIPTIVE = ("scene", "sensor", SIM_COLUMN, SIM_READINGS, "protocol", "torch threads")
 MISSING = "—"
+# The stage-time table's longest stages; the rest share one row.
+TOP_STAGES = 8
 
 
 # ---------------------------------------------------------------------------------------------
@@ -79,30 +89,42 @@ def is_simulated(record: Mapping) -> bool:
 
 
 def frames_of(record: Mapping) -> str:
-    """Where a scene's frames (a ReSkin's readings) came from, in words."""
-    readings = "readings" if is_magnetic(record) else "frames"
+    """The scenes table's SIM_COLUMN cell: whether the simulator made a scene's frames (a ReSkin's
+    readings), and where real ones came from."""
     if is_imported(record):
-        return f"real images ({_config(record)['import'].get('path', 'imported')})"
+        return f"no (real images, `{_config(record)['import'].get('path', 'imported')}`)"
+    readings = " (readings)" if is_magnetic(record) else ""
     if is_simulated(record):
-        return f"simulated bench ({readings})"
-    return f"real printer and sensor ({_config(record).get('port')})"
+        return f"{SIMULATED}{readings}"
+    return f"no (real printer and sensor{readings}, port {_config(record).get('port')})"
 
 
 def simulated_cell(record: Mapping) -> str:
     """The SIM_COLUMN's cell of a scene's own figures."""
     if is_simulated(record):
         return SIMULATED
-    return "no: real images" if is_imported(record) else "no: real sensor frames"
+    return "no (real images)" if is_imported(record) else "no (real sensor frames)"
 
 
 # ---------------------------------------------------------------------------------------------
 # Formatting
 
 
-def _table(header: list[str], rows: list[list[str]], align: str | None = None) -> list[str]:
-    rule = align or "|" + "|".join("---" for _ in header) + "|"
-    return ["| " + " | ".join(header) + " |", rule] + [
-        "| " + " | ".join(str(cell) for cell in row) + " |" for row in rows
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    """A Markdown table; each DESCRIPTIVE column whose value is the same on every row leaves the
+    table for one line above it (a study where the value varies keeps the column)."""
+    keep, same = list(range(len(header))), []
+    for i, name in enumerate(header):
+        values = {str(row[i]) for row in rows}
+        if name in DESCRIPTIVE and len(values) == 1 and len(keep) > 1:
+            same.append(f"*{name}* {values.pop()}")
+            keep.remove(i)
+    lines = ["Every row: " + "; ".join(same) + ".", ""] if same else []
+    return [
+        *lines,
+        "| " + " | ".join(header[i] for i in keep) + " |",
+        "|" + "|".join("---" for _ in keep) + "|",
+        *("| " + " | ".join(str(row[i]) for i in keep) + " |" for row in rows),
     ]
 
 
@@ -126,18 +148,94 @@ def _pct(value: float) -> str:
     return f"{value * 100:+.1f} %"
 
 
+def _interval(low: float, high: float) -> str:
+    """'[-2.9, +14.6]': an interval of relative changes, in percent."""
+    return f"[{low * 100:+.1f}, {high * 100:+.1f}]"
+
+
 def _missing(path: Path, results: Path) -> str:
     return f"not in these results (`{path.relative_to(results.parent).as_posix()}`)"
+
+
+# The equivalence verdicts of tests.csv (threedcal.evaluate.ablation) in short: (words the verdict
+# holds, its short form); the first match wins.
+EQUIVALENCE_FORMS = (
+    ("a larger P is not", "larger P"),
+    ("worse by more than", "worse"),
+    ("better by more than", "better"),
+    ("power", "power"),
+    ("wider than the margin", "power"),
+    ("estimate lies past the margin on the worse", "estimate worse"),
+    ("estimate lies past the margin on the better", "estimate better"),
+)
+# What each short form means, said once above the table (for the forms the table uses).
+EQUIVALENCE_KEY = {
+    "worse": "the interval lies past the margin",
+    "better": "the interval lies past the margin",
+    "estimate worse": "the estimate does",
+    "estimate better": "the estimate does",
+    "power": "the interval crosses it (too little power)",
+    "larger P": "a larger P is not (fixed sequence)",
+}
+
+
+def short_equivalence(conclusion: str) -> str:
+    """'not equivalent (power)' for 'not equivalent: the interval reaches past the margin on the
+    worse side (too little power)'; a verdict it does not know stays as it is."""
+    text = str(conclusion)
+    for words, short in EQUIVALENCE_FORMS:
+        if text.startswith("not equivalent") and words in text:
+            return f"not equivalent ({short})"
+    return text
+
+
+def _equivalence_key(shorts: list[str]) -> str:
+    """The meaning of each short form used, once: '(worse) the interval lies past the margin,
+    (power) ...'."""
+    meanings: dict[str, list[str]] = {}
+    for short in sorted(dict.fromkeys(shorts), key=list(EQUIVALENCE_KEY).index):
+        meanings.setdefault(EQUIVALENCE_KEY[short], []).append(short)
+    return ", ".join(f"({'/'.join(names)}) {meaning}" for meaning, names in meanings.items())
+
+
+def _placebo(tests: pd.DataFrame) -> str | None:
+    """'t 0/3, U 0/3, means 0.4-1.4 % apart': the placebo family (two trainings of the reference
+    fraction) in short; None without it."""
+    rows = tests[tests["family"] == "placebo"]
+    if rows.empty:
+        return None
+    pairs = len(rows.drop_duplicates(["against", "replicate"]))
+    called = [
+        f"{name} {int(rows.loc[rows['test'] == test, 'significant'].astype(bool).sum())}/{pairs}"
+        for name, test in (("t", "t"), ("U", "mannwhitney"))
+    ]
+    change = rows["relative_change"].abs().to_numpy(float) * 100
+    low, high = f"{change.min():.1f}", f"{change.max():.1f}"
+    return f"{', '.join(called)}, means {low if low == high else f'{low}-{high}'} % apart"
+
+
+def _recorded(pattern: str, texts: list[str]) -> str | None:
+    """The one value `pattern` (one group) finds in every text, or None where a text lacks it or
+    the texts disagree."""
+    found = {m.group(1) if (m := re.search(pattern, text)) else None for text in texts}
+    return found.pop() if len(found) == 1 else None
 
 
 # ---------------------------------------------------------------------------------------------
 # Sections
 
 
-def provenance_lines(results: Path, commit: str | None) -> list[str]:
-    """Which commit, host and date produced the figures, from what the study recorded."""
+def provenance_lines(results: Path) -> list[str]:
+    """Which threedcal, host and date produced the figures, from what the study recorded."""
     environment = read_json(results / "environment.json") or {}
     software = environment.get("software", {})
+
+    def words(value) -> str:
+        if isinstance(value, Mapping):
+            return ", ".join(f"{k}={v}" for k, v in value.items())
+        return " ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+
+    limits = environment.get("isa_limits")
     host = ", ".join(
         str(part)
         for part in (
@@ -145,10 +243,10 @@ def provenance_lines(results: Path, commit: str | None) -> list[str]:
             environment.get("processor"),
             environment.get("cpu"),
             f"{environment['cpu_count']} CPUs" if environment.get("cpu_count") else None,
-            f"flags {environment['cpu_flags']}" if environment.get("cpu_flags") else None,
-            f"limited by {environment['isa_limits']}"
-            if environment.get("isa_limits", "none") != "none"
+            f"vector instructions {words(environment['cpu_flags'])}"
+            if environment.get("cpu_flags")
             else None,
+            f"capped by {words(limits)}" if limits and limits != "none" else None,
             f"torch dispatches {environment['torch_cpu_capability']}"
             if environment.get("torch_cpu_capability")
             else None,
@@ -164,29 +262,22 @@ def provenance_lines(results: Path, commit: str | None) -> list[str]:
         else None
     )
     facts = [
-        f"commit {commit}" if commit else "commit not recorded",
+        f"threedcal {software['threedcal']}" if "threedcal" in software else None,
         f"host {host}" if host else "host not recorded",
         f"last job ended {when}" if when else None,
-        ", ".join(f"{k} {software[k]}" for k in ("threedcal", "torch") if k in software) or None,
     ]
     return [
-        "Written by `threedcal report results-page` (`make results-page`) from the `results/` "
-        f"folder of one finished study: {'; '.join(f for f in facts if f)}. Figures vary with the "
-        "host (a CPU's floating-point kernels, its speed), so a study on another machine gives "
-        "other digits; the tables' layout stays. Do not edit this page: regenerate it with "
-        "`make results-page` (`RESULTS=path` for a study run elsewhere).",
+        "Written by `make results-page` from one finished study's `results/` (regenerate, do "
+        f"not edit): {'; '.join(f for f in facts if f)}. Other hosts give other digits.",
         "",
     ]
 
 
 def reading_lines() -> list[str]:
     return [
-        f"Every table names its protocol, and its column *{SIM_COLUMN}* says whether the "
-        "simulated bench rendered both the frames a model trained on and those it was tested on "
-        f"(`{SIMULATED}`), or whether real images were involved. Intervals are 95 % unless a "
-        "column says otherwise. The figures (PNG) that draw these tables sit beside their files "
-        "in `results/` and in the study's report (`make report`); [outputs](outputs.md) lists "
-        "every file.",
+        "Each table names its protocol and says, in a column or (where every row agrees) in a "
+        f"line above it, whether the *{SIM_COLUMN}*. Brackets: 95 % intervals unless said "
+        "otherwise. Files: [outputs](reference/outputs.md).",
         "",
     ]
 
@@ -196,16 +287,15 @@ def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
         [
             f"`{name}`",
             str(_config(record).get("sensor", MISSING)),
+            str(_config(record).get("printer") or MISSING),
             frames_of(record),
-            simulated_cell(record),
-            str(_config(record).get("description", "")).replace("|", "/"),
         ]
         for name, record in scenes.items()
     ]
     return [
         "## Scenes",
         "",
-        *_table(["scene", "sensor", "frames", SIM_COLUMN, "description"], rows),
+        *_table(["scene", "sensor", "printer", SIM_COLUMN], rows),
         "",
     ]
 
@@ -226,28 +316,28 @@ def objects_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     objects = _objects_of(chosen)
     fractions = sorted({p for r in chosen.values() for p in training_fractions(_config(r))})
     reported = REPORTED_P if REPORTED_P in fractions else max(fractions)
-    head_rows, by_p_rows, notes = [], [], []
+    head_rows, by_p_rows, designs = [], [], {}
     for name, record in chosen.items():
         path = results / name / "objects" / "errors.csv"
         sim = simulated_cell(record)
-        sensor = str(_config(record).get("sensor", MISSING))
         if not path.is_file():
             head_rows.append(
-                [f"`{name}`", sensor, sim, MISSING, _missing(path, results)]
+                [f"`{name}`", sim, MISSING, _missing(path, results)]
                 + [MISSING] * (len(objects) - 1)
             )
             continue
         table = pd.read_csv(path)
-        notes.append(
-            f"`{name}`: {int(table['presses'].min())} reporting presses per object, "
-            f"{int(table['replicates'].min()) if 'replicates' in table else 1} replicate model(s) "
-            "per P"
+        replicates = int(table["replicates"].min()) if "replicates" in table else 1
+        design = (
+            f"{int(table['presses'].min())} presses per object and {replicates} "
+            f"model{'s' if replicates != 1 else ''} per P"
         )
+        designs.setdefault(design, []).append(f"`{name}`")
         for protocol in dict.fromkeys(table["protocol"]):
             rows = table[table["protocol"] == protocol]
             at = {r.object: r for r in rows[rows["P"] == reported].itertuples()}
             head_rows.append(
-                [f"`{name}`", sensor, sim, f"**{protocol}**" if protocol == "printer" else protocol]
+                [f"`{name}`", sim, f"**{protocol}**" if protocol == "printer" else protocol]
                 + [
                     _estimate(at[o].type2_um, at[o].type2_um_lo, at[o].type2_um_hi)
                     if o in at
@@ -258,57 +348,47 @@ def objects_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             if protocol != "printer":
                 continue
             for obj in objects:
-                part = rows[rows["object"] == obj].set_index("P")
-                by_p_rows.append(
-                    [f"`{name}`", sim, protocol, obj]
-                    + [
-                        f"{part.loc[p, 'type2_um']:.0f}" if p in part.index else MISSING
-                        for p in fractions
-                    ]
+                part = rows[rows["object"] == obj].set_index("P")["type2_um"]
+                ends = (
+                    [f"{part[p]:.0f} ({p})" for p in (part.idxmin(), part.idxmax())]
+                    if len(part)
+                    else [MISSING, MISSING]
                 )
-    lines = [
+                by_p_rows.append([f"`{name}`", sim, protocol, obj, *ends])
+    design = "; ".join(f"{d} ({', '.join(names)})" for d, names in designs.items())
+    return [
         f"## Test objects: Type 2 MAE (µm), P = {reported} %",
         "",
-        "Each object pressed into the gel by the printer, its depth predicted by the models of "
-        f"P = {reported} % and compared with the CAD ground truth over the contact (Type 2: the "
-        "error where the object touches; [objects](objects.md)). Protocol `printer`: the ground "
-        "truth placed where the printer put the object (the scene's registration and touch "
-        "height), nothing fitted. Protocol `paper`: the paper's, aligned by cross-correlation "
-        "and its depth fitted to the prediction. Each figure is the mean over the reporting "
-        "presses and the replicate models [95 % interval, presses and models both random]; "
-        + "; ".join(notes)
-        + ".",
+        f"Protocol: objects pressed by the printer; the P = {reported} % models' depth against "
+        "the CAD truth where it touches ([objects](explanation/objects.md)); `printer`: truth "
+        "placed where the printer put it, `paper`: aligned by cross-correlation, depth fitted. "
+        "Mean over presses and models, both random" + (f": {design}" if design else "") + ".",
         "",
-        *_table(["scene", "sensor", SIM_COLUMN, "protocol", *objects], head_rows),
+        *_table(["scene", SIM_COLUMN, "protocol", *objects], head_rows),
         "",
-        "Across the ablation (protocol `printer`, Type 2 MAE µm, the mean over presses and "
-        "replicates; `objects/errors.csv` holds Type 1, overall and the intervals):",
+        f"Over P = {', '.join(map(str, fractions))} %, the lowest and highest mean (all: "
+        "`objects/errors.csv`):",
         "",
         *_table(
-            ["scene", SIM_COLUMN, "protocol", "object", *(f"P = {p} %" for p in fractions)],
-            by_p_rows,
+            ["scene", SIM_COLUMN, "protocol", "object", "lowest (P %)", "highest (P %)"], by_p_rows
         ),
         "",
     ]
-    return lines
 
 
 def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     """Validation MSE per fraction against P = 80 %, the recommendation, the placebo's spread."""
-    from threedcal.evaluate.ablation_reading import placebo_summary
-
     chosen = {name: r for name, r in scenes.items() if has_ablation(_config(r))}
     if not chosen:
         return []
-    rows, notes = [], []
+    rows, notes, shorts, recommendations = [], [], [], []
     for name, record in chosen.items():
         stats = results / name / "stats"
         sim = simulated_cell(record)
         costs_path, tests_path = stats / "error_vs_cost.csv", stats / "tests.csv"
         if not costs_path.is_file() or not tests_path.is_file():
             missing = costs_path if not costs_path.is_file() else tests_path
-            rows.append([f"`{name}`", sim, MISSING, MISSING, _missing(missing, results)])
-            rows[-1] += [MISSING] * 3
+            rows.append([f"`{name}`", sim, MISSING, _missing(missing, results)] + [MISSING] * 3)
             continue
         costs = pd.read_csv(costs_path).set_index("P")
         tests = pd.read_csv(tests_path)
@@ -320,74 +400,82 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             row = [
                 f"`{name}`",
                 sim,
-                str(p),
-                str(int(cost["points"])),
-                _estimate(cost["mean_mse"], cost["mean_mse_low"], cost["mean_mse_high"], 5),
+                f"{p} ({int(cost['points'])})",
+                _estimate(cost["mean_mse"], digits=5),
             ]
             if p in paired.index:
                 pair, eq = paired.loc[p], equivalence.loc[p] if p in equivalence.index else None
+                verdict = pair["conclusion"]
                 row.append(
-                    f"{_pct(pair['relative_change'])} [{_pct(pair['ci_low'])}, "
-                    f"{_pct(pair['ci_high'])}], {pair['conclusion']} "
-                    f"(p = {pair['p_adjusted']:.3g})"
+                    f"{pair['relative_change'] * 100:+.1f} "
+                    f"{_interval(pair['ci_low'], pair['ci_high'])}"
+                    + (f", *{verdict}*" if verdict != "no significant difference" else "")
                 )
-                row.append(
-                    MISSING
-                    if eq is None
-                    else f"{eq['conclusion']} [{_pct(eq['ci_low'])}, {_pct(eq['ci_high'])}]"
-                )
+                if eq is None:
+                    row.append(MISSING)
+                else:
+                    short = short_equivalence(eq["conclusion"])
+                    if short.endswith(")") and short.startswith("not equivalent ("):
+                        shorts.append(short.removeprefix("not equivalent (")[:-1])
+                    row.append(f"{short} {_interval(eq['ci_low'], eq['ci_high'])}")
                 part = paper[paper["P"] == p]
                 significant = part["significant"].astype(bool)
                 row.append(
-                    " / ".join(
+                    ", ".join(
                         f"{int(significant[part['test'] == t].sum())}/"
                         f"{part.loc[part['test'] == t, 'replicate'].nunique()}"
                         for t in ("t", "mannwhitney")
                     )
                 )
             else:
-                row += ["(the reference)", MISSING, MISSING]
+                row += ["reference", MISSING, MISSING]
             rows.append(row)
         recommendation = stats / "recommendation.txt"
-        notes.append(
-            f"- `{name}` ({'simulated' if sim == SIMULATED else 'real'} frames): "
-            + (
-                recommendation.read_text().strip()
-                if recommendation.is_file()
-                else _missing(recommendation, results)
-            )
-            + "."
-        )
-        placebo = placebo_summary(tests)
-        if placebo:
-            notes.append(f"  Placebo: {placebo}.")
+        if recommendation.is_file():
+            text = recommendation.read_text().strip()
+            recommendations.append(text)
+            advice = text.split(":", 1)[0]
+        else:
+            advice = _missing(recommendation, results)
+        placebo = _placebo(tests)
+        notes.append(f"- `{name}`: {advice}" + (f"; placebo {placebo}." if placebo else "."))
+    level = _recorded(r"(\d+(?:\.\d+)?) % interval, TOST", recommendations)
+    eq_alpha = _recorded(r"TOST at alpha = ([0-9.eE+-]+)", recommendations)
+    margin = _recorded(r"within a (\d+(?:\.\d+)?) % margin", recommendations)
+    equivalence_level = (
+        f"{level} % interval (1 − 2 × {eq_alpha}, as recorded)"
+        if level and eq_alpha
+        else "1 − 2·stats.equivalence_alpha interval (90 % by default)"
+    )
+    key = _equivalence_key(shorts)
     return [
         "## How many points to probe: validation MSE against P = 80 %",
         "",
-        "Protocol: each training fraction P (percent of the probe points) trained as several "
-        "replicate models, each scored by its gradient MSE at the validation probe coordinates, "
-        "which no P trains on, and paired with P = 80 % on the same coordinates "
-        "([statistics](statistics.md)). *Change*: the paired test's estimate of the "
-        "change of mean MSE, spatial blocks and replicates as random effects (95 % interval, "
-        "Holm over the fractions). *Equivalence*: the TOST behind the recommendation, within the "
-        "margin the recommendation names (90 % interval). *Paper's tests*: replicates in which the paper's t-test / Mann-Whitney U call P different.",
+        "Protocol: each fraction P (% of probe points) trained as replicate models, scored by "
+        "gradient MSE at validation coordinates no P trains on, paired with P = 80 % there "
+        "([statistics](explanation/statistics.md)); replicates' range and p-values in `stats/`. "
+        "*Change* (%): paired test (blocks and replicates random, Holm over P), 1 − stats.alpha "
+        "interval (99 % by default), *worse*/*better* if significant. *Equivalence*: TOST within "
+        + (f"the {margin} % margin" if margin else "the recommendation's margin")
+        + f", {equivalence_level}"
+        + (f"; not equivalent: {key}" if key else "")
+        + ". *t, U*: replicates where the paper's tests call P different.",
         "",
         *_table(
             [
                 "scene",
                 SIM_COLUMN,
-                "P %",
-                "points",
-                "mean validation MSE [lowest, highest replicate]",
-                "change against P = 80 % [95 %]",
-                "equivalence [90 %]",
-                "paper's tests t / U",
+                "P % (points)",
+                "mean validation MSE",
+                "change against P = 80 %",
+                "equivalence",
+                "t, U",
             ],
             rows,
         ),
         "",
-        "The recommendation (`stats/recommendation.txt`) and the placebo (two trainings of "
-        "P = 80 %: how far apart training noise alone puts them):",
+        "Recommendation (reasons: `stats/recommendation.txt`) and placebo (the paper's tests "
+        "between two P = 80 % trainings):",
         "",
         *notes,
         "",
@@ -403,7 +491,7 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
         path = results / name / "stats" / "convergence.csv"
         sim = simulated_cell(record)
         if not path.is_file():
-            rows.append([f"`{name}`", sim, MISSING, _missing(path, results)] + [MISSING] * 4)
+            rows.append([f"`{name}`", sim, MISSING, _missing(path, results)] + [MISSING] * 3)
             continue
         for row in pd.read_csv(path).itertuples():
             rows.append(
@@ -413,7 +501,6 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                     str(row.P),
                     str(row.study_steps),
                     f"{row.study_mse:.5f}",
-                    str(row.twice_steps),
                     f"{row.twice_mse:.5f}",
                     _pct(row.change),
                 ]
@@ -421,10 +508,9 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Has the training converged? Twice the budget",
         "",
-        "Protocol: replicate 0 of P = 80 % and of the smallest P trained again with twice the "
-        "stopping rule's budget, both scored on the validation coordinates (mean validation "
-        "MSE; `stats/convergence.csv`, [statistics](statistics.md)). A large drop at twice the "
-        "budget means the study's models stopped short.",
+        "Protocol: replicate 0 of P = 80 % and of the smallest P retrained with twice the "
+        "stopping budget, scored by mean validation MSE (`stats/convergence.csv`); a large drop "
+        "at 2x means training stopped short.",
         "",
         *_table(
             [
@@ -433,8 +519,7 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                 "P %",
                 "steps",
                 "validation MSE",
-                "steps at 2x",
-                "validation MSE at 2x",
+                "MSE at 2x steps",
                 "change",
             ],
             rows,
@@ -479,10 +564,9 @@ def real_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     lines = [
         "## Real frames: cross-validated accuracy",
         "",
-        "Protocol: the imported images split into folds that keep each press's images together; "
-        "every image is tested once, by the model trained without its fold. Error inside each "
-        "contact's evaluation circle, 95 % interval from a bootstrap over press groups "
-        "([real data](real_data.md)). No simulator: real images for training and test.",
+        "Protocol: each press's images in one fold, each image tested by the model trained "
+        "without its fold; error inside each contact's evaluation circle, bootstrap over press "
+        "groups ([real data](explanation/real-data.md)).",
         "",
         *_table(
             [
@@ -490,8 +574,8 @@ def real_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                 SIM_COLUMN,
                 "protocol",
                 "method",
-                "gradient RMSE [95 %]",
-                "cap depth MAE µm [95 %]",
+                "gradient RMSE",
+                "cap depth MAE µm",
                 "test images",
             ],
             rows,
@@ -504,54 +588,50 @@ def real_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return lines
 
 
+# Sim-to-real conditions, in the table's column order, with whether the simulator made their
+# training and test frames.
+SIM2REAL_CONDITIONS = {
+    "sim+real": "pretraining only",
+    "real-only": "no",
+    "scene model": "no",
+}
+
+
 def sim2real_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
+    """One row per scene and k, one column per condition: gradient RMSE; cap depth MAE."""
     if not scenes:
         return []
-    cells = {
-        "sim+real": "no: pretrained on simulated presses, fine-tuned and tested on real images",
-        "real-only": "no: real images",
-        "scene model": "no: real images",
-    }
+    conditions = dict(SIM2REAL_CONDITIONS)
     rows = []
     for name in scenes:
         path = results / name / "sim2real" / "errors.csv"
         if not path.is_file():
-            rows.append([f"`{name}`", MISSING, MISSING, _missing(path, results), MISSING, MISSING])
+            rows.append({"scene": f"`{name}`", "protocol": MISSING, "k": MISSING})
+            rows[-1][next(iter(conditions))] = _missing(path, results)
             continue
         errors = pd.read_csv(path, dtype={"k": str, "fold": str})
         folds = sorted(set(errors["fold"]) - {"all"}, key=int)
         protocol = f"held-out real images of folds {', '.join(folds)}"
+        by_k: dict[str, dict] = {}
         for k, condition, rmse, mae in sim2real_rows(errors[errors["fold"] == "all"]):
-            rows.append(
-                [
-                    f"`{name}`",
-                    protocol,
-                    cells.get(condition, MISSING),
-                    f"{condition}, k = {k}",
-                    rmse,
-                    mae,
-                ]
-            )
+            conditions.setdefault(condition, MISSING)
+            row = by_k.setdefault(k, {"scene": f"`{name}`", "protocol": protocol, "k": k})
+            row[condition] = f"{rmse}; {mae}"
+        rows += by_k.values()
+    simulated = "; ".join(
+        f"{cell} for {', '.join(f'`{c}`' for c in conditions if conditions[c] == cell)}"
+        for cell in dict.fromkeys(conditions.values())
+    )
+    header = ["scene", "protocol", "k", *conditions]
     return [
         "### Sim-to-real: k real images, with and without simulated pretraining",
         "",
-        "Protocol: for each of the listed folds, the simulator's optics fitted to that fold's "
-        "training images (never its test images); `sim+real` pretrains on simulated presses and "
-        "fine-tunes on k real training images, `real-only` trains on the same k alone, "
-        "`scene model` is the scene's own cross-validated model. All are tested on the fold's "
-        "held-out real images (95 % interval over press groups).",
+        "Protocol: per fold, the simulator's optics fitted to its training images; `sim+real` "
+        "pretrains on simulated presses and fine-tunes on k real images, `real-only` trains on "
+        "those k alone, `scene model` is the cross-validated model; tested on the fold's "
+        f"held-out images. *{SIM_COLUMN}*: {simulated}. Cells: gradient RMSE; cap depth MAE µm.",
         "",
-        *_table(
-            [
-                "scene",
-                "protocol",
-                SIM_COLUMN,
-                "condition",
-                "gradient RMSE [95 %]",
-                "cap depth MAE µm [95 %]",
-            ],
-            rows,
-        ),
+        *_table(header, [[row.get(column, MISSING) for column in header] for row in rows]),
         "",
     ]
 
@@ -591,14 +671,14 @@ def reskin_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## ReSkin: where the probe touched",
         "",
-        "Protocol: the magnetic readings of probe presses along the authors' cross plan; an MLP "
-        "learns contact position and depth, scored on probe coordinates it never trained on "
-        "(the error of x, y in mm; [ReSkin](reskin.md)).",
+        "Protocol: magnetic readings of probe presses on the authors' cross plan; an MLP "
+        "predicts contact position and depth at probe coordinates it never trained on (x, y "
+        "error; [ReSkin](explanation/reskin.md)).",
         "",
         *_table(
             [
                 "scene",
-                SIM_COLUMN.replace("frames", "readings"),
+                SIM_READINGS,
                 "protocol",
                 "press depth mm",
                 "median error mm",
@@ -631,16 +711,15 @@ def inference_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                 str(fps.get("preset", MISSING)),
                 f"{fps['frames_per_s']:.1f}",
                 f"{fps['ms_per_frame']:.1f}",
-                " × ".join(str(s) for s in shape) if shape else MISSING,
+                "×".join(str(s) for s in shape) if shape else MISSING,
                 str(fps.get("torch_threads", MISSING)),
             ]
         )
     return [
         "## Inference speed",
         "",
-        "Protocol: replicate 0 of the scene's largest training fraction turns frames of its own "
-        "dataset into depth maps (gradients, then integration) on this host's CPU, one frame at "
-        "a time after a warm-up (`models/inference.json`).",
+        "Protocol: replicate 0 of the largest P turns its scene's frames into depth maps on "
+        "this host's CPU, one at a time after a warm-up (`models/inference.json`).",
         "",
         *_table(
             [
@@ -649,7 +728,7 @@ def inference_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                 "model preset",
                 "frames/s",
                 "ms per frame",
-                "image px (H × W)",
+                "image H×W px",
                 "torch threads",
             ],
             rows,
@@ -664,12 +743,15 @@ def integrators_section(results: Path) -> list[str]:
         return []
     body = [line for line in reading.read_text().splitlines() if not line.startswith("# ")]
     body = "\n".join(body).strip().splitlines()
+    # the study's reading up to its advice, which explanation/depth.md gives
+    advice = [i for i, line in enumerate(body) if line.startswith("Which method when")]
+    body = "\n".join(body[: advice[0]] if advice else body).strip().splitlines()
     return [
         "## Depth integrators",
         "",
-        "Protocol: gradient fields of analytic surfaces (exact, or with the noise, outliers or "
-        "border contact that the scenario names), no simulator and no model; each integrator's "
-        "depth against the analytic truth ([depth](depth.md), `integration/error_vs_time.csv`).",
+        "Protocol: gradient fields of analytic surfaces (exact, or with the scenario's noise, "
+        "outliers or border contact), no simulator and no model, integrated and compared with "
+        "the surface (`integration/`; which method when: [depth](explanation/depth.md)).",
         "",
         *[f"#{line}" if line.startswith("## ") else line for line in body],
         "",
@@ -680,74 +762,67 @@ def time_section(results: Path) -> list[str]:
     span = study_span(results)
     table = stage_times(results)
     duration = (
-        f"From the first job's start to the last job's end {(span[1] - span[0]) / 60:.1f} min "
-        "(from the benchmark files' times: a study resumed over several sessions spans them "
-        "all); "
+        f"{(span[1] - span[0]) / 60:.1f} min from the first job's start to the last one's end; "
         if span
         else ""
     )
-    work = f"{table['wall_s'].sum() / 60:.1f} job-minutes in all. " if not table.empty else ""
+    work = (
+        f"{table['wall_s'].sum() / 60:.1f} job-minutes (jobs run side by side). "
+        if not table.empty
+        else ""
+    )
     return [
         "## Where the time goes",
         "",
-        f"{duration}{work}Each stage's jobs summed from their `benchmark:` files; jobs run side "
-        "by side, so the summed wall time is work, not duration. The CPU column undercounts: "
-        "Snakemake samples a job's CPU time now and then and misses what it used after the last "
-        "sample.",
+        f"{duration}{work}Per stage from the `benchmark:` files (CPU time and memory: "
+        "`threedcal report stage-times`).",
         "",
-        *stage_time_lines(table),
+        *stage_time_lines(table, limit=TOP_STAGES, brief=True),
         "",
     ]
+
+
+# What the provenance line already says.
+_PROVENANCE_KEYS = {"platform", "processor", "cpu", "cpu_count", "cpu_flags", "isa_limits"}
+_PROVENANCE_KEYS |= {"torch_cpu_capability", "threedcal"}
 
 
 def environment_section(results: Path) -> list[str]:
     environment = read_json(results / "environment.json")
     if not environment:
         return []
-    rows = [[k, str(v)] for k, v in environment.items() if not isinstance(v, dict)]
-    rows += [[k, str(v)] for k, v in environment.get("software", {}).items()]
-    return ["## Run environment", "", *_table(["", ""], rows), ""]
+    software = {
+        k: v for k, v in environment.get("software", {}).items() if k not in _PROVENANCE_KEYS
+    }
+    settings = {
+        k: v
+        for k, v in environment.items()
+        if not isinstance(v, dict) and k not in _PROVENANCE_KEYS
+    }
+    parts = [
+        ", ".join(f"{k} {v}" for k, v in software.items()),
+        ", ".join(f"{k} {v}" for k, v in settings.items()),
+    ]
+    return [
+        "## Run environment",
+        "",
+        f"From `environment.json`: {'; '.join(p for p in parts if p)}.",
+        "",
+    ]
 
 
 # ---------------------------------------------------------------------------------------------
 # The page
 
 
-def study_commit(results: str | Path) -> str | None:
-    """The commit of the git checkout that holds `results/`, in words (its short hash, whether
-    tracked files differ from it), or None outside a checkout."""
-    folder = Path(results).resolve().parent
-
-    def git(*args: str) -> str | None:
-        try:
-            done = subprocess.run(
-                ["git", "-C", str(folder), *args],
-                capture_output=True,
-                text=True,
-                timeout=30,
-                check=False,
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return done.stdout.strip() if done.returncode == 0 else None
-
-    commit = git("rev-parse", "--short", "HEAD")
-    if not commit:
-        return None
-    changed = git("status", "--porcelain", "--untracked-files=no")
-    return f"`{commit}`{' with local changes' if changed else ''} (the HEAD of the checkout holding them when this page was written)"
-
-
-def results_page(results: str | Path, *, commit: str | None = None, title: str = TITLE) -> str:
-    """The page's Markdown. `commit`: which commit produced `results`, in words."""
+def results_page(results: str | Path, *, title: str = TITLE) -> str:
+    """The page's Markdown."""
     results = Path(results)
     scenes = load_scenes(results)
     lines = [
-        "<!-- Generated by `make results-page` from a finished study's results/ "
-        "(threedcal.report.results_page): regenerate it, do not edit it. -->",
         f"# {title}",
         "",
-        *provenance_lines(results, commit),
+        *provenance_lines(results),
         *reading_lines(),
         *scenes_section(scenes),
         *objects_section(scenes, results),
@@ -763,13 +838,7 @@ def results_page(results: str | Path, *, commit: str | None = None, title: str =
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def write_results_page(
-    results: str | Path,
-    out: str | Path,
-    *,
-    commit: str | None = None,
-    title: str = TITLE,
-) -> str:
+def write_results_page(results: str | Path, out: str | Path, *, title: str = TITLE) -> str:
     from threedcal.errors import ConfigError
 
     results = Path(results)
@@ -777,9 +846,7 @@ def write_results_page(
         raise ConfigError(
             f"{results}: no scene records (*/scene.json): not the results folder of a study"
         )
-    text = results_page(
-        results, commit=f"`{commit}`" if commit else study_commit(results), title=title
-    )
+    text = results_page(results, title=title)
     Path(out).write_text(text)
     return text
 

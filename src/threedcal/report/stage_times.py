@@ -76,23 +76,40 @@ def study_span(results: str | Path) -> tuple[float, float] | None:
     return (min(starts), max(ends)) if ends else None
 
 
-def stage_time_lines(table: pd.DataFrame, limit: int = 15) -> list[str]:
-    """Markdown: the `limit` longest stages, then the rest in one line, then the total."""
+def stage_time_lines(table: pd.DataFrame, limit: int = 15, brief: bool = False) -> list[str]:
+    """Markdown: the `limit` longest stages, then the rest in one line (its scene column "—"),
+    then the total. `brief`: the stage (its scene in brackets), jobs, wall time and share only (no
+    CPU time, longest job or memory)."""
     if table.empty:
         return ["No benchmark files yet."]
     total_wall, total_cpu = table["wall_s"].sum(), table["cpu_s"].sum()
-    lines = [
-        "| stage | scene | jobs | wall min | share | CPU min | longest job min | peak RSS MB |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
+    header = ["stage", "scene", "jobs", "wall min", "share", "CPU min", "longest job min"]
+    header.append("peak RSS MB")
+    if brief:
+        header = ["stage (scene)", "jobs", "wall min", "share"]
+
+    def line(cells: list[str]) -> str:
+        return "|" + "|".join(f" {cell} " if cell else " " for cell in cells[: len(header)]) + "|"
 
     def row(stage, scene, jobs, wall, cpu, longest, rss) -> str:
         share = 100 * wall / total_wall if total_wall > 0 else 0.0
-        return (
-            f"| {stage} | {scene or '(study)'} | {jobs} | {wall / 60:.1f} | {share:.0f} % | "
-            f"{cpu / 60:.1f} | {longest / 60:.1f} | {rss:.0f} |"
+        if brief:
+            where = [f"{stage} ({scene})" if scene and scene != "—" else str(stage)]
+        else:
+            where = [str(stage), scene or "(study)"]
+        return line(
+            [
+                *where,
+                str(jobs),
+                f"{wall / 60:.1f}",
+                f"{share:.0f} %",
+                f"{cpu / 60:.1f}",
+                f"{longest / 60:.1f}",
+                f"{rss:.0f}",
+            ]
         )
 
+    lines = [line(header), "|" + "|".join(["---"] * len(header)) + "|"]
     for item in table.head(limit).itertuples(index=False):
         lines.append(row(*item))
     rest = table.iloc[limit:]
@@ -100,7 +117,7 @@ def stage_time_lines(table: pd.DataFrame, limit: int = 15) -> list[str]:
         lines.append(
             row(
                 f"{len(rest)} other stages",
-                "",
+                "—",
                 int(rest["jobs"].sum()),
                 rest["wall_s"].sum(),
                 rest["cpu_s"].sum(),
@@ -108,8 +125,7 @@ def stage_time_lines(table: pd.DataFrame, limit: int = 15) -> list[str]:
                 rest["max_rss_mb"].max(),
             )
         )
-    lines.append(
-        f"| **all** | | {int(table['jobs'].sum())} | {total_wall / 60:.1f} | 100 % | "
-        f"{total_cpu / 60:.1f} | | |"
-    )
+    total = ["**all**", *([] if brief else [""]), str(int(table["jobs"].sum()))]
+    total += [f"{total_wall / 60:.1f}", "100 %"]
+    lines.append(line([*total, f"{total_cpu / 60:.1f}", "", ""]))
     return lines
