@@ -100,3 +100,13 @@ def test_the_settings_digest_is_the_recipes_not_where_the_clone_lies():
     assert settings_digest(recipe, moved) == settings_digest(recipe, profile)
     changed = {**profile, "name": "another"}
     assert settings_digest(recipe, changed) != settings_digest(recipe, profile)
+
+
+def test_the_settings_digest_ignores_the_profiles_citations_not_its_constants():
+    """A docs page that moves changes a profile's `source` text, not the recipe."""
+    profile = load_profile("sensor", "digit_fots")
+    recipe = load_config("config.yaml")["pretraining"]
+    cited = {**profile, "unit_variation": {**profile["unit_variation"], "source": "elsewhere"}}
+    assert settings_digest(recipe, cited) == settings_digest(recipe, profile)
+    moved = {**profile, "px_per_mm": profile["px_per_mm"] + 0.1}
+    assert settings_digest(recipe, moved) != settings_digest(recipe, profile)

@@ -400,11 +400,14 @@ def test_cli_reads_the_simulated_board(capsys):
 def test_real_printer_with_the_simulated_board_is_refused_before_anything_opens(tmp_path):
     from threedcal.collect.session import collect_scene
 
-    config = validate_config(
-        {"scenes": {"rs": {"sensor": "reskin", "printer": "ender3", "port": "/dev/ttyUSB9"}}}
-    )
+    real = {"scenes": {"rs": {"sensor": "reskin", "printer": "ender3", "port": "/dev/ttyUSB9"}}}
     with pytest.raises(ConfigError, match="set the scene's `reader` to the ReSkin board"):
-        collect_scene("rs", config["scenes"]["rs"], tmp_path / "raw.zarr", progress=False)
+        validate_config(real)  # the config check names it first
+    # and collect refuses it too, for a scene that never went through the check
+    scene = {**validate_config({"scenes": {"rs": {**real["scenes"]["rs"], "port": "sim"}}})}
+    scene = {**scene["scenes"]["rs"], "port": "/dev/ttyUSB9"}
+    with pytest.raises(ConfigError, match="set the scene's `reader` to the ReSkin board"):
+        collect_scene("rs", scene, tmp_path / "raw.zarr", progress=False)
     assert not any(tmp_path.iterdir())
 
 

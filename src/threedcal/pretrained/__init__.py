@@ -61,8 +61,16 @@ def provenance(sensor: str, directory: Path | None = None) -> dict:
 
 
 def settings_digest(pretraining: Mapping, profile: Mapping) -> str:
-    """What the weights were made from: the pretraining section and the sensor profile's content
-    (not where its file lies: the same recipe in any clone has one digest)."""
-    content = {k: v for k, v in profile.items() if k != "source"}
-    text = canonical_json({"pretraining": dict(pretraining), "profile": content})
+    """What the weights were made from: the pretraining section and the sensor profile's content.
+    Not its `source` keys: where its file lies, and the citations of its constants (the same recipe
+    in any clone, and after a docs page moves, has one digest)."""
+    text = canonical_json({"pretraining": dict(pretraining), "profile": _without_sources(profile)})
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _without_sources(node):
+    if isinstance(node, Mapping):
+        return {k: _without_sources(v) for k, v in node.items() if k != "source"}
+    if isinstance(node, list):
+        return [_without_sources(v) for v in node]
+    return node
