@@ -140,7 +140,9 @@ def run_shell(block: dict, page: Path, workspace: Path) -> None:
             words.append("-n")
         elif words[0] == "make":
             # a real `make` here would set up .venv through the scratch dir's link to it
-            assert block["directive"] == "dry-run", f"{page.name}:{block['line']}: make, not dry-run"
+            assert block["directive"] == "dry-run", (
+                f"{page.name}:{block['line']}: make, not dry-run"
+            )
             words.insert(1, "-n")
         done = subprocess.run(
             words,
