@@ -11,7 +11,8 @@ first-contact search that steps the probe down through the nominal touch height 
 one row per step, from which the dataset stage measures where the gel really is — then the
 ``register`` rows — shallow presses over the whole probe area, whose small contacts lie whole in
 the frame nearer its edges than the grid's, from which the dataset stage fits the camera's
-registration — then the ``grid`` rows (grid, cross or CSV) that the model trains on. Touch rows
+registration — then the ``grid`` rows (grid, cross, CSV, or a quick plan's rounds) that the model
+trains on. Touch rows
 may sit above the gel (negative depth); the collection loop and store carry them like any other row.
 """
 

@@ -293,6 +293,8 @@ def quick_stage(
             if loop.stopped is None:
                 raise StoreError(f"{staging}: the collection ended before the stop rule decided")
             raw.finalize({"quick": loop.stop_record()}, rows=loop.rows_used)
+        else:  # finished, then stopped before the move: its rounds replayed as a finished store's
+            loop.round_done(int(raw.group.attrs.get("captured_rows") or len(prepared.plan)))
         os.replace(staging, store)
     record = loop.stop_record()
     record.update(store=str(store), wall_s=round(time.perf_counter() - began, 1))
