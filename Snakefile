@@ -35,6 +35,8 @@ from threedcal.scenes import (
     PRESETS,
     PRESSING,
     PRETRAINED_DIR,
+    QUICK,
+    QUICK_ROUNDS,
     REALISM_TABLE,
     REGISTRATION,
     REGISTRATION_FIGURE,
@@ -56,6 +58,7 @@ from threedcal.scenes import (
     full_model_file,
     has_objects,
     model_file,
+    quick_scenes,
     realism_files,
     realism_sets,
     reskin_scenes,
@@ -94,7 +97,11 @@ SCENES = list(config["scenes"])
 IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
-COLLECTED_SCENES = [name for name in SCENES if name not in IMPORTED_SCENES]
+QUICK_SCENES = quick_scenes(config)
+# scenes the collect stage probes (a quick scene collects in its own stage, round by round)
+COLLECTED_SCENES = [
+    name for name in SCENES if name not in IMPORTED_SCENES and name not in QUICK_SCENES
+]
 ABLATION_SCENES = ablation_scenes(config)
 OBJECT_SCENES = [name for name in SCENES if has_objects(config["scenes"][name])]
 RESKIN_SCENES = reskin_scenes(config)
@@ -119,6 +126,7 @@ include: "rules/presets.smk"
 include: "rules/report.smk"
 include: "rules/reskin.smk"
 include: "rules/pretrained.smk"
+include: "rules/quick.smk"
 
 
 rule all:

@@ -139,6 +139,10 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         parse_faults(scene["bench"].get("faults", ""))
     except ConfigError as exc:
         problems.append(f"bench.faults: {exc}")
+    if scene["plan"].get("pattern") == "quick":
+        quick = quick_scene_problems(scene, sensor)
+        if quick:
+            return problems + quick
     try:
         plan = plan_from_config(scene["plan"], sensor)
         csv = scene["plan"].get("csv")
@@ -147,6 +151,56 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         text = str(exc)
         problems.append(text if text.startswith("plan") else f"plan: {text}")
     return problems + _object_problems(scene)
+
+
+def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
+    """What a quick calibration (plan.pattern: quick) would refuse once its printer had moved:
+    rounds that cannot cover the gel, a stop rule out of range, shipped weights made for another
+    sensor, network or frame size, and stages it does not run."""
+    from threedcal.collect.plan import quick_problems
+    from threedcal.quick.stop_rule import rule_problems
+
+    quick = scene["quick"]
+    problems = quick_problems(scene["plan"], sensor)
+    problems += rule_problems(float(quick["margin"]), float(quick["confidence"]))
+    asked = {
+        "ablation": bool(normalise_ablation(scene.get("ablation"))["fractions"]),
+        "objects": bool(scene.get("objects")),
+    }
+    for key in (k for k, wanted in asked.items() if wanted):
+        problems.append(
+            f"{key}: a quick calibration (plan.pattern: quick) trains one model round by "
+            f"round; it has no {key} stage (remove `{key}`, or use a grid plan)"
+        )
+    model = scene.get("model") or {}
+    if model.get("init") == "pretrained" and sensor.get("type") == "vision":
+        problems += _pretrained_problems(sensor, model, int(scene["dataset"]["downscale"]))
+    return problems
+
+
+def _pretrained_problems(sensor: Mapping, model: Mapping, downscale: int) -> list[str]:
+    """The shipped weights against the frames and network a scene would fine-tune them on."""
+    from threedcal.pretrained import provenance, shipped_weights
+
+    image = sensor["image"]
+    shape = (int(image["height_px"]) // downscale, int(image["width_px"]) // downscale)
+    try:
+        shipped_weights(sensor.get("name"), shape)
+    except ConfigError as exc:
+        return [str(exc).replace("model.init: pretrained: ", "model.init: ", 1)]
+    made = provenance(sensor["name"])
+    if made.get("sensor") != sensor.get("name"):
+        return [
+            f"model.init: the shipped {sensor['name']} weights record sensor "
+            f"{made.get('sensor')!r}: rebuild them (`make pretrained`)"
+        ]
+    if made.get("preset") and made["preset"] != model.get("preset"):
+        return [
+            f"model.preset: {model.get('preset')!r}, but the shipped {sensor['name']} weights "
+            f"(model.init: pretrained) are a {made['preset']!r} network: set model.preset: "
+            f"{made['preset']}, or train from scratch (init: null)"
+        ]
+    return []
 
 
 def _object_problems(scene: Mapping) -> list[str]:

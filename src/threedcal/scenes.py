@@ -60,6 +60,10 @@ INFERENCE_SPEED = f"{SCENE}/models/inference.json"
 CONVERGENCE_RUN = f"{SCENE}/convergence/P{{p}}"
 # The weights shipped for `model.init: pretrained`, one network per sensor (rules/pretrained.smk).
 PRETRAINED_DIR = f"{RESULTS}/pretrained/{{sensor}}"
+# The quick calibration (rules/quick.smk), for scenes whose plan is `pattern: quick`: rounds of
+# presses until the stop rule; its store is STORE, a source like the collect stage's.
+QUICK = _files(f"{SCENE}/quick", model="model.pt", rounds="rounds.csv", stop="stop.json")
+QUICK_ROUNDS = f"{SCENE}/quick/rounds"
 # The stats stage (rules/stats.smk), for scenes with an ablation.
 STATS = _files(
     f"{SCENE}/stats",
@@ -176,6 +180,20 @@ STAGE_KEYS = {
         "seed",
     ),
     "objects": ("sensor", "port", "objects", "pressing", "integrators", "seed", "torch_threads"),
+    "quick": (
+        "sensor",
+        "printer",
+        "port",
+        "camera",
+        "probe",
+        "plan",
+        "bench",
+        "seed",
+        "dataset",
+        "model",
+        "quick",
+        "torch_threads",
+    ),
 }
 
 
@@ -203,6 +221,8 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
         return [target(pattern, name) for pattern in patterns]
 
     targets = of(SCENE_JSON)
+    if is_quick(scene):  # one model, round by round; no dataset, ablation or objects stage
+        return targets + of(*QUICK.values())
     if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
         return targets + of(*COLLECT.values(), *RESKIN_MODEL.values(), *RESKIN_EVAL.values())
     if is_imported(scene):
@@ -225,6 +245,15 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if convergence_fractions(scene):
         targets += of(*CONVERGENCE.values())
     return targets
+
+
+def is_quick(scene: Mapping) -> bool:
+    """A scene calibrated in rounds of presses (plan.pattern: quick)."""
+    return not is_imported(scene) and (scene.get("plan") or {}).get("pattern") == "quick"
+
+
+def quick_scenes(config: Mapping) -> list[str]:
+    return [name for name, scene in config["scenes"].items() if is_quick(scene)]
 
 
 def is_vision(scene: Mapping) -> bool:

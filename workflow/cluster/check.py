@@ -92,6 +92,8 @@ TIMING_COLUMNS = {
     "*/stats/error_vs_cost.csv": (["training_min"], "training time"),
     "*/presets.csv": (["ms_per_frame", "train_s"], "inference and training times"),
     "integration/error_vs_time.csv": (["ms_per_frame"], "integrator timings"),
+    "*/quick/rounds.csv": (["train_s"], "each round's labelling, scoring and training time"),
+    "*/quick/rounds/r*/losses.csv": (["seconds"], "training time per check"),
 }
 # JSON compared without these keys, at any depth: durations; for the killed and resumed collection
 # also its per-run record (the one finished run covers the points after the kill) and the hardware
@@ -106,6 +108,7 @@ TIMING_KEYS = {
     "*/raw.zarr/captured/zarr.json": (DURATIONS, "collection durations"),
     "*/raw.zarr/zarr.json": (DURATIONS, "collection durations"),
     "*/objects/pressing/summary.json": (["seconds", "seconds_per_press"], "pressing wall time"),
+    "*/quick/stop.json": (["wall_s"], "the quick stage's wall time"),
 }
 # Rules that drive the printer: local rules, run by Snakemake on this machine, never through sbatch.
 PRINTER_RULES = ("collect", "object_presses")

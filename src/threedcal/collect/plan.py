@@ -11,7 +11,8 @@ first-contact search that steps the probe down through the nominal touch height 
 one row per step, from which the dataset stage measures where the gel really is — then the
 ``register`` rows — shallow presses over the whole probe area, whose small contacts lie whole in
 the frame nearer its edges than the grid's, from which the dataset stage fits the camera's
-registration — then the ``grid`` rows (grid, cross or CSV) that the model trains on. Touch rows
+registration — then the ``grid`` rows (grid, cross, CSV, or a quick plan's rounds) that the model
+trains on. Touch rows
 may sit above the gel (negative depth); the collection loop and store carry them like any other row.
 """
 
@@ -230,6 +231,112 @@ def cross_plan(
     )
 
 
+# The quick plan's rounds: fewer presses than this cannot reach every quarter of the gel, and the
+# stop rule's paired interval needs a few presses a round to say anything.
+MIN_ROUND_PRESSES = 4
+# The quick plan's default area keeps this far inside the camera's nominal view: a seating error
+# of the sensor in its base (the bench draws up to 0.4 mm) must not carry a press out of the frame.
+QUICK_VIEW_MARGIN_MM = 0.5
+
+
+def camera_view_mm(sensor: Mapping) -> tuple[float, float, float, float]:
+    """(x0, y0, x1, y1) plan mm the camera sees with the sensor seated as its base puts it: the
+    image (profile `image`, `px_per_mm`) centred on the plan area, printer X along its columns."""
+    width, height = plan_area_mm(sensor)
+    scale = float(sensor["px_per_mm"])
+    half_x = sensor["image"]["width_px"] / scale / 2
+    half_y = sensor["image"]["height_px"] / scale / 2
+    return (width / 2 - half_x, height / 2 - half_y, width / 2 + half_x, height / 2 + half_y)
+
+
+def quick_area_mm(sensor: Mapping, plan_config: Mapping) -> tuple[float, float, float, float]:
+    """The area a quick plan spreads its presses over: `area_mm` as configured, else the part of
+    the probe area the camera sees, QUICK_VIEW_MARGIN_MM inside the view."""
+    if plan_config.get("area_mm") is not None:
+        x0, y0, x1, y1 = (float(v) for v in plan_config["area_mm"])
+        return x0, y0, x1, y1
+    width, height = plan_area_mm(sensor)
+    vx0, vy0, vx1, vy1 = camera_view_mm(sensor)
+    margin = QUICK_VIEW_MARGIN_MM
+    return (
+        max(vx0 + margin, 0.0),
+        max(vy0 + margin, 0.0),
+        min(vx1 - margin, width),
+        min(vy1 - margin, height),
+    )
+
+
+def quick_problems(plan_config: Mapping, sensor: Mapping) -> list[str]:
+    """Why a quick plan's rounds could not cover the gel the camera sees ([] when they can)."""
+    problems = []
+    per_round = int(plan_config.get("round_presses", 10))
+    most = int(plan_config.get("max_presses", 50))
+    if per_round < MIN_ROUND_PRESSES:
+        problems.append(
+            f"plan.round_presses: {per_round} presses a round cannot cover the gel (at least "
+            f"{MIN_ROUND_PRESSES}: one per quarter, and the stop rule compares presses in pairs)"
+        )
+    if most < per_round:
+        problems.append(
+            f"plan.max_presses: {most} is fewer than one round (round_presses: {per_round})"
+        )
+    if sensor.get("type") != "vision":
+        problems.append("plan.pattern: quick calibrates a vision sensor (a camera's frames)")
+        return problems
+    x0, y0, x1, y1 = quick_area_mm(sensor, plan_config)
+    vx0, vy0, vx1, vy1 = camera_view_mm(sensor)
+    width, height = plan_area_mm(sensor)
+    lo_x, lo_y, hi_x, hi_y = max(vx0, 0.0), max(vy0, 0.0), min(vx1, width), min(vy1, height)
+    tolerance = 1e-9
+    if not (x1 > x0 and y1 > y0):
+        problems.append(f"plan.area_mm: {[x0, y0, x1, y1]} is empty (x0 < x1 and y0 < y1 needed)")
+    elif (
+        x0 < lo_x - tolerance
+        or y0 < lo_y - tolerance
+        or x1 > hi_x + tolerance
+        or y1 > hi_y + tolerance
+    ):
+        problems.append(
+            f"plan.area_mm: [{x0:g}, {y0:g}, {x1:g}, {y1:g}] mm reaches outside what the camera "
+            f"sees of the probe area ([{lo_x:.2f}, {lo_y:.2f}, {hi_x:.2f}, {hi_y:.2f}] mm, "
+            "plan-relative): presses there give no frames to learn from"
+        )
+    return problems
+
+
+def quick_plan(sensor: Mapping, plan_config: Mapping) -> pd.DataFrame:
+    """The quick plan's presses: `max_presses` of a seeded scrambled Halton design over the quick
+    area (threedcal.collect.design), each `depth_mm` deep (dome compensated) for `frames` frames,
+    in rounds of `round_presses` (each round's prefix spreads evenly), each round a short path."""
+    from threedcal.collect.design import halton_design, round_order
+
+    problems = quick_problems(plan_config, sensor)
+    if problems:
+        raise ConfigError("; ".join(problems))
+    most, per_round = int(plan_config.get("max_presses", 50)), int(plan_config["round_presses"])
+    check_plan_size(most, most * int(plan_config["frames"]), f"plan.max_presses={most}")
+    area = quick_area_mm(sensor, plan_config)
+    xy = halton_design(most, area, int(plan_config.get("seed", 0)), per_round)
+    xy = np.round(xy[round_order(xy, per_round, start=(area[0], area[1]))], 4)
+    depth = float(plan_config["depth_mm"]) + dome_sag_mm(sensor, xy[:, 0], xy[:, 1])
+    return pd.DataFrame(
+        {
+            "x_mm": xy[:, 0],
+            "y_mm": xy[:, 1],
+            "depth_mm": np.round(depth, 4),
+            "frames": int(plan_config["frames"]),
+        }
+    )
+
+
+def quick_rounds(plan_config: Mapping, first_row: int) -> list[int]:
+    """The plan rows at which each round of a quick plan ends (exclusive), its presses starting
+    at `first_row` (after the touch search and the registration presses)."""
+    most, per_round = int(plan_config["max_presses"]), int(plan_config["round_presses"])
+    ends = list(range(per_round, most, per_round)) + [most]
+    return [first_row + end for end in ends]
+
+
 def touch_uncertainty_mm(sensor: Mapping) -> float:
     """How far the gel's true first touch may lie from the profile's nominal `mount.z_touch_mm`."""
     return float(sensor["probing"].get("touch_uncertainty_mm", DEFAULT_TOUCH_UNCERTAINTY_MM))
@@ -426,6 +533,8 @@ def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     if plan_config.get("csv"):
         rows = read_plan_csv(plan_config["csv"])
         check_plan_size(len(rows), rows["frames"].sum(), str(plan_config["csv"]))
+    elif plan_config.get("pattern") == "quick":
+        rows = quick_plan(sensor, plan_config)
     else:
         depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
         mode = plan_config.get("depth_mode", "every")

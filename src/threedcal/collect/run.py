@@ -22,7 +22,7 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -85,6 +85,7 @@ class RunResult:
     hardware_s: float  # printer clock elapsed (the motion model's on the simulated bench)
     resumed_at: int
     replayed: bool = False  # the run went through the plan from its start (see `collect`)
+    stopped_at: int | None = None  # the boundary at which `at_boundary` ended the run
 
 
 @contextlib.contextmanager
@@ -181,8 +182,15 @@ def collect(
     attach_probe: Callable[[], None] | None = None,
     progress: bool = True,
     replay: bool = False,
+    boundaries: Sequence[int] = (),
+    at_boundary: Callable[[int], bool] | None = None,
 ) -> RunResult:
     """Probe every point the store has not captured.
+
+    `at_boundary(n)` is called once the first n plan rows are stored, for every n in `boundaries`
+    (a quick calibration's rounds), the probe held lifted over the gel: it returns whether to go
+    on. False ends the run as if the plan ended there (lifted, steppers released); the rows after
+    it stay uncaptured. One run homes once, however many rounds it takes.
 
     `replay` (the simulated bench): go through the whole plan from its start — blank included —
     moving and sampling as an uninterrupted run would, writing only what is missing and checking
@@ -191,6 +199,7 @@ def collect(
     """
     clock = clock or WallClock()
     run = _Run(store, sensor, printer, camera, settings, clock, hardware_clock or clock.now, replay)
+    run.boundaries, run.at_boundary = set(int(b) for b in boundaries), at_boundary
     if run.start is None:
         return RunResult(0, 0, 0.0, 0.0, len(store.plan))
     run.record(new=True)
@@ -225,7 +234,7 @@ def collect(
             )
             raise
     bar.close()
-    run.record()
+    run.record(**({} if run.stopped_at is None else {"ended_at_row": run.stopped_at}))
     return run.result()
 
 
@@ -251,6 +260,9 @@ class _Run:
         self.pending: list[PointRecord] = []
         self.pending_from = 0
         self.flushed_at = time.monotonic()
+        self.boundaries: set[int] = set()
+        self.at_boundary: Callable[[int], bool] | None = None
+        self.stopped_at: int | None = None
 
     def record(self, new: bool = False, **extra: Any) -> None:
         """Keep this run's record in the store up to date (a killed run still counts)."""
@@ -275,6 +287,7 @@ class _Run:
             hardware_s=self.hardware_clock() - self.started_hw,
             resumed_at=self.start,
             replayed=self.replay,
+            stopped_at=self.stopped_at,
         )
 
     def blank(self) -> None:
@@ -338,6 +351,8 @@ class _Run:
                         "give the samples stored for it (was the simulator changed since?); move "
                         "the store away to collect it anew"
                     )
+                if not self.round_done(point + 1, bar):
+                    return
                 continue
             if not self.pending:
                 self.pending_from = point
@@ -355,7 +370,21 @@ class _Run:
                 or time.monotonic() - self.flushed_at >= FLUSH_EVERY_S
             ):
                 self.flush(bar)
+            if not self.round_done(point + 1, bar):
+                return
         self.flush(bar)
+
+    def round_done(self, rows: int, bar) -> bool:
+        """At a boundary: store what waits, let the lift finish, ask `at_boundary` whether to go
+        on. False when the run is to end here."""
+        if rows not in self.boundaries or self.at_boundary is None:
+            return True
+        self.flush(bar)
+        self.printer.wait_until_idle()
+        if self.at_boundary(rows):
+            return True
+        self.stopped_at = rows
+        return False
 
     def flush(self, bar=None) -> None:
         """Write the points captured since the last flush, then the run's record."""

@@ -165,21 +165,7 @@ def collect_scene(
                 staging,
             )
     else:
-        _refuse_foreign(staging)
-        if staging.exists():
-            store = RawStore.open_for_resume(staging, prepared.plan, settings)
-        else:
-            staging.parent.mkdir(parents=True, exist_ok=True)
-            shape, layout = _sample_layout(prepared)
-            store = RawStore.create(
-                staging,
-                prepared.plan,
-                shape,
-                prepared.settings.n_blank,
-                _store_attrs(name, scene, prepared),
-                layout,
-                settings=settings,
-            )
+        store = open_store(staging, name, scene, prepared, settings)
         if not store.complete:
             _collect_on_rig(scene, prepared, store, progress, ask)
             store.finalize({"summary": store_summary(store)})
@@ -193,6 +179,27 @@ def collect_scene(
     if simulated and truth_path is not None:
         simulated_truth(scene, prepared).write(truth_path)
     return {**summary, "store": str(store_path), "frame_digest": digest}
+
+
+def open_store(
+    path: Path, name: str, scene: Mapping, prepared: ScenePlan, settings: Mapping[str, Any]
+) -> RawStore:
+    """The store being filled at `path`: resumed when there (with the same frame `settings`
+    only), else created empty from the plan; anything else at `path` is refused."""
+    _refuse_foreign(path)
+    if path.exists():
+        return RawStore.open_for_resume(path, prepared.plan, settings)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    shape, layout = _sample_layout(prepared)
+    return RawStore.create(
+        path,
+        prepared.plan,
+        shape,
+        prepared.settings.n_blank,
+        _store_attrs(name, scene, prepared),
+        layout,
+        settings=settings,
+    )
 
 
 def finished_store_summary(

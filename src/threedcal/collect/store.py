@@ -402,18 +402,18 @@ class RawStore:
         start, stop = int(self.offsets[point]), int(self.offsets[point + 1])
         return self._array(self.variable)[start:stop]
 
-    def finalize(self, extra_attrs: Mapping[str, Any] | None = None) -> None:
-        if self.first_uncaptured() is not None:
-            raise RuntimeError(
-                f"{self.path}: cannot finalize, point {self.first_uncaptured()} is not captured"
-            )
-        self.group.attrs.update(
-            json.loads(
-                json.dumps(
-                    {**(extra_attrs or {}), "runs": self.runs, "complete": True}, default=plain
-                )
-            )
-        )
+    def finalize(
+        self, extra_attrs: Mapping[str, Any] | None = None, rows: int | None = None
+    ) -> None:
+        """Mark the store complete: every plan row captured, or with `rows` (a quick calibration
+        that stopped early) its first `rows`, recorded as `captured_rows` (readers stop there)."""
+        missing = self.first_uncaptured()
+        if missing is not None and (rows is None or missing < rows):
+            raise RuntimeError(f"{self.path}: cannot finalize, point {missing} is not captured")
+        extra = {**(extra_attrs or {}), "runs": self.runs, "complete": True}
+        if rows is not None:
+            extra["captured_rows"] = int(rows)
+        self.group.attrs.update(json.loads(json.dumps(extra, default=plain)))
         self.consolidate()
 
     def consolidate(self) -> None:
@@ -528,8 +528,11 @@ def open_raw(path: str | Path):
         return xr.open_zarr(path, consolidated=None)
 
 
-def open_checked(path: str | Path, expect_digest: str | None = None):
+def open_checked(path: str | Path, expect_digest: str | None = None, rows: int | None = None):
     """The whole store read into memory, or a StoreError naming the store and the point.
+
+    `rows`: only the first that many plan rows (a quick calibration reads its store between
+    rounds, before it is complete); a store finished early (`captured_rows`) is read that far.
 
     Checks, in order: a Zarr store, marked complete, holding the frame settings `expect_digest`
     (the digest summary.json recorded, when the store records one), every point captured, and every
@@ -551,10 +554,12 @@ def open_checked(path: str | Path, expect_digest: str | None = None):
         names = sorted(group.array_keys())
     except Exception as exc:  # noqa: BLE001 - any failure to open is one message naming the store
         raise StoreError(f"{path}: not a readable collection store ({_first_line(exc)})") from None
-    if not attrs.get("complete", False):
+    if rows is None and not attrs.get("complete", False):
         raise StoreError(
             f"{path}: the collection is not complete (complete=false); run `collect` again to finish it"
         )
+    if rows is None and attrs.get("captured_rows") is not None:
+        rows = int(attrs["captured_rows"])
     recorded = attrs.get("frame_digest")
     if expect_digest is not None and recorded is not None and recorded != expect_digest:
         raise StoreError(
@@ -569,11 +574,13 @@ def open_checked(path: str | Path, expect_digest: str | None = None):
         raise StoreError(
             f"{path}: has no `captured` record; it is not a threedcal collection store"
         )
+    frame_stop = None if rows is None or offsets is None else int(offsets[rows])
     arrays = {
-        name: _read_array(path, name, group[name], offsets, strict or name in samples)
+        name: _read_array(path, name, group[name], offsets, strict or name in samples, frame_stop)
         for name in names
     }
-    missing = np.flatnonzero(~np.asarray(arrays["captured"], dtype=bool))
+    captured = np.asarray(arrays["captured"], dtype=bool)
+    missing = np.flatnonzero(~(captured if rows is None else captured[:rows]))
     if missing.size:
         raise StoreError(
             f"{path}: marked complete, but point(s) {_ranges(missing)} are not captured "
@@ -581,7 +588,10 @@ def open_checked(path: str | Path, expect_digest: str | None = None):
         )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", category=UserWarning)
-        lazy = xr.open_zarr(path, consolidated=None)
+        # a store still being collected has no consolidated metadata yet
+        lazy = xr.open_zarr(path, consolidated=None if attrs.get("complete") else False)
+    if frame_stop is not None:
+        lazy = lazy.isel(frame=slice(0, frame_stop))
     variables = {
         name: variable.copy(deep=False, data=arrays[name])
         for name, variable in lazy.variables.items()
@@ -646,9 +656,15 @@ def _chunk_place(name: str, array: zarr.Array, coords: tuple[int, ...], offsets)
     return f"{name} {span}"
 
 
-def _read_array(path: Path, name: str, array: zarr.Array, offsets, check_missing: bool):
-    """Every chunk of `array`: present (when `check_missing`) and decodable, or a StoreError."""
+def _read_array(
+    path: Path, name: str, array: zarr.Array, offsets, check_missing: bool, frame_stop=None
+):
+    """Every chunk of `array`: present (when `check_missing`) and decodable, or a StoreError.
+    `frame_stop`: a per-frame array is read only up to that frame."""
     grid = array.cdata_shape if array.size else ()
+    per_frame = bool(array.shape) and tuple(array.metadata.dimension_names or ())[:1] == ("frame",)
+    if frame_stop is not None and per_frame:
+        grid = (-(-frame_stop // array.chunks[0]), *grid[1:])
     if check_missing:
         for coords in np.ndindex(*grid):
             key = array.metadata.encode_chunk_key(coords)
@@ -659,7 +675,7 @@ def _read_array(path: Path, name: str, array: zarr.Array, offsets, check_missing
                     "(never read as black); restore the store from a backup or recollect"
                 )
     try:
-        return array[...]
+        return array[:frame_stop] if frame_stop is not None and per_frame else array[...]
     except Exception as whole:  # noqa: BLE001 - find the chunk that fails, to name it
         for coords in np.ndindex(*grid):
             try:

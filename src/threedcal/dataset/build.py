@@ -140,10 +140,12 @@ def register_store(
     store_path: str | Path,
     progress: bool = True,
     expect_digest: str | None = None,
+    rows: int | None = None,
 ) -> RegisteredStore:
     """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
     its frames), and each frame's depth below the gel where the affine places it. The store is
-    read whole and checked (`threedcal.collect.store.open_checked`)."""
+    read whole and checked (`threedcal.collect.store.open_checked`); `rows`: only its first that
+    many plan rows, captured so far."""
     from threedcal.collect.plan import dome_sag_at_px, dome_sag_mm, plan_phases
     from threedcal.collect.store import open_checked
     from threedcal.dataset.dome_contacts import DomedContacts
@@ -151,7 +153,7 @@ def register_store(
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])
-    raw = open_checked(store_path, expect_digest)
+    raw = open_checked(store_path, expect_digest, rows=rows)
     height, width = raw["frames"].shape[1:3]
     point_of_frame = raw["point"].values
     n_rows = int(point_of_frame.max()) + 1
@@ -262,6 +264,26 @@ def build_collected(
     return record
 
 
+def collected_so_far(
+    scene: Mapping, store_path: str | Path, rows: int, progress: bool = False
+) -> tuple[TrainingSet, dict]:
+    """The model-ready set of a store's first `rows` plan rows, while it is being collected (a
+    quick calibration between rounds), and its registration record. Registered and labelled as
+    `build_collected` does, but every labelled press trains: the next round's presses, not a
+    split of these, judge the model. Samples' `plan_row` names each frame's press."""
+    radius_mm = float(scene["probe"]["radius_mm"])
+    store = register_store(scene, store_path, progress, rows=rows)
+    method = "search" if len(store.rows("touch")) else "rim"
+    touch = touch_height(store, radius_mm, method, progress)
+    offset = touch["touch_offset_mm"]
+    contact_z_mm = round(float(store.sensor["mount"]["z_touch_mm"]) + offset, 4)
+    labels = _label_frames(scene, store, offset)
+    trainset = _collected_trainset(scene, store, labels, contact_z_mm, every_press_trains=True)
+    trainset.samples["plan_row"] = store.raw["point"].values[labels.keep]
+    trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
+    return trainset, _registration_record(store, touch, labels, contact_z_mm)
+
+
 @dataclass
 class _Labels:
     """Which frames of a registered store train, at which depth, and their probe coordinates."""
@@ -323,10 +345,15 @@ def _plan_xy(raw) -> np.ndarray:
 
 
 def _collected_trainset(
-    scene: Mapping, store: RegisteredStore, labels: _Labels, contact_z_mm: float
+    scene: Mapping,
+    store: RegisteredStore,
+    labels: _Labels,
+    contact_z_mm: float,
+    every_press_trains: bool = False,
 ) -> TrainingSet:
     """The kept frames, rectified through the fitted lens (one mm is one px_per_mm everywhere, as
-    the labels are), with their labels and splits."""
+    the labels are), with their labels and splits (`every_press_trains`: no validation split,
+    every press in every subset)."""
     from threedcal.config import ablation_replicates, training_fractions
     from threedcal.dataset.labels import contact_radius_mm
     from threedcal.dataset.splits import min_p_column, split_points
@@ -335,9 +362,13 @@ def _collected_trainset(
     raw, sensor, fit = store.raw, store.sensor, store.registration.fit
     keep, coordinate_id, depth = labels.keep, labels.coordinate_id, labels.depth
     replicates = ablation_replicates(scene)
-    table = split_points(
-        labels.coordinates, training_fractions(scene), seed=scene["seed"], replicates=replicates
-    ).set_index("point")
+    if every_press_trains:
+        replicates = 1
+        table = labels.coordinates.assign(split="train", min_p=1).set_index("point")
+    else:
+        table = split_points(
+            labels.coordinates, training_fractions(scene), seed=scene["seed"], replicates=replicates
+        ).set_index("point")
     samples = pd.DataFrame(
         {
             "frame": keep,

@@ -256,6 +256,19 @@ def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.M
     return model_from_checkpoint(source), normalisation
 
 
+def save_initial(ts: TrainingSet, path: str | Path, settings: TrainSettings) -> dict:
+    """The weights a training with `settings` starts from (`model.init`'s, or fresh ones of the
+    preset), saved as a usable model.pt of `ts` (its blank, registration and lens): what a quick
+    calibration scores its first round's presses with."""
+    configure_torch(settings)
+    model, normalisation = _initial_model(settings, ts)
+    checkpoint = _checkpoint(model, settings, ts, 80, 0, 0, normalisation)
+    checkpoint["training"].update(steps=0, stopped="not trained: the weights it starts from")
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(path, checkpoint)
+    return checkpoint
+
+
 def init_path(init: str, ts: TrainingSet) -> str | Path:
     """`model.init`'s checkpoint: a path, or `pretrained` — the weights this package ships for
     the dataset's sensor (threedcal.pretrained)."""

@@ -65,6 +65,15 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
         facts.append(
             ("first-touch offset (estimated)", f"{registration['touch_offset_mm']:+.3f} mm")
         )
+    quick = read_json(root / "quick" / "stop.json")
+    if quick:
+        facts.append(
+            (
+                "quick calibration",
+                f"stopped ({quick['stopped']}) after {quick['presses']} presses in "
+                f"{quick['round']} rounds, {quick['printer_minutes']:.1f} printer minutes",
+            )
+        )
     recommendation = root / "stats" / "recommendation.txt"
     if recommendation.is_file():
         facts.append(("recommendation", recommendation.read_text().strip()))

@@ -1,0 +1,39 @@
+# Stage `quick`: a new unit calibrated in rounds of presses (plan.pattern: quick), each round scored
+# by the model before it, until the stop rule or max_presses; results/{scene}/quick/. The store
+# (results/{scene}/raw.zarr) is a source as in rules/collect.smk: filled under .partial/, moved into
+# place when the rule stops, never among the outputs; a rerun replays the rounds from it.
+
+
+# The printer is attached to the machine that runs Snakemake: never submitted to a cluster.
+localrules:
+    quick,
+
+
+rule quick:
+    input:
+        unpack(pretrained_input),
+    output:
+        model=QUICK["model"],
+        rounds=QUICK["rounds"],
+        stop=QUICK["stop"],
+        work=directory(QUICK_ROUNDS),
+    log:
+        "results/{scene}/logs/quick.log",
+    benchmark:
+        "results/{scene}/benchmarks/quick.tsv"
+    wildcard_constraints:
+        scene=one_of(QUICK_SCENES),
+    conda:
+        CONDA_ENV
+    threads: scene_threads
+    resources:
+        printer=1,
+    params:
+        scene=lambda wildcards: canonical_json(
+            stage_config(config["scenes"][wildcards.scene], "quick")
+        ),
+        store=lambda wildcards: target(STORE, wildcards.scene),
+        staging=lambda wildcards: target(STAGING_STORE, wildcards.scene),
+        code=code_digest("quick.py"),
+    script:
+        "../scripts/quick.py"

@@ -1,0 +1,102 @@
+"""The quick plan's space-filling design: every round's prefix covers the gel the camera sees."""
+
+import numpy as np
+import pytest
+
+from threedcal.collect.design import (
+    covering_radius,
+    discrepancy,
+    halton_design,
+    hexagonal_covering_radius,
+)
+from threedcal.collect.plan import (
+    dome_sag_mm,
+    plan_from_config,
+    quick_area_mm,
+    quick_rounds,
+    validate_plan,
+)
+from threedcal.config import validate_config
+from threedcal.profiles import load_profile
+
+SENSOR = load_profile("sensor", "digit_fots")
+
+
+def quick_plan_config(**plan) -> dict:
+    scene = {
+        "sensor": "digit_fots",
+        "printer": "ender3",
+        "plan": {"pattern": "quick", "depth_mm": 1.0, "frames": 2, **plan},
+        "dataset": {"downscale": 2},
+    }
+    return validate_config({"scenes": {"q": scene}})["scenes"]["q"]["plan"]
+
+
+def test_covering_radius_and_hexagonal_yardstick_exact():
+    # one press at the centre of a 2 x 2 mm square: the corners lie sqrt(2) mm away
+    assert covering_radius([[1.0, 1.0]], (0, 0, 2, 2), resolution=201) == pytest.approx(np.sqrt(2))
+    # a 2 x 2 lattice of 1 mm cells: every cell's corner lies sqrt(0.5) mm from its centre
+    grid = [[0.5, 0.5], [1.5, 0.5], [0.5, 1.5], [1.5, 1.5]]
+    assert covering_radius(grid, (0, 0, 2, 2), resolution=201) == pytest.approx(np.sqrt(0.5))
+    # n hexagons of side s tile area A: A = n * 3 sqrt(3) / 2 * s^2, and the covering radius is s
+    assert hexagonal_covering_radius(6, (0, 0, 3 * np.sqrt(3), 3)) == pytest.approx(1.0)
+
+
+def test_every_round_prefix_covers_the_area_evenly():
+    """Each round's prefix, for several seeds: centred discrepancy below the 5th percentile of
+    uniformly random designs of its size, and no spot farther from a press than 3x the hexagonal
+    lattice's covering radius (the least any design reaches)."""
+    base = quick_plan_config(round_presses=10, max_presses=50)
+    area = quick_area_mm(SENSOR, base)
+    x0, y0, x1, y1 = area
+    rng = np.random.default_rng(123)
+    random_5th = {
+        n: np.percentile(
+            [
+                discrepancy(np.column_stack([rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)]), area)
+                for _ in range(200)
+            ],
+            5,
+        )
+        for n in (10, 20, 30, 40, 50)
+    }
+    for seed in range(4):
+        plan = plan_from_config({**base, "seed": seed}, SENSOR)
+        presses = plan.loc[plan["phase"] == "grid", ["x_mm", "y_mm"]].to_numpy()
+        assert len(presses) == 50
+        for n, bound in random_5th.items():
+            assert discrepancy(presses[:n], area) < bound, (seed, n)
+            assert covering_radius(presses[:n], area) <= 3 * hexagonal_covering_radius(n, area)
+
+
+def test_quick_plan_rows_rounds_and_determinism():
+    config = quick_plan_config(round_presses=10, max_presses=30, seed=4, touch_search={"points": 1})
+    plan = plan_from_config(config, SENSOR)
+    assert list(dict.fromkeys(plan["phase"])) == ["touch", "grid"]
+    quick = plan[plan["phase"] == "grid"]
+    first = int(quick.index[0])
+    assert quick_rounds(config, first) == [first + 10, first + 20, first + 30]
+    # one depth, dome compensated as the grid's; `frames` per press; inside the area
+    np.testing.assert_allclose(
+        quick["depth_mm"], 1.0 + dome_sag_mm(SENSOR, quick["x_mm"], quick["y_mm"]), atol=1e-4
+    )
+    assert (quick["frames"] == 2).all()
+    x0, y0, x1, y1 = quick_area_mm(SENSOR, config)
+    assert quick["x_mm"].between(x0, x1).all() and quick["y_mm"].between(y0, y1).all()
+    validate_plan(plan, SENSOR, load_profile("printer", "ender3"))
+    # the same seed, the same plan; another seed, another; a larger cap keeps the rounds before
+    assert plan.equals(plan_from_config(config, SENSOR))
+    other = plan_from_config({**config, "seed": 5}, SENSOR)
+    assert not np.allclose(other["x_mm"].to_numpy()[first:], quick["x_mm"].to_numpy())
+    longer = plan_from_config({**config, "max_presses": 50}, SENSOR)
+    assert longer.iloc[: len(plan)].equals(plan)
+
+
+def test_each_round_is_a_set_of_the_halton_prefix():
+    """Reordering a round into a short path changes no round's set of presses."""
+    config = quick_plan_config(round_presses=10, max_presses=30, touch_search={"points": 0})
+    quick = plan_from_config(config, SENSOR)[["x_mm", "y_mm"]].to_numpy()
+    design = np.round(halton_design(30, quick_area_mm(SENSOR, config), 0, 10), 4)
+    for start in (0, 10, 20):
+        ours = {tuple(p) for p in quick[start : start + 10]}
+        assert ours == {tuple(p) for p in design[start : start + 10]}

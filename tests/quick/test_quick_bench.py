@@ -1,0 +1,112 @@
+"""The quick calibration on the simulated bench, end to end with a tiny network and budget."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import zarr
+from conftest import snapshot
+
+from threedcal.collect.store import StoreError, open_checked
+from threedcal.config import validate_config
+from threedcal.model.inference import DepthEstimator
+from threedcal.quick.loop import ROUND_COLUMNS, quick_stage
+
+
+def scene(margin: float) -> dict:
+    config = {
+        "seed": 2,
+        "torch_threads": 1,
+        "scenes": {
+            "q": {
+                "sensor": "digit_fots",
+                "printer": "ender3",
+                "plan": {
+                    "pattern": "quick",
+                    "depth_mm": 1.0,
+                    "frames": 1,
+                    "round_presses": 4,
+                    "max_presses": 12,
+                    "registration": {"spacing_mm": 3.0, "depth_mm": 0.25},
+                    "touch_search": {"points": 1},
+                },
+                "bench": {"unit": 1},
+                "dataset": {"downscale": 2},
+                "model": {
+                    "preset": "compact_tiny",
+                    "batch_size": 4,
+                    "patch_px": 32,
+                    "contact_patches": 2,
+                    "background_patches": 1,
+                    "lr": 3.0e-3,
+                },
+                # margin 0.99: any round that is not worth 99 % stops it, so round 2 does
+                "quick": {"steps": 10, "margin": margin},
+            }
+        },
+    }
+    return validate_config(config)["scenes"]["q"]
+
+
+def run(folder, margin):
+    outputs = {
+        "model": folder / "quick/model.pt",
+        "rounds": folder / "quick/rounds.csv",
+        "stop": folder / "quick/stop.json",
+        "work": folder / "quick/rounds",
+    }
+    quick_stage(
+        "q",
+        scene(margin),
+        store=folder / "raw.zarr",
+        staging=folder / ".partial/raw.zarr",
+        progress=False,
+        **outputs,
+    )
+    return outputs
+
+
+@pytest.mark.slow
+def test_rounds_stop_record_model_and_replay(tmp_path):
+    outputs = run(tmp_path, margin=0.99)
+    rounds = pd.read_csv(outputs["rounds"])
+    stop = json.loads(outputs["stop"].read_text())
+    assert tuple(rounds.columns) == ROUND_COLUMNS
+    # round 1 cannot measure an improvement; round 2's bound lies below 0.99: stopped there
+    assert rounds["round"].tolist() == [1, 2] and rounds["presses"].tolist() == [4, 8]
+    assert np.isnan(rounds["improvement"].iloc[0]) and rounds["decision"].iloc[0] == "continue"
+    assert rounds["improvement_upper"].iloc[1] < 0.99
+    assert rounds["decision"].iloc[1] == "stop: improvement below margin"
+    assert (rounds["presses_scored"] == 4).all()  # every press inside the view is labelled
+    assert (rounds["mse_low"] < rounds["mse"]).all() and (rounds["mse"] < rounds["mse_high"]).all()
+    assert rounds["printer_s"].is_monotonic_increasing
+    assert stop["stopped"] == "improvement below margin" and stop["presses"] == 8
+    assert stop["printer_minutes"] == pytest.approx(rounds["printer_s"].iloc[-1] / 60, abs=0.01)
+    # the starting weights and one model a round; the final one is usable as is
+    assert sorted(p.name for p in outputs["work"].iterdir()) == ["r0", "r1", "r2"]
+    estimator = DepthEstimator.from_checkpoint(outputs["model"], device="cpu")
+    assert estimator.preset == "compact_tiny" and estimator.image_shape == (160, 120)
+    # the store, in place and finished with the rows it holds; the rest never pressed
+    store = tmp_path / "raw.zarr"
+    attrs = zarr.open_group(str(store), mode="r").attrs
+    captured = zarr.open_group(str(store), mode="r")["captured"][:]
+    rows = attrs["captured_rows"]
+    assert attrs["complete"] and captured[:rows].all() and not captured[rows:].any()
+    assert len(captured) - rows == 4  # round 3 was never collected
+    assert attrs["quick"]["stopped"] == "improvement below margin"
+    assert attrs["runs"][-1]["ended_at_row"] == rows  # one run, ended at the round's boundary
+    assert open_checked(store)["point"].values.max() == rows - 1
+    assert not (tmp_path / ".partial/raw.zarr").exists()
+    # a rerun replays the rounds from the store, untouched: the same decisions and model
+    before = snapshot(store)
+    first_model = outputs["model"].read_bytes()
+    run(tmp_path, margin=0.99)
+    assert snapshot(store) == before
+    replayed = pd.read_csv(outputs["rounds"]).drop(columns="train_s")
+    pd.testing.assert_frame_equal(replayed, rounds.drop(columns="train_s"))
+    assert outputs["model"].read_bytes() == first_model
+    # a stop rule that would now go on past the store is refused, naming the store
+    with pytest.raises(StoreError, match="asks for more"):
+        run(tmp_path, margin=0.01)
+    assert snapshot(store) == before
