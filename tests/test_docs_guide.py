@@ -73,9 +73,16 @@ def test_every_docs_path_the_code_cites_exists():
             ]
     missing = []
     for path in files:
-        for cited in CITED_PAGE.findall(path.read_text(errors="replace")):
-            if "*" not in cited and not (REPO / cited).exists():
+        text = path.read_text(errors="replace")
+        for m in CITED_PAGE.finditer(text):
+            cited = m.group(0)
+            anchor = re.match(r"#([\w-]+)", text[m.end() :])
+            if "*" in cited:
+                continue
+            if not (REPO / cited).exists():
                 missing.append(f"{path.relative_to(REPO)}: {cited}")
+            elif anchor and cited.endswith(".md") and anchor.group(1) not in anchors(REPO / cited):
+                missing.append(f"{path.relative_to(REPO)}: {cited}#{anchor.group(1)}")
     assert not missing, "\n".join(missing)
 
 
