@@ -44,7 +44,7 @@ STEP = 0.1  # grid step, contact radii: 61 x 61 points
 MIN_COVERAGE = 0.5  # a grid point enters the mean where at least half the presses see it
 BOOTSTRAP = 500
 LEVEL = 0.95
-FIGURES = ("halo_nrms", "halo_m1_up", "halo_m1_right")
+FIGURES = ("halo_nrms", "halo_m1_up", "halo_m1_right", "halo_m3_up")
 
 
 def grid(reach: float = REACH, step: float = STEP) -> tuple[np.ndarray, np.ndarray]:
@@ -162,11 +162,27 @@ def first_moments(image: np.ndarray, reach: float = REACH) -> tuple[float, float
     return up, right
 
 
+def third_moment(image: np.ndarray, reach: float = REACH) -> float:
+    """halo_m3_up (module docstring); NaN when the halo is zero or off the frame."""
+    n = image.shape[0]
+    ring = annulus(image.shape[:2], reach)
+    step = reach / ((n - 1) // 2) if n > 1 else 1.0
+    u, v = grid(reach, step)
+    mag = np.abs(np.asarray(image, dtype=np.float64)).sum(axis=-1) if image.ndim == 3 else image
+    keep = ring & np.isfinite(mag)
+    total = float(mag[keep].sum())
+    if not keep.any() or total == 0:
+        return math.nan
+    alpha = np.arctan2(-v[keep], u[keep])
+    return float((mag[keep] * np.cos(3 * (alpha - np.pi / 2))).sum()) / total
+
+
 def figures(image: np.ndarray, reference: np.ndarray) -> dict[str, float]:
     """Each figure of `image` and its distance from `reference` (both mean cut-outs): the moments
     and their absolute differences; halo_nrms is a distance only."""
     up, right = first_moments(image)
     ref_up, ref_right = first_moments(reference)
+    m3, ref_m3 = third_moment(image), third_moment(reference)
     return {
         "halo_nrms": math.nan,
         "halo_m1_up": up,
@@ -174,6 +190,8 @@ def figures(image: np.ndarray, reference: np.ndarray) -> dict[str, float]:
         "d_halo_nrms": nrms(image, reference),
         "d_halo_m1_up": abs(up - ref_up),
         "d_halo_m1_right": abs(right - ref_right),
+        "halo_m3_up": m3,
+        "d_halo_m3_up": abs(m3 - ref_m3),
     }
 
 
@@ -380,18 +398,20 @@ CSV_COLUMNS = (
 
 
 def write_csv(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
-    """One row per (folder, sensor, figure): CSV_COLUMNS."""
+    """One row per (folder, sensor, figure): CSV_COLUMNS; a folder without a 2-D comparison (None)
+    has no rows."""
     import csv
 
     with open(path, "w", newline="") as fh:
         out = csv.writer(fh)
         out.writerow(CSV_COLUMNS)
         for folder, sensor, res in results:
-            for r in res.rows:
+            for r in res.rows if res is not None else []:
                 out.writerow(
                     [
                         folder,
                         sensor,
+                        r["figure"],
                         *(_num(r[c]) for c in CSV_COLUMNS[3:-5]),
                         r["ok"],
                         *res.n_presses,
@@ -407,7 +427,8 @@ def _num(x: float) -> str:
 def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
     """Per folder a row: the held-out real mean, the simulated mean, simulated − real and the other
     real half, each as 128 + gain x change (RGB; the gain maps the real mean's 99th percentile of
-    |change| to 100 DN), the contact (1 radius) and the halo's edge (REACH) drawn."""
+    |change| on the halo to 100 DN: the contact saturates), the contact (1 radius) and the halo's
+    edge (REACH) drawn."""
     from threedcal.plotting import pyplot
 
     plt = pyplot()
@@ -415,7 +436,8 @@ def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
     fig, axes = plt.subplots(n, 4, figsize=(10, 2.8 * n), squeeze=False)
     t = np.linspace(0, 2 * np.pi, 200)
     for row, (folder, sensor, res) in zip(axes, results, strict=False):
-        scale = float(np.nanpercentile(np.abs(res.real), 99)) or 1.0
+        ring = annulus(res.real.shape[:2])
+        scale = float(np.nanpercentile(np.abs(res.real[ring]), 99)) or 1.0
         gain = 100.0 / scale
         panels = [
             ("real (held out)", res.real),
@@ -439,7 +461,9 @@ def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
             f"m1_up real {up_row['real']:.2f} sim {up_row['sim']:.2f}",
             fontsize=7,
         )
-    fig.suptitle("contact-centred mean change, in contact radii (x 100 DN / real p99)", fontsize=9)
+    fig.suptitle(
+        "contact-centred mean change, in contact radii (x 100 DN / real halo p99)", fontsize=9
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
