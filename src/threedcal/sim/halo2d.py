@@ -447,6 +447,7 @@ def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
         ]
         nrms_row = next(r for r in res.rows if r["figure"] == "halo_nrms")
         up_row = next(r for r in res.rows if r["figure"] == "halo_m1_up")
+        m3_row = next(r for r in res.rows if r["figure"] == "halo_m3_up")
         for ax, (title, img) in zip(row, panels, strict=True):
             rgb = np.clip(128 + gain * np.nan_to_num(img, nan=0.0), 0, 255).astype(np.uint8)
             ax.imshow(rgb, extent=(-REACH, REACH, REACH, -REACH))
@@ -458,7 +459,8 @@ def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
         row[0].set_ylabel(f"{sensor}\n{folder}", fontsize=7)
         row[2].set_xlabel(
             f"nrms {nrms_row['sim_distance']:.2f} (tol {nrms_row['tolerance']:.2f}); "
-            f"m1_up real {up_row['real']:.2f} sim {up_row['sim']:.2f}",
+            f"m1_up real {up_row['real']:.2f} sim {up_row['sim']:.2f}; "
+            f"m3_up real {m3_row['real']:.2f} sim {m3_row['sim']:.2f}",
             fontsize=7,
         )
     fig.suptitle(
