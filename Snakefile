@@ -38,6 +38,7 @@ from threedcal.scenes import (
     QUICK,
     QUICK_ROUNDS,
     REALISM_TABLE,
+    REALISM_HALO,
     REGISTRATION,
     REGISTRATION_FIGURE,
     RESKIN_EVAL,

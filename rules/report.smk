@@ -56,6 +56,13 @@ rule realism:
             category="study",
             subcategory="simulator realism",
         ),
+        halo_csv=REALISM_HALO["csv"],
+        halo_png=report(
+            REALISM_HALO["png"],
+            caption="../workflow/report/realism_halo.rst",
+            category="study",
+            subcategory="simulator realism",
+        ),
     log:
         "results/logs/realism.log",
     benchmark:

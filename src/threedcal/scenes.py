@@ -141,6 +141,7 @@ INTEGRATION_STUDY = _files(
 INTEGRATION_STUDY_TARGETS = list(INTEGRATION_STUDY.values())
 STATS_OVERVIEW = f"{RESULTS}/stats/mse_std_vs_p.png"
 REALISM_TABLE = f"{RESULTS}/realism/table.txt"
+REALISM_HALO = _files(f"{RESULTS}/realism", csv="halo_2d.csv", png="halo_2d.png")
 ENVIRONMENT = f"{RESULTS}/environment.json"
 SUMMARY = f"{RESULTS}/summary.md"
 
@@ -308,7 +309,7 @@ def study_targets(config: Mapping) -> list[str]:
     if ablation_scenes(config):
         targets += [STATS_OVERVIEW]
     if config.get("realism"):
-        targets += [REALISM_TABLE]
+        targets += [REALISM_TABLE, *REALISM_HALO.values()]
     targets += [ENVIRONMENT, SUMMARY]
     return targets
 

@@ -550,7 +550,30 @@ def split_halves(labels: Sequence, seed: int, group_px: float = 4.0, *, where: s
 
 
 # ------------------------------------------------------------------------- the report
+@dataclass
+class RealismRun:
+    """A realism check of one folder: the table as text, whether every figure passed, and the 2-D
+    halo comparison (threedcal.sim.halo2d; None in sample)."""
+
+    text: str
+    ok: bool
+    halo: Any = None
+
+
 def realism_report(
+    real: str | Path,
+    sensor: str,
+    seed: int = 0,
+    out: str | Path | None = None,
+    **kwargs,
+) -> tuple[str, bool]:
+    """The side-by-side table as text (and written to `out`), and whether every figure passed:
+    `realism_run`'s text and verdict."""
+    run = realism_run(real, sensor, seed, out, **kwargs)
+    return run.text, run.ok
+
+
+def realism_run(
     real: str | Path,
     sensor: str,
     seed: int = 0,
@@ -560,17 +583,26 @@ def realism_report(
     fit: bool = True,
     fitted_out: str | Path | None = None,
     gel_mechanics: str | None = None,
-) -> tuple[str, bool]:
-    """The side-by-side table as text (and written to `out`), and whether every figure passed.
+) -> RealismRun:
+    """The realism check of one real folder.
 
     `fit` (the default): the real images are split into two halves by press (`split_seed`), the
     profile's photometric constants are fitted to one half and background.png
     (threedcal.sim.fit), and the table compares the fitted optics with the *other* half only: out
-    of sample; `fitted_out` receives the fitted profile (YAML). `fit=False`: the profile as it is,
-    against every image (and the background frame). `gel_mechanics`: the gel's model in place of
-    the profile's (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
+    of sample, the radial figures (threedcal.sim.realism) and the 2-D halo (threedcal.sim.halo2d,
+    the fitting half's real frames as its reference); `fitted_out` receives the fitted profile
+    (YAML). `fit=False`: the profile as it is, against every image (and the background frame), no
+    2-D halo (it needs two real halves). `gel_mechanics`: the gel's model in place of the profile's
+    (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
     from threedcal.profiles import load_profile, with_gel_mechanics
-    from threedcal.sim.realism import LABELLED_ONLY, compare, format_table, load_ball_dataset
+    from threedcal.sim.halo2d import folder_halos, format_halos
+    from threedcal.sim.realism import (
+        LABELLED_ONLY,
+        compare,
+        format_table,
+        load_ball_dataset,
+        render_presses,
+    )
 
     data = load_ball_dataset(real)
     profile = with_gel_mechanics(load_profile("sensor", sensor), gel_mechanics)
@@ -582,12 +614,22 @@ def realism_report(
         f" images of {data.root}"
     )
     lines = [head]
+    halo = None
     if fit:
         fit_half, test_half = split_halves(data.labels, split_seed, where=str(data.root))
         fitted = fit_optics(profile, data, fit_half)
         if fitted_out is not None:
             fitted.write_profile(fitted_out)
-        rows = compare(data, fitted.profile, seed=seed, labels=test_half, background_is_real=False)
+        renders = render_presses(data, fitted.profile, seed, test_half)
+        rows = compare(
+            data,
+            fitted.profile,
+            seed=seed,
+            labels=test_half,
+            background_is_real=False,
+            renders=renders,
+        )
+        halo = folder_halos(data, test_half, fit_half, renders, seed=seed)
         lines += [
             f"OUT OF SAMPLE: optics fitted on {len(fit_half)} images + background.png "
             f"(split_seed {split_seed}, presses kept together), figures on the other "
@@ -610,9 +652,11 @@ def realism_report(
         if bad
         else "realism: ok, every simulated figure within the real range and tolerance",
     ]
+    if halo is not None:
+        lines.append(format_halos(halo))
     if fit:
         lines.append(fitted.summary())
     text = "\n".join(lines) + "\n"
     if out is not None:
         Path(out).write_text(text)
-    return text, not bad
+    return RealismRun(text, not bad and (halo is None or halo.ok), halo)

@@ -326,18 +326,12 @@ def elastic_contact_radii(sim, radius_mm: float, center_px, depths=None):
     return np.asarray(depths, dtype=float), np.maximum.accumulate(np.asarray(radii))
 
 
-def compare(
-    data: BallDataset,
-    profile: Mapping[str, Any],
-    seed: int = 0,
-    labels: list[BallLabel] | None = None,
-    *,
-    background_is_real: bool = True,
-) -> list[dict[str, Any]]:
-    """One row per figure: real min/max, simulated median, tolerance, pass — over `labels` (default
-    every image). `background_is_real`: the background frame's own figures join the real range
-    (not when the optics were fitted to it). Located (unlabelled) contacts are located in the
-    renders too, and the figures that need a known contact are left out (NaN, never failing)."""
+def render_presses(
+    data: BallDataset, profile: Mapping[str, Any], seed: int, labels: list[BallLabel]
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The simulator's blank frame and its render of each press of `labels` (frame_index i + 1): the
+    ball at the label's centre, pressed until its contact has the label's radius
+    (`simulated_depth_mm`; an elastic gel's own contact radii)."""
     from threedcal.sim.indenters import Sphere
     from threedcal.sim.optics import GelSimulator
 
@@ -345,12 +339,48 @@ def compare(
         profile, seed, image_size=(data.width_px, data.height_px), px_per_mm=data.px_per_mm
     )
     ball = Sphere(data.ball_radius_mm)
+    frames = []
+    table = None
+    for i, label in enumerate(labels):
+        radii = None
+        if sim.mechanics == "elastic":  # a flat gel contacts alike everywhere: one table
+            if table is None or sim.domed:
+                table = elastic_contact_radii(sim, data.ball_radius_mm, label.center_px)
+            radii = table
+        frames.append(
+            sim.render(
+                ball,
+                label.center_px,
+                0.0,
+                simulated_depth_mm(label, data, radii),
+                frame_index=i + 1,
+            )
+        )
+    return sim.blank(frame_index=0), frames
+
+
+def compare(
+    data: BallDataset,
+    profile: Mapping[str, Any],
+    seed: int = 0,
+    labels: list[BallLabel] | None = None,
+    *,
+    background_is_real: bool = True,
+    renders: tuple[np.ndarray, list[np.ndarray]] | None = None,
+) -> list[dict[str, Any]]:
+    """One row per figure: real min/max, simulated median, tolerance, pass — over `labels` (default
+    every image). `background_is_real`: the background frame's own figures join the real range
+    (not when the optics were fitted to it). Located (unlabelled) contacts are located in the
+    renders too, and the figures that need a known contact are left out (NaN, never failing).
+    `renders`: `render_presses(data, profile, seed, labels)` when already made."""
+    labels = data.labels if labels is None else labels
     ball_px = data.ball_radius_mm * data.px_per_mm
     real_bg = data.read("background.png")
-    sim_bg = sim.blank(frame_index=0)
+    sim_bg, frames = renders if renders is not None else render_presses(data, profile, seed, labels)
+    if len(frames) != len(labels):
+        raise ConfigError(f"{len(frames)} renders for {len(labels)} presses")
     real, simulated = [], []
-    table = None
-    for i, label in enumerate(data.labels if labels is None else labels):
+    for label, frame in zip(labels, frames, strict=True):
         real.append(image_figures(data.read(label.image), real_bg, label, ball_px))
         if background_is_real:
             # the real background frame is a real frame too: its figures (same mask) join the range
@@ -361,14 +391,6 @@ def compare(
                     if k in BACKGROUND
                 }
             )
-        radii = None
-        if sim.mechanics == "elastic":  # a flat gel contacts alike everywhere: one table
-            if table is None or sim.domed:
-                table = elastic_contact_radii(sim, data.ball_radius_mm, label.center_px)
-            radii = table
-        frame = sim.render(
-            ball, label.center_px, 0.0, simulated_depth_mm(label, data, radii), frame_index=i + 1
-        )
         seen = label
         if label.located:  # find the rendered contact the way the real one was found
             seen = locate_ball(frame, sim_bg, ball_px, f"render of {label.image}")
