@@ -9,12 +9,13 @@ import pytest
 
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
-from threedcal.sim.fit import fit_optics, image_groups, realism_report, split_halves
+from threedcal.sim.fit import fit_optics, realism_report, split_halves
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator, background_field
 from threedcal.sim.realism import (
     BallLabel,
     halo_radii,
+    image_groups,
     load_ball_dataset,
     locate_ball,
 )

@@ -513,20 +513,6 @@ def _fit_noise(profile, data, frames, labels, ball_px, correlation_range_px) -> 
 
 
 # ------------------------------------------------------------------------- the split
-def image_groups(labels: Sequence, group_px: float = 4.0) -> list[list[int]]:
-    """Indices of images grouped by press: images whose contact centres lie within `group_px` of
-    each other (the same place pressed again, or the same frame twice) share a group (transitively,
-    threedcal.model.folds.linked_groups), groups in the order of their first image."""
-    from threedcal.model.folds import linked_groups
-
-    if not len(labels):
-        return []
-    centres = np.array([label.center_px for label in labels], dtype=float)
-    offsets = centres[:, None, :] - centres[None, :, :]
-    group = linked_groups(np.hypot(offsets[..., 0], offsets[..., 1]) <= group_px)
-    return [np.flatnonzero(group == g).tolist() for g in range(int(group.max()) + 1)]
-
-
 MIN_IMAGES = 4
 
 
@@ -538,6 +524,8 @@ def split_halves(labels: Sequence, seed: int, group_px: float = 4.0, *, where: s
             f"{where or 'dataset'}: {len(labels)} contact images; fitting on one half and "
             f"comparing on the other needs at least {MIN_IMAGES}"
         )
+    from threedcal.sim.realism import image_groups
+
     groups = image_groups(labels, group_px)
     if len(groups) < 2:
         raise ConfigError(f"{where or 'dataset'}: every image is one press; cannot split")

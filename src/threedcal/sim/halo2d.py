@@ -318,9 +318,8 @@ def folder_halos(
     blank and its render of each of `test_labels`, `realism.render_presses`) against the real frames
     of `test_labels`, the real frames of `other_labels` as the reference. Each press is cut out
     around its label (centre and radius) in real and render alike; presses are grouped by place
-    (`fit.image_groups`) for the bootstrap."""
-    from threedcal.sim.fit import image_groups
-    from threedcal.sim.realism import contact_change
+    (`realism.image_groups`) for the bootstrap."""
+    from threedcal.sim.realism import contact_change, image_groups
 
     sim_bg, frames = renders
     if len(frames) != len(test_labels):

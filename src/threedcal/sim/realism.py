@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -427,3 +427,17 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             f"{r['tolerance']:6.2f}  {'ok' if r['ok'] else 'OUT OF RANGE'}"
         )
     return "\n".join(lines)
+
+
+def image_groups(labels: Sequence, group_px: float = 4.0) -> list[list[int]]:
+    """Indices of images grouped by press: images whose contact centres lie within `group_px` of
+    each other (the same place pressed again, or the same frame twice) share a group (transitively,
+    threedcal.model.folds.linked_groups), groups in the order of their first image."""
+    from threedcal.model.folds import linked_groups
+
+    if not len(labels):
+        return []
+    centres = np.array([label.center_px for label in labels], dtype=float)
+    offsets = centres[:, None, :] - centres[None, :, :]
+    group = linked_groups(np.hypot(offsets[..., 0], offsets[..., 1]) <= group_px)
+    return [np.flatnonzero(group == g).tolist() for g in range(int(group.max()) + 1)]
