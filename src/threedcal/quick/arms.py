@@ -448,10 +448,12 @@ def arms_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
                 c=colours["full"],
                 label=f"full: {int(full['presses'])} presses, {full['printer_min']:.0f} min",
             )
+            if metric == "validation_mse":  # fresh weights start an order of magnitude off
+                ax.set(yscale="log")
             ylabel = "validation MSE" if metric == "validation_mse" else f"{name} Type 2 (µm)"
             ax.set_ylabel(ylabel, fontsize=8)
             ax.tick_params(labelsize=7)
-        row_axes[0].legend(fontsize=6)
+    axes[0][0].legend(fontsize=6)
     axes[-1][0].set_xlabel("presses")
     axes[-1][1].set_xlabel("printer minutes (motion model)")
     fig.suptitle(title, fontsize=9)
