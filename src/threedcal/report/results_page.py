@@ -342,8 +342,8 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Quick calibration",
         "",
-        "The stopped round against the same unit's P = 80 models (printer protocol, 95 % "
-        "intervals; targets: MSE +10 %, Type 2 +10 µm, 50 presses, 5 minutes).",
+        "The stopped round against the unit's P = 80 models; 95 % intervals; targets: "
+        "+10 %, +10 µm (printer protocol), 50 presses, 5 minutes.",
         "",
         *_table(
             ["scene", "presses, min", "MSE vs full", "scratch", "worst Δ Type 2 µm", "budget"],
