@@ -5,6 +5,7 @@ from pathlib import Path
 from snakemake.utils import min_version, validate
 
 from threedcal.config import (
+    FULL_TRAINING_P,
     convergence_fractions,
     is_imported,
     model_keys,
@@ -36,7 +37,9 @@ from threedcal.scenes import (
     PRESSING,
     PRETRAINED_DIR,
     QUICK,
+    QUICK_ARMS,
     QUICK_ROUNDS,
+    QUICK_SCRATCH,
     REALISM_TABLE,
     REALISM_HALO,
     REGISTRATION,
@@ -56,6 +59,7 @@ from threedcal.scenes import (
     SUMMARY,
     TRAINSET,
     ablation_scenes,
+    compared_with,
     full_model_file,
     has_objects,
     model_file,
@@ -99,6 +103,8 @@ IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
 QUICK_SCENES = quick_scenes(config)
+# quick scenes measured against a full calibration of their unit (quick.compare_with)
+COMPARED_SCENES = [n for n in QUICK_SCENES if compared_with(config["scenes"][n])]
 # scenes the collect stage probes (a quick scene collects in its own stage, round by round)
 COLLECTED_SCENES = [
     name for name in SCENES if name not in IMPORTED_SCENES and name not in QUICK_SCENES

@@ -37,3 +37,63 @@ rule quick:
         code=code_digest("quick.py"),
     script:
         "../scripts/quick.py"
+
+
+# Stage `quick_arms`, for quick scenes with `quick.compare_with`: the rounds' models (quick), the same
+# presses trained from scratch, and the compared scene's P = 80 models (full), scored on that scene's
+# validation coordinates and test-object presses (threedcal.quick.arms).
+def arms_inputs(wildcards):
+    """The compared scene's files: its P = 80 models, validation set, registration, object presses."""
+    full = compared_with(config["scenes"][wildcards.scene])
+    return {
+        "full": [
+            model_file(full, p, r)
+            for p, r in model_keys(config["scenes"][full])
+            if p == FULL_TRAINING_P
+        ],
+        "trainset": target(TRAINSET, full),
+        "splits": target(SPLITS, full),
+        "summary": target(COLLECT["summary"], full),
+        "registration": target(REGISTRATION, full),
+        **{f"pressing_{k}": target(v, full) for k, v in PRESSING.items()},
+    }
+
+
+rule quick_arms:
+    input:
+        unpack(arms_inputs),
+        rounds=QUICK["rounds"],
+        stop=QUICK["stop"],
+        work=QUICK_ROUNDS,
+    output:
+        table=QUICK_ARMS["table"],
+        figure=report(
+            QUICK_ARMS["figure"],
+            caption="../workflow/report/quick_arms.rst",
+            category="{scene}",
+            subcategory="quick calibration",
+        ),
+        verdicts=QUICK_ARMS["verdicts"],
+        scratch=directory(QUICK_SCRATCH),
+    log:
+        "results/{scene}/logs/quick_arms.log",
+    benchmark:
+        "results/{scene}/benchmarks/quick_arms.tsv"
+    wildcard_constraints:
+        scene=one_of(COMPARED_SCENES),
+    conda:
+        CONDA_ENV
+    threads: scene_threads
+    params:
+        scene=lambda wildcards: canonical_json(
+            stage_config(config["scenes"][wildcards.scene], "quick")
+        ),
+        full=lambda wildcards: compared_with(config["scenes"][wildcards.scene]),
+        objects=lambda wildcards: stage_config(
+            config["scenes"][compared_with(config["scenes"][wildcards.scene])],
+            "objects",
+        ),
+        store=lambda wildcards: target(STORE, wildcards.scene),
+        code=code_digest("quick_arms.py"),
+    script:
+        "../scripts/quick_arms.py"

@@ -65,6 +65,7 @@ def validate_config(config: Mapping, source: str = "config", *, check_files: boo
         for name, scene in config["scenes"].items()
         for msg in _run_problems(scene, check_files)
     ] + _realism_problems(config)
+    problems += compare_problems(config)
     if problems:
         raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
     return config
@@ -175,6 +176,67 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     model = scene.get("model") or {}
     if model.get("init") == "pretrained" and sensor.get("type") == "vision":
         problems += _pretrained_problems(sensor, model, int(scene["dataset"]["downscale"]))
+    return problems
+
+
+# The bench settings that decide which unit is simulated and how it sits in its base (with the
+# sensor profile and the scene's seed): two scenes alike in these probe the same unit, seated alike.
+UNIT_KEYS = (
+    "unit",
+    "gel_mechanics",
+    "seating_offset_mm",
+    "seating_rotation_deg",
+    "touch_offset_mm",
+)
+
+
+def compare_problems(config: Mapping) -> list[str]:
+    """A quick scene's `quick.compare_with` (its full calibration, arm (c) of quick/arms.csv): a
+    collected scene of this config, of the same unit (sensor, and on the bench the same unit,
+    seating and seed), with P = 80 models, test objects and the same probe and working resolution."""
+    problems = []
+    for name, scene in config["scenes"].items():
+        other = (scene.get("quick") or {}).get("compare_with")
+        if other is None:
+            continue
+        key = f"scenes.{name}.quick.compare_with"
+        if (scene.get("plan") or {}).get("pattern") != "quick":
+            problems.append(f"{key}: only a quick scene (plan.pattern: quick) is compared")
+            continue
+        full = config["scenes"].get(other)
+        if full is None or other == name:
+            names = ", ".join(n for n in config["scenes"] if n != name)
+            problems.append(f"{key}: no other scene {other!r} in this config (scenes: {names})")
+            continue
+        if is_imported(full) or (full.get("plan") or {}).get("pattern") == "quick":
+            problems.append(f"{key}: {other} is not a collected grid scene of this unit")
+            continue
+        differ = [
+            f"{k} {scene.get(k)!r} here, {full.get(k)!r} there"
+            for k in ("sensor", "port", "seed")
+            if scene.get(k) != full.get(k)
+        ]
+        if scene.get("port") == "sim":
+            differ += [
+                f"bench.{k} {scene['bench'].get(k)!r} here, {full['bench'].get(k)!r} there"
+                for k in UNIT_KEYS
+                if scene["bench"].get(k) != full["bench"].get(k)
+            ]
+        for section, k in (("probe", "radius_mm"), ("dataset", "downscale")):
+            if scene[section].get(k) != full[section].get(k):
+                differ.append(
+                    f"{section}.{k} {scene[section].get(k)!r} here, {full[section].get(k)!r} there"
+                )
+        if differ:
+            problems.append(
+                f"{key}: {other} is not this unit, seated and imaged alike: " + "; ".join(differ)
+            )
+        if FULL_TRAINING_P not in training_fractions(full):
+            problems.append(
+                f"{key}: {other} trains no P = {FULL_TRAINING_P} models (its ablation.fractions)"
+            )
+        if not full.get("objects"):
+            problems.append(f"{key}: {other} presses no test objects (its `objects`)")
     return problems
 
 

@@ -64,6 +64,10 @@ PRETRAINED_DIR = f"{RESULTS}/pretrained/{{sensor}}"
 # presses until the stop rule; its store is STORE, a source like the collect stage's.
 QUICK = _files(f"{SCENE}/quick", model="model.pt", rounds="rounds.csv", stop="stop.json")
 QUICK_ROUNDS = f"{SCENE}/quick/rounds"
+# The three arms of a quick scene with `quick.compare_with` (rules/quick.smk, quick_arms): its rounds,
+# the same presses trained from scratch (one model a round under scratch/), its full calibration.
+QUICK_ARMS = _files(f"{SCENE}/quick", table="arms.csv", figure="arms.png", verdicts="arms.json")
+QUICK_SCRATCH = f"{SCENE}/quick/scratch"
 # The stats stage (rules/stats.smk), for scenes with an ablation.
 STATS = _files(
     f"{SCENE}/stats",
@@ -223,7 +227,10 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
 
     targets = of(SCENE_JSON)
     if is_quick(scene):  # one model, round by round; no dataset, ablation or objects stage
-        return targets + of(*QUICK.values())
+        targets += of(*QUICK.values())
+        if compared_with(scene):
+            targets += of(*QUICK_ARMS.values(), QUICK_SCRATCH)
+        return targets
     if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
         return targets + of(*COLLECT.values(), *RESKIN_MODEL.values(), *RESKIN_EVAL.values())
     if is_imported(scene):
@@ -255,6 +262,11 @@ def is_quick(scene: Mapping) -> bool:
 
 def quick_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if is_quick(scene)]
+
+
+def compared_with(scene: Mapping) -> str | None:
+    """The scene a quick scene's rounds are scored against (`quick.compare_with`), or None."""
+    return (scene.get("quick") or {}).get("compare_with") if is_quick(scene) else None
 
 
 def is_vision(scene: Mapping) -> bool:

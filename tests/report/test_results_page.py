@@ -275,7 +275,7 @@ def test_the_committed_page_is_short_and_carries_no_commit():
     """The docs carry commit hashes only in the changelog; the page stays within its share of
     the docs' word budget."""
     text = (REPO / "docs/results.md").read_text()
-    assert len(text.split()) <= 1800
+    assert len(text.split()) <= 1925  # 1,800 before the Quick calibration table (~106 words)
     assert "commit" not in text.lower()
     assert not re.search(r"\b[0-9a-f]{7,40}\b", text)
 
@@ -495,3 +495,50 @@ def test_the_study_span_runs_from_the_first_jobs_start_to_the_last_jobs_end(tmp_
     bench(tmp_path / "a/benchmarks/collect.tsv", 100.0, END - 1000)
     bench(tmp_path / "benchmarks/summary.tsv", 2.0, END)
     assert study_span(tmp_path) == pytest.approx((END - 1100, END))
+
+
+def write_arms(root: Path, full: str, mse_change: tuple, pawn: tuple) -> None:
+    """quick/arms.json as the quick_arms stage writes it (threedcal.quick.arms.verdicts)."""
+    from threedcal.quick.arms import arms_table, verdicts
+
+    rows = []
+    for arm, round_, presses in (("quick", 5, 50), ("scratch", 5, 50), ("full", None, 2956)):
+        base = {"arm": arm, "round": round_, "presses": presses, "printer_min": 3.2, "steps": 1500}
+        base |= {"replicates": 1, "value": 1.0, "value_lo": 0.9, "value_hi": 1.1}
+        change = (float("nan"),) * 3 if arm == "full" else mse_change
+        change = tuple(c + (arm == "scratch") for c in change)
+        rows.append(
+            base
+            | {"metric": "validation_mse", "object": ""}
+            | dict(zip(("change", "change_lo", "change_hi"), change, strict=True))
+        )
+        for name, diff in (("pill", (1.0, -3.0, 5.0)), ("pawn", pawn)):
+            rows.append(
+                base
+                | {"metric": "type2_um", "object": name}
+                | dict(zip(("change", "change_lo", "change_hi"), diff, strict=True))
+            )
+    record = verdicts(arms_table(rows), root.name, full)
+    (root / "quick").mkdir(parents=True, exist_ok=True)
+    (root / "quick/arms.json").write_text(json.dumps(record))
+
+
+def test_the_quick_table_reads_each_compared_scenes_verdicts(small, tmp_path):
+    quick = {
+        "sensor": "digit",
+        "printer": "ender3",
+        "plan": {"pattern": "quick", "depth_mm": 1.0},
+        "quick": {"compare_with": "sim"},
+    }
+    config = validate_config({**SMALL, "scenes": {**SMALL["scenes"], "q": quick}})
+    results = build_results(tmp_path / "with_quick/results", config)
+    part = section(results_page(results), "## Quick calibration")
+    assert "not in these results (`results/q/quick/arms.json`)" in part
+    write_arms(results / "q", "sim", (0.04, -0.02, 0.12), (12.0, 6.0, 18.0))
+    part = section(results_page(results), "## Quick calibration")
+    assert "Every row: *scene* `q` vs `sim`." in part  # one scene: its column becomes a line
+    assert (
+        "| 50, 3.2 | +4.0 % [-2.0, +12.0] (undecided) | +104.0 % [+98.0, +112.0] "
+        "| pawn 12 [6, 18] (undecided) | met, met |"
+    ) in part
+    assert "## Quick calibration" not in results_page(small[0])  # no compared quick scene

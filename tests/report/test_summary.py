@@ -230,3 +230,35 @@ def test_summary_states_the_convergence_check_per_fraction(tmp_path):
     (line,) = [text for text in convergence_lines(path) if text]
     assert "P = 1 % 0.00400 after 400 steps, 0.00410 after 800 (+2.5%)" in line
     assert "P = 80 % 0.00200 after 2000 steps, 0.00190 after 4000 (-5.0%)" in line
+
+
+def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):
+    from threedcal.quick.arms import arms_table, verdicts
+
+    root = tmp_path / "results"
+    (root / "q/quick").mkdir(parents=True)
+    rows = []
+    for arm, round_ in (("quick", 3), ("full", None)):
+        base = {"arm": arm, "round": round_, "presses": 30 if arm == "quick" else 2956}
+        base |= {"printer_min": 6.5, "steps": 900, "replicates": 1, "value": 1.0}
+        base |= {"value_lo": 0.9, "value_hi": 1.1}
+        rows.append(
+            base
+            | {"metric": "validation_mse", "object": ""}
+            | {"change": 0.2, "change_lo": 0.15, "change_hi": 0.25}
+        )
+        rows.append(
+            base
+            | {"metric": "type2_um", "object": "pill"}
+            | {"change": 2.0, "change_lo": -1.0, "change_hi": 5.0}
+        )
+    (root / "q/quick/arms.json").write_text(
+        json.dumps(verdicts(arms_table(rows), "q", "full_scene"))
+    )
+    config = {"scenes": {"q": {"sensor": "digit", "description": "quick"}}}
+    text = write_summary(config, root, tmp_path / "summary.md")
+    line = next(x for x in text.splitlines() if "quick against full_scene's P = 80" in x)
+    assert "mean validation MSE within 10% of full_scene's P = 80: not met (+20.0%" in line
+    assert "every object (printer protocol): met (highest bound: pill +2.0 µm" in line
+    assert "at most 50 presses: met (30)" in line
+    assert "at most 5 printer minutes (motion model): not met (6.50)" in line

@@ -162,7 +162,7 @@ class QuickLoop:
                 round=k,
                 presses=rows - self.first_row,
                 presses_scored=len(after),
-                printer_s=round(self._printer_s(rows), 1),
+                printer_s=round(self.printer_s(rows), 1),
                 mse=mse,
                 mse_low=low,
                 mse_high=high,
@@ -200,7 +200,7 @@ class QuickLoop:
         estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
         return coordinate_mse(estimator, view, split="score")["mse"].to_numpy(float)
 
-    def _printer_s(self, rows: int) -> float:
+    def printer_s(self, rows: int) -> float:
         """The printer's time for the plan's first `rows` rows, from the motion model (homing,
         moves, waits, settling, capture): what the user waits at the rig, training aside."""
         from threedcal.collect.session import estimate_hardware_s

@@ -308,6 +308,51 @@ def _objects_of(scenes: Mapping[str, dict]) -> list[str]:
     return list(names)
 
 
+def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
+    """Each compared quick scene's final round against its unit's full calibration (arms.json),
+    and the same presses from scratch."""
+    chosen = [n for n, r in scenes.items() if (_config(r).get("quick") or {}).get("compare_with")]
+    if not chosen:
+        return []
+    rows = []
+    for name in chosen:
+        path = results / name / "quick" / "arms.json"
+        if not path.is_file():
+            rows.append([f"`{name}`", _missing(path, results)] + [MISSING] * 4)
+            continue
+        arms = read_json(path)
+        targets = arms["targets"]
+        mse, scratch = targets["validation_mse"], arms.get("scratch_same_round")
+        worst = max(
+            targets["objects"]["per_object"].items(), key=lambda o: o[1]["interval95_um"][1]
+        )
+        rows.append(
+            [
+                f"`{name}` vs `{arms['compare_with']}`",
+                f"{arms['presses']}, {arms['printer_minutes']:.1f}",
+                f"{_pct(mse['change'])} {_interval(*mse['interval95'])} ({mse['verdict']})",
+                MISSING
+                if scratch is None
+                else f"{_pct(scratch['change'])} {_interval(*scratch['interval95'])}",
+                f"{worst[0]} {_estimate(worst[1]['difference_um'], *worst[1]['interval95_um'])} "
+                f"({targets['objects']['verdict']})",
+                f"{targets['presses']['verdict']}, {targets['printer_minutes']['verdict']}",
+            ]
+        )
+    return [
+        "## Quick calibration",
+        "",
+        "The stopped round against the unit's P = 80 models; 95 % intervals; targets: "
+        "+10 %, +10 µm (printer protocol), 50 presses, 5 minutes.",
+        "",
+        *_table(
+            ["scene", "presses, min", "MSE vs full", "scratch", "worst Δ Type 2 µm", "budget"],
+            rows,
+        ),
+        "",
+    ]
+
+
 def objects_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     """Type 2 MAE per object at P = 20 %, both protocols; then the printer protocol over every P."""
     chosen = {name: r for name, r in scenes.items() if has_objects(_config(r))}
@@ -826,6 +871,7 @@ def results_page(results: str | Path, *, title: str = TITLE) -> str:
         *reading_lines(),
         *scenes_section(scenes),
         *objects_section(scenes, results),
+        *quick_section(scenes, results),
         *ablation_section(scenes, results),
         *convergence_section(scenes, results),
         *real_section(scenes, results),

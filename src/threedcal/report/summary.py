@@ -74,6 +74,14 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
                 f"{quick['round']} rounds, {quick['printer_minutes']:.1f} printer minutes",
             )
         )
+    arms = read_json(root / "quick" / "arms.json")
+    if arms:
+        facts.append(
+            (
+                f"quick against {arms['compare_with']}'s P = 80 (quick/arms.json)",
+                "; ".join(target["line"] for target in arms["targets"].values()),
+            )
+        )
     recommendation = root / "stats" / "recommendation.txt"
     if recommendation.is_file():
         facts.append(("recommendation", recommendation.read_text().strip()))

@@ -1,0 +1,516 @@
+"""A quick calibration measured against its unit's full one: three arms, one yardstick.
+
+A quick scene with `quick.compare_with: S` was calibrated on the same unit (sensor, bench unit,
+seating, seed) as the collected scene S. Three arms of models are scored alike:
+
+quick    the quick flow's model after each round, results/{scene}/quick/rounds/r{k}/model.pt
+         (r0: the starting weights, `model.init`'s, before any press);
+scratch  for each round k ≥ 1, a model trained from fresh weights (the scene's preset, no init) on
+         the same presses as round k, with the quick model's cumulative step budget by then (the
+         steps its rounds' checkpoints record), in one cosine cycle at the scene's rate and seed;
+full     S's P = 80 models, every replicate: the calibration at the paper's scale.
+
+Every model is scored on (i) S's validation coordinates with the stats stage's per-coordinate
+gradient MSE (threedcal.evaluate.validation.coordinate_mse), and (ii) S's test-object reporting
+presses under the printer protocol, Type 2 MAE per object (threedcal.evaluate.object_scores).
+Intervals are 95 %. (i) pairs the arms on S's spatial blocks (threedcal.evaluate.ablation:
+blocks one scoring disc across; the two-way replicate + block model, Satterthwaite's degrees of
+freedom): an arm's mean MSE over blocks, and its relative change against `full` with Fieller's
+interval. (ii) pairs them on the presses: an arm's mean Type 2 MAE, and its difference from
+`full`'s, each with the crossed (replicate x press) interval of object_errors.crossed_mean_interval.
+A quick or scratch arm is one training run, so only `full`'s replicates bring training randomness
+into an interval; the quick run's own does not (a rerun with another seed would be the check).
+
+The issue's targets are judged on the quick flow's final model (the round the stop rule stopped
+at): its validation MSE within 10 % of `full`'s, its Type 2 MAE within 10 µm of `full`'s on every
+object (both one-sided: better is within), at most 50 presses, at most 5 printer minutes (the
+motion model's estimate, registration and first-touch search included). A target judged on an
+interval is `met` when the whole interval lies within it, `not met` when the whole interval lies
+past it, else `undecided`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from threedcal.errors import ConfigError
+
+LEVEL = 0.95
+# The issue's targets (issue 49): the quick flow against the same unit's full calibration.
+MSE_WITHIN = 0.10  # relative change of the mean validation MSE
+TYPE2_WITHIN_UM = 10.0  # Type 2 MAE, every object, printer protocol
+MAX_PRESSES = 50
+MAX_PRINTER_MINUTES = 5.0
+
+ARMS = ("quick", "scratch", "full")
+COLUMNS = (
+    "arm",
+    "round",
+    "presses",
+    "printer_min",
+    "steps",
+    "replicates",
+    "metric",
+    "object",
+    "value",
+    "value_lo",
+    "value_hi",
+    "change",
+    "change_lo",
+    "change_hi",
+)
+
+
+@dataclass(frozen=True)
+class ArmModel:
+    """One point of an arm: its models (one, or one per replicate) and what they cost."""
+
+    arm: str
+    round: int | None  # None for `full`
+    presses: int
+    printer_min: float
+    steps: int
+    paths: tuple[str, ...]
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.arm, -1 if self.round is None else self.round)
+
+
+# ---- the models of each arm -----------------------------------------------------------------
+
+
+def _checkpoint_steps(path: str | Path) -> int:
+    from threedcal.model.checkpoint import read_checkpoint
+
+    return int(read_checkpoint(path)["training"].get("steps") or 0)
+
+
+def quick_arm(rounds: pd.DataFrame, rounds_dir: str | Path, start_min: float) -> list[ArmModel]:
+    """The quick flow's models r0..rK (rounds.csv's rounds), with the presses, printer minutes and
+    cumulative training steps each had. `start_min`: the printer's minutes before the first round
+    (registration and first-touch search), the cost of r0."""
+    rounds_dir = Path(rounds_dir)
+    out = [ArmModel("quick", 0, 0, start_min, 0, (str(rounds_dir / "r0" / "model.pt"),))]
+    steps = 0
+    for row in rounds.itertuples(index=False):
+        path = rounds_dir / f"r{int(row.round)}" / "model.pt"
+        if not path.is_file():
+            raise ConfigError(f"{path}: round {int(row.round)} of rounds.csv has no model")
+        steps += _checkpoint_steps(path)
+        out.append(
+            ArmModel(
+                "quick", int(row.round), int(row.presses), row.printer_s / 60, steps, (str(path),)
+            )
+        )
+    return out
+
+
+def scratch_arm(
+    loop,
+    quick: Sequence[ArmModel],
+    out_dir: str | Path,
+    progress: bool = False,
+) -> list[ArmModel]:
+    """For every quick round k ≥ 1: fresh weights trained on round k's presses with its cumulative
+    step budget, into out_dir/r{k}/. `loop`: a threedcal.quick.loop.QuickLoop over the quick
+    scene's finished store (its rounds' plan rows and training settings)."""
+    from threedcal.dataset.build import collected_so_far
+    from threedcal.model.train import train
+
+    out_dir = Path(out_dir)
+    base = loop.train_settings
+    models = []
+    for point in quick:
+        if point.round == 0:
+            continue
+        rows = loop.ends[point.round - 1]
+        trainset, _ = collected_so_far(loop.scene, loop.store_path, rows)
+        budget = max(1, point.steps)
+        settings = replace(
+            base,
+            init=None,
+            stopping={**base.stopping, "first_cycle": budget, "max_steps": budget},
+        )
+        target = out_dir / f"r{point.round}"
+        train(trainset, target, 80, settings, progress=progress)
+        models.append(replace(point, arm="scratch", paths=(str(target / "model.pt"),)))
+        logging.getLogger("threedcal").info(
+            "scratch r%d: %d presses, %d steps", point.round, point.presses, budget
+        )
+    return models
+
+
+def full_arm(paths: Sequence[str | Path], n_points: int, hardware_s: float | None) -> ArmModel:
+    """The compared scene's P = 80 models: the presses they trained on (80 % of its probe
+    coordinates) and the printer's time for those presses (the stats stage's cost convention)."""
+    from threedcal.dataset.splits import subset_size
+
+    points = subset_size(n_points, 80)
+    minutes = math.nan if hardware_s is None else hardware_s * points / n_points / 60
+    steps = int(np.mean([_checkpoint_steps(p) for p in paths]))
+    return ArmModel("full", None, points, minutes, steps, tuple(str(p) for p in paths))
+
+
+# ---- scores ---------------------------------------------------------------------------------
+
+
+def validation_scores(models: Sequence[ArmModel], trainset, splits: pd.DataFrame) -> pd.DataFrame:
+    """arm, round, replicate, point, x_mm, y_mm, mse: every model on the validation coordinates."""
+    from threedcal.evaluate.validation import coordinate_mse
+    from threedcal.model.inference import DepthEstimator
+
+    coords = splits.set_index("point")[["x_mm", "y_mm"]]
+    tables = []
+    for model in models:
+        for replicate, path in enumerate(model.paths):
+            estimator = DepthEstimator.from_checkpoint(path, device="cpu")
+            if tuple(estimator.image_shape) != tuple(trainset.image_shape):
+                raise ConfigError(
+                    f"{path}: works on {tuple(estimator.image_shape)} px frames, the compared "
+                    f"scene's validation frames are {tuple(trainset.image_shape)} "
+                    "(dataset.downscale must agree)"
+                )
+            table = coordinate_mse(estimator, trainset).join(coords, on="point")
+            tables.append(table.assign(arm=model.arm, round=model.key[1], replicate=replicate))
+    return pd.concat(tables, ignore_index=True)
+
+
+def _block_matrix(scores: pd.DataFrame, blocks: pd.Series) -> np.ndarray:
+    """(replicates, blocks): each replicate's mean MSE over the coordinates of each block."""
+    wide = scores.pivot(index="replicate", columns="point", values="mse").sort_index(axis=1)
+    if not np.isfinite(wide.to_numpy()).all():
+        raise ConfigError("non-finite validation errors cannot be paired")
+    return wide.T.groupby(blocks[wide.columns].to_numpy()).mean().T.to_numpy(float)
+
+
+def mean_interval_blocks(matrix: np.ndarray, level: float = LEVEL) -> tuple[float, float, float]:
+    """Mean of a (replicates, blocks) table and its `level` t interval, replicates and blocks
+    random (threedcal.evaluate.ablation.contrast; one replicate: the blocks alone)."""
+    from scipy.special import stdtrit
+
+    from threedcal.evaluate.ablation import contrast
+
+    mean, se, df = (float(v) for v in contrast(matrix, np.zeros_like(matrix), 0.0))
+    half = float(stdtrit(df, 0.5 + level / 2)) * se
+    return mean, mean - half, mean + half
+
+
+def relative_change(
+    sample: np.ndarray, reference: np.ndarray, level: float = LEVEL
+) -> tuple[float, float, float]:
+    """mean(sample) / mean(reference) − 1 and its Fieller interval, paired on blocks."""
+    from threedcal.evaluate.ablation import ratio_interval
+
+    ratio = float(np.mean(sample) / np.mean(reference))
+    low, high = ratio_interval(sample, reference, (1 - level) / 2)
+    return ratio - 1, low - 1, high - 1
+
+
+def validation_rows(
+    models: Sequence[ArmModel], scores: pd.DataFrame, blocks: pd.Series
+) -> list[dict]:
+    """One validation_mse row per model point: the arm's mean MSE over blocks, and its relative
+    change against `full` (which is its own reference: no change)."""
+    matrices = {key: _block_matrix(part, blocks) for key, part in scores.groupby(["arm", "round"])}
+    reference = matrices[("full", -1)]
+    rows = []
+    for model in models:
+        matrix = matrices[model.key]
+        value = mean_interval_blocks(matrix)
+        change = (math.nan,) * 3 if model.arm == "full" else relative_change(matrix, reference)
+        rows.append(_row(model, "validation_mse", "", value, change))
+    return rows
+
+
+def object_presses(
+    models: Sequence[ArmModel],
+    objects_scene: Mapping,
+    pressing_dir: str | Path,
+    registration: str | Path,
+    progress: bool = False,
+) -> pd.DataFrame:
+    """Per reporting press, model and replicate: the printer protocol's errors (presses.csv's
+    rows of the objects stage, `P` standing for the model point's position in `models`)."""
+    from threedcal.evaluate.object_scores import evaluate_objects
+
+    paths = {i: list(model.paths) for i, model in enumerate(models)}
+    with tempfile.TemporaryDirectory() as scratch:
+        evaluate_objects(
+            objects_scene,
+            paths,
+            pressing_dir,
+            registration,
+            scratch,
+            plots=False,
+            progress=progress,
+        )
+        presses = pd.read_csv(Path(scratch) / "presses.csv")
+    keep = (presses["set"] == "reporting") & (presses["protocol"] == "printer")
+    return presses[keep].reset_index(drop=True)
+
+
+def object_rows(models: Sequence[ArmModel], presses: pd.DataFrame) -> list[dict]:
+    """One type2_um row per model point and object: the mean Type 2 MAE over presses (and
+    replicates) and its difference from `full`'s, paired on the presses."""
+    from threedcal.evaluate.object_errors import crossed_mean_interval
+
+    full = next(i for i, m in enumerate(models) if m.arm == "full")
+    rows = []
+    for name, group in presses.groupby("object", sort=False):
+        cells = {
+            i: part.pivot(index="replicate", columns="press", values="type2_um").sort_index(axis=1)
+            for i, part in group.groupby("P")
+        }
+        reference = cells[full].to_numpy(float)
+        for i, model in enumerate(models):
+            own = cells[i].to_numpy(float)
+            value = crossed_mean_interval(own, LEVEL)
+            if model.arm == "full":
+                change = (math.nan,) * 3
+            else:  # one run against every replicate of the full calibration, press by press
+                change = crossed_mean_interval(own - reference, LEVEL)
+            rows.append(_row(model, "type2_um", str(name), value, change))
+    return rows
+
+
+def _row(model: ArmModel, metric: str, name: str, value, change) -> dict:
+    return {
+        "arm": model.arm,
+        "round": model.round,
+        "presses": model.presses,
+        "printer_min": round(model.printer_min, 3),
+        "steps": model.steps,
+        "replicates": len(model.paths),
+        "metric": metric,
+        "object": name,
+        "value": value[0],
+        "value_lo": value[1],
+        "value_hi": value[2],
+        "change": change[0],
+        "change_lo": change[1],
+        "change_hi": change[2],
+    }
+
+
+def arms_table(rows: list[dict]) -> pd.DataFrame:
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    table["round"] = table["round"].astype("Int64")
+    return table
+
+
+# ---- the targets ----------------------------------------------------------------------------
+
+
+def judged(low: float, high: float, limit: float) -> str:
+    """A one-sided target `≤ limit` judged on an interval: met, not met, or undecided."""
+    if high <= limit:
+        return "met"
+    if low > limit:
+        return "not met"
+    return "undecided"
+
+
+def verdicts(table: pd.DataFrame, scene: str, full_scene: str) -> dict:
+    """arms.json: each target's verdict on the quick flow's final round, computed from arms.csv,
+    with the same round's scratch model beside it."""
+    quick = table[table["arm"] == "quick"]
+    last = int(quick["round"].max())
+    final = quick[quick["round"] == last]
+    mse = final[final["metric"] == "validation_mse"].iloc[0]
+    objects = final[final["metric"] == "type2_um"]
+    presses, minutes = int(mse["presses"]), float(mse["printer_min"])
+    per_object = {
+        row.object: {
+            "difference_um": row.change,
+            "interval95_um": [row.change_lo, row.change_hi],
+            "verdict": judged(row.change_lo, row.change_hi, TYPE2_WITHIN_UM),
+        }
+        for row in objects.itertuples(index=False)
+    }
+    states = [o["verdict"] for o in per_object.values()]
+    object_verdict = (
+        "not met" if "not met" in states else "undecided" if "undecided" in states else "met"
+    )
+    mse_verdict = judged(mse["change_lo"], mse["change_hi"], MSE_WITHIN)
+    worst = max(per_object.items(), key=lambda item: item[1]["interval95_um"][1])
+    targets = {
+        "validation_mse": {
+            "verdict": mse_verdict,
+            "change": mse["change"],
+            "interval95": [mse["change_lo"], mse["change_hi"]],
+            "line": (
+                f"mean validation MSE within {MSE_WITHIN:.0%} of {full_scene}'s P = 80: "
+                f"{mse_verdict} ({mse['change']:+.1%}, 95 % interval "
+                f"{mse['change_lo']:+.1%} to {mse['change_hi']:+.1%})"
+            ),
+        },
+        "objects": {
+            "verdict": object_verdict,
+            "per_object": per_object,
+            "line": (
+                f"Type 2 MAE within {TYPE2_WITHIN_UM:.0f} µm of {full_scene}'s on every object "
+                f"(printer protocol): {object_verdict} (highest bound: {worst[0]} "
+                f"{worst[1]['difference_um']:+.1f} µm, 95 % interval "
+                f"{worst[1]['interval95_um'][0]:+.1f} to {worst[1]['interval95_um'][1]:+.1f})"
+            ),
+        },
+        "presses": {
+            "verdict": "met" if presses <= MAX_PRESSES else "not met",
+            "value": presses,
+            "line": f"at most {MAX_PRESSES} presses: "
+            f"{'met' if presses <= MAX_PRESSES else 'not met'} ({presses})",
+        },
+        "printer_minutes": {
+            "verdict": "met" if minutes <= MAX_PRINTER_MINUTES else "not met",
+            "value": round(minutes, 2),
+            "line": f"at most {MAX_PRINTER_MINUTES:g} printer minutes (motion model): "
+            f"{'met' if minutes <= MAX_PRINTER_MINUTES else 'not met'} ({minutes:.2f})",
+        },
+    }
+    scratch = table[
+        (table["arm"] == "scratch")
+        & (table["round"] == last)
+        & (table["metric"] == "validation_mse")
+    ]
+    return {
+        "scene": scene,
+        "compare_with": full_scene,
+        "round": last,
+        "presses": presses,
+        "printer_minutes": round(minutes, 2),
+        "targets": targets,
+        "scratch_same_round": None
+        if scratch.empty
+        else {
+            "change": float(scratch["change"].iloc[0]),
+            "interval95": [
+                float(scratch["change_lo"].iloc[0]),
+                float(scratch["change_hi"].iloc[0]),
+            ],
+        },
+    }
+
+
+# ---- the figure -----------------------------------------------------------------------------
+
+
+def arms_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
+    """Error against presses (left) and against printer minutes (right): the quick and scratch
+    arms round by round with their 95 % intervals, the full calibration as a band (its presses
+    and minutes in the legend); one row for validation MSE, one per test object."""
+    from threedcal.plotting import pyplot
+
+    plt = pyplot()
+    panels = [("validation_mse", "")] + [
+        ("type2_um", name)
+        for name in dict.fromkeys(table.loc[table["metric"] == "type2_um", "object"])
+    ]
+    fig, axes = plt.subplots(
+        len(panels), 2, figsize=(8, 2.3 * len(panels)), dpi=110, squeeze=False, sharex="col"
+    )
+    colours = {"quick": "tab:blue", "scratch": "tab:orange", "full": "tab:green"}
+    for (metric, name), row_axes in zip(panels, axes, strict=True):
+        part = table[(table["metric"] == metric) & (table["object"].fillna("") == name)]
+        full = part[part["arm"] == "full"].iloc[0]
+        for ax, column in zip(row_axes, ("presses", "printer_min"), strict=True):
+            for arm in ("quick", "scratch"):
+                points = part[part["arm"] == arm].sort_values(column)
+                if points.empty:
+                    continue
+                ax.errorbar(
+                    points[column],
+                    points["value"],
+                    yerr=[
+                        points["value"] - points["value_lo"],
+                        points["value_hi"] - points["value"],
+                    ],
+                    fmt="o-",
+                    ms=3,
+                    capsize=2,
+                    c=colours[arm],
+                    label=arm,
+                )
+            ax.axhline(full["value"], c=colours["full"], lw=1)
+            ax.axhspan(full["value_lo"], full["value_hi"], color=colours["full"], alpha=0.2, lw=0)
+            ax.plot(
+                [],
+                [],
+                c=colours["full"],
+                label=f"full: {int(full['presses'])} presses, {full['printer_min']:.0f} min",
+            )
+            if metric == "validation_mse":  # fresh weights start an order of magnitude off
+                ax.set(yscale="log")
+            ylabel = "validation MSE" if metric == "validation_mse" else f"{name} Type 2 (µm)"
+            ax.set_ylabel(ylabel, fontsize=8)
+            ax.tick_params(labelsize=7)
+    axes[0][0].legend(fontsize=6)
+    axes[-1][0].set_xlabel("presses")
+    axes[-1][1].set_xlabel("printer minutes (motion model)")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+# ---- the stage ------------------------------------------------------------------------------
+
+
+def arms_stage(
+    name: str,
+    scene: Mapping,
+    *,
+    store: str | Path,
+    rounds: str | Path,
+    rounds_dir: str | Path,
+    full_name: str,
+    full_models: Sequence[str | Path],
+    trainset: str | Path,
+    splits: str | Path,
+    collect_summary: str | Path | None,
+    objects_scene: Mapping,
+    pressing_dir: str | Path,
+    registration: str | Path,
+    out: Mapping[str, str | Path],
+    progress: bool = True,
+) -> dict:
+    """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json."""
+    from threedcal.collect.session import prepare
+    from threedcal.dataset.trainset import TrainingSet
+    from threedcal.evaluate.ablation import spatial_blocks
+    from threedcal.evaluate.validation import scoring_disc_mm
+    from threedcal.quick.loop import QuickLoop
+
+    prepared = prepare(scene, source=f"scenes.{name}")
+    loop = QuickLoop(scene, prepared.plan, store, out["scratch"], prepared.sensor, prepared.printer)
+    table = pd.read_csv(rounds)
+    quick = quick_arm(table, rounds_dir, loop.printer_s(loop.first_row) / 60)
+    scratch = scratch_arm(loop, quick, out["scratch"], progress)
+    hardware_s = None
+    if collect_summary is not None and Path(collect_summary).is_file():
+        hardware_s = json.loads(Path(collect_summary).read_text()).get("estimated_hardware_s")
+    split_table = pd.read_csv(splits)
+    models = [*quick, *scratch, full_arm(full_models, len(split_table), hardware_s)]
+    validation = TrainingSet.load(trainset)
+    scores = validation_scores(models, validation, split_table)
+    blocks = spatial_blocks(scores, scoring_disc_mm(validation))
+    rows = validation_rows(models, scores, blocks)
+    presses = object_presses(models, objects_scene, pressing_dir, registration, progress)
+    rows += object_rows(models, presses)
+    arms = arms_table(rows)
+    arms.to_csv(out["table"], index=False, float_format="%.6g")
+    arms_figure(arms, out["figure"], f"{name}: quick, scratch and {full_name}'s P = 80")
+    record = verdicts(arms, name, full_name)
+    Path(out["verdicts"]).write_text(json.dumps(record, indent=2) + "\n")
+    for target in record["targets"].values():
+        logging.getLogger("threedcal").info("%s", target["line"])
+    return record

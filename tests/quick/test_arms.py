@@ -1,0 +1,236 @@
+"""The three-arm measurement's numbers (threedcal.quick.arms) on synthetic scores with known
+answers, its verdicts computed from the table, and the config check of `quick.compare_with`."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from threedcal.config import validate_config
+from threedcal.errors import ConfigError
+from threedcal.quick.arms import (
+    ArmModel,
+    arms_table,
+    judged,
+    mean_interval_blocks,
+    object_rows,
+    relative_change,
+    validation_rows,
+    verdicts,
+)
+from threedcal.scenes import scene_targets
+
+
+def test_one_replicate_mean_interval_is_the_t_interval_over_blocks():
+    values = np.array([1.0, 3.0, 2.0, 6.0, 4.0])
+    mean, low, high = mean_interval_blocks(values[None, :])
+    expected = stats.t.interval(0.95, 4, loc=values.mean(), scale=stats.sem(values))
+    assert mean == pytest.approx(3.2)
+    assert (low, high) == pytest.approx(expected, rel=1e-9)
+
+
+def test_relative_change_is_fiellers_interval():
+    """One model against one model on K blocks: the ratio's bounds solve Fieller's quadratic
+    (mean(s) − θ mean(r))² = t² var(s − θ r) / K, written out here."""
+    rng = np.random.default_rng(3)
+    reference = rng.uniform(1.0, 2.0, 12)
+    sample = 1.25 * reference + rng.normal(0, 0.1, 12)
+    change, low, high = relative_change(sample[None, :], reference[None, :])
+    k = sample.size
+    t2 = stats.t.ppf(0.975, k - 1) ** 2
+    ms, mr = sample.mean(), reference.mean()
+    vs, vr = sample.var(ddof=1), reference.var(ddof=1)
+    c = np.cov(sample, reference, ddof=1)[0, 1]
+    a = mr**2 - t2 * vr / k
+    b = -2 * (ms * mr - t2 * c / k)
+    roots = np.sort(np.roots([a, b, ms**2 - t2 * vs / k]).real)
+    assert change == pytest.approx(ms / mr - 1, rel=1e-12)
+    assert (low, high) == pytest.approx(tuple(roots - 1), abs=1e-7)
+    assert low < change < high
+
+
+def _model(arm, round_, replicates=1, presses=10, minutes=1.0):
+    paths = tuple(f"{arm}{round_}_{r}.pt" for r in range(replicates))
+    return ArmModel(arm, round_, presses, minutes, 100, paths)
+
+
+def test_validation_rows_pair_the_arms_on_blocks():
+    points = np.arange(8)
+    blocks = pd.Series(points // 2, index=points, name="block")  # four blocks of two
+    reference = np.array([1.0, 3.0, 2.0, 2.0, 4.0, 2.0, 3.0, 5.0])
+    scores = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "arm": "quick",
+                    "round": 1,
+                    "replicate": 0,
+                    "point": points,
+                    "mse": reference + np.repeat([2.0, 3.5, 3.0, 2.5], 2),
+                }
+            ),
+            pd.DataFrame(
+                {"arm": "full", "round": -1, "replicate": 0, "point": points, "mse": reference}
+            ),
+        ]
+    )
+    quick, full = _model("quick", 1), _model("full", None)
+    rows = validation_rows([quick, full], scores, blocks)
+    assert [r["arm"] for r in rows] == ["quick", "full"]
+    # block means of the reference: 2, 2, 3, 4 -> grand mean 2.75
+    assert rows[1]["value"] == pytest.approx(2.75) and math.isnan(rows[1]["change"])
+    assert rows[0]["value"] == pytest.approx(5.5)
+    assert rows[0]["change"] == pytest.approx(1.0)  # twice the mean error: +100 %
+    assert rows[0]["change_lo"] < 1.0 < rows[0]["change_hi"]
+    assert rows[0]["value_lo"] < rows[0]["value"] < rows[0]["value_hi"]
+
+
+def test_object_rows_pair_each_arm_with_full_on_the_presses():
+    quick = [3.0, 5.0, 4.0, 8.0]
+    full = [2.0, 2.5, 3.0, 4.5]
+    presses = pd.DataFrame(
+        {
+            "object": "pill",
+            "press": list(range(4)) * 2,
+            "P": [0] * 4 + [1] * 4,  # position in the model list
+            "replicate": 0,
+            "type2_um": quick + full,
+        }
+    )
+    rows = object_rows([_model("quick", 2), _model("full", None)], presses)
+    quick_row, full_row = rows
+    difference = np.subtract(quick, full)
+    expected = stats.t.interval(0.95, 3, loc=difference.mean(), scale=stats.sem(difference))
+    assert quick_row["object"] == "pill" and quick_row["value"] == pytest.approx(5.0)
+    assert quick_row["change"] == pytest.approx(difference.mean())
+    assert (quick_row["change_lo"], quick_row["change_hi"]) == pytest.approx(expected)
+    assert full_row["value"] == pytest.approx(3.0) and math.isnan(full_row["change"])
+
+
+def test_judged_on_an_interval():
+    assert judged(-0.2, 0.08, 0.10) == "met"
+    assert judged(0.11, 0.3, 0.10) == "not met"
+    assert judged(0.05, 0.2, 0.10) == "undecided"
+
+
+def _table(mse_change, pill_change, presses=40, minutes=4.0) -> pd.DataFrame:
+    rows = []
+    for arm, round_ in (("quick", 0), ("quick", 4), ("scratch", 4), ("full", None)):
+        rows.append(
+            {
+                "arm": arm,
+                "round": round_,
+                "presses": 2956 if arm == "full" else (0 if round_ == 0 else presses),
+                "printer_min": 60.0 if arm == "full" else minutes,
+                "steps": 1200,
+                "replicates": 3 if arm == "full" else 1,
+                "metric": "validation_mse",
+                "object": "",
+                "value": 1.0,
+                "value_lo": 0.9,
+                "value_hi": 1.1,
+                "change": math.nan if arm == "full" else mse_change[0] + (arm == "scratch"),
+                "change_lo": math.nan if arm == "full" else mse_change[1],
+                "change_hi": math.nan if arm == "full" else mse_change[2],
+            }
+        )
+        for name, change in (("pill", pill_change), ("pawn", (1.0, -2.0, 4.0))):
+            rows.append(
+                {
+                    **rows[0],
+                    "arm": arm,
+                    "round": round_,
+                    "metric": "type2_um",
+                    "object": name,
+                    "change": change[0],
+                    "change_lo": change[1],
+                    "change_hi": change[2],
+                }
+            )
+    return arms_table(rows)
+
+
+def test_verdicts_are_computed_from_the_final_round():
+    record = verdicts(_table((0.04, -0.01, 0.09), (3.0, -1.0, 8.0)), "q", "full")
+    targets = record["targets"]
+    assert record["round"] == 4 and record["presses"] == 40
+    assert targets["validation_mse"]["verdict"] == "met"
+    assert targets["objects"]["verdict"] == "met"
+    assert targets["presses"]["verdict"] == "met" and targets["printer_minutes"]["verdict"] == "met"
+    assert record["scratch_same_round"]["change"] == pytest.approx(1.04)
+    assert "+4.0 %" in targets["validation_mse"]["line"].replace("%", " %")
+    # one object past the bound, an MSE interval astride it, too many presses and minutes
+    record = verdicts(_table((0.08, 0.02, 0.2), (14.0, 11.0, 17.0), 51, 5.5), "q", "full")
+    targets = record["targets"]
+    assert targets["validation_mse"]["verdict"] == "undecided"
+    assert targets["objects"]["verdict"] == "not met"
+    assert targets["objects"]["per_object"]["pawn"]["verdict"] == "met"
+    assert "pill +14.0 µm" in targets["objects"]["line"]
+    assert targets["presses"]["verdict"] == "not met" and "(51)" in targets["presses"]["line"]
+    assert targets["printer_minutes"]["verdict"] == "not met"
+
+
+# ---- the config check -----------------------------------------------------------------------
+
+
+def config(full_changes=None, quick_changes=None) -> dict:
+    full = {
+        "sensor": "digit_fots",
+        "printer": "ender3",
+        "plan": {"spacing_mm": 2.0, "depth_mm": 1.0, "frames": 1},
+        "bench": {"unit": 1},
+        "dataset": {"downscale": 2},
+        "ablation": [20, 80],
+        "objects": ["pill"],
+        "model": {"preset": "context_half", "init": "pretrained"},
+    }
+    quick = {
+        "sensor": "digit_fots",
+        "printer": "ender3",
+        "plan": {"pattern": "quick", "depth_mm": 1.0, "frames": 1},
+        "bench": {"unit": 1},
+        "dataset": {"downscale": 2},
+        "model": {"preset": "context_half", "init": "pretrained"},
+        "quick": {"compare_with": "full"},
+    }
+    full.update(full_changes or {})
+    quick.update(quick_changes or {})
+    return {"scenes": {"full": full, "q": quick}}
+
+
+def test_a_compared_quick_scene_asks_for_the_arms():
+    scenes = validate_config(config())["scenes"]
+    targets = scene_targets("q", scenes["q"])
+    assert "results/q/quick/arms.csv" in targets and "results/q/quick/scratch" in targets
+    assert "results/q/quick/arms.json" in targets and "results/q/quick/arms.png" in targets
+    assert validate_config(config(full_changes={"ablation": []}))  # one model at P = 80 is enough
+
+
+@pytest.mark.parametrize(
+    ("full_changes", "quick_changes", "message"),
+    [
+        ({}, {"quick": {"compare_with": "nope"}}, "no other scene 'nope' in this config"),
+        ({}, {"quick": {"compare_with": "q"}}, "no other scene 'q'"),
+        ({"bench": {"unit": 2}}, {}, "bench.unit 1 here, 2 there"),
+        ({"bench": {"unit": 1, "seating_offset_mm": 0.2}}, {}, "bench.seating_offset_mm 0.4 here"),
+        ({"seed": 3}, {}, "seed 0 here, 3 there"),
+        ({"sensor": "gelsight_mini"}, {}, "sensor 'digit_fots' here, 'gelsight_mini' there"),
+        ({"probe": {"radius_mm": 3.0}}, {}, "probe.radius_mm 2.0 here, 3.0 there"),
+        ({"ablation": [5, 20]}, {}, "full trains no P = 80 models"),
+        ({"objects": []}, {}, "full presses no test objects"),
+    ],
+)
+def test_compare_with_refused_naming_the_key(full_changes, quick_changes, message):
+    with pytest.raises(ConfigError) as error:
+        validate_config(config(full_changes, quick_changes))
+    assert "scenes.q.quick.compare_with: " in str(error.value)
+    assert message in str(error.value)
+
+
+def test_compare_with_only_for_quick_scenes():
+    bad = config()
+    bad["scenes"]["full"]["quick"] = {"compare_with": "q"}
+    with pytest.raises(ConfigError, match=r"scenes.full.quick.compare_with: only a quick scene"):
+        validate_config(bad)
