@@ -547,8 +547,8 @@ def predict_frames(
     import torch
 
     from threedcal.dataset.reframe import reframe
+    from threedcal.depth import integrate
     from threedcal.model.checkpoint import read_checkpoint
-    from threedcal.model.crossval import _integrate
     from threedcal.model.inference import DepthEstimator
 
     torch.set_num_threads(threads)
@@ -572,7 +572,9 @@ def predict_frames(
         grads = estimator.gradients(np.asarray(source.frames[int(frame)]))
         if how is not None:
             grads = how.gradients_back(grads)
-        out[int(frame)] = (grads, _integrate(grads, ts.px_per_mm))
+        # as crossval.predict_held_out integrates the scene's models
+        depth = integrate(grads[..., 0], grads[..., 1], px_per_mm=ts.px_per_mm)
+        out[int(frame)] = (grads, depth)
     return out, how.describe() if how is not None else frame_size(ts.image_shape)
 
 
