@@ -720,8 +720,7 @@ def sim2real_eval(
     error_figure(
         errors,
         figure_path,
-        f"{' vs '.join(CONDITIONS[c] for c in settings.conditions)}, folds "
-        f"{', '.join(map(str, chosen))} ({n_test} held-out real images, scored at "
-        f"{frame_size(ts.image_shape)}), 95 % group-bootstrap intervals",
+        f"folds {', '.join(map(str, chosen))}: {n_test} held-out real images, scored at "
+        f"{frame_size(ts.image_shape)}; 95 % group-bootstrap intervals",
     )
     return errors
