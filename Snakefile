@@ -20,7 +20,9 @@ from threedcal.model.sim2real import (
     sensor_profile,
     sim2real_inputs,
     sim2real_keys,
+    train_keys,
 )
+from threedcal.pretrained import SHIPPED_DIR
 from threedcal.scenes import (
     BALL_EVAL,
     BENCH_TRUTH,

@@ -87,7 +87,7 @@ rule ball_eval:
 
 # Stage `sim2real` (scenes with sim_to_real.enabled; docs/explanation/real-data.md): simulated presses of the
 # scene's sensor profile -> a pretrained model -> per fold and k, fine-tuned and real-only models
-# -> error against k.
+# (and, with sim_to_real.shipped, the package's pretrained weights fine-tuned) -> error against k.
 
 
 rule sim2real_simulate:
@@ -165,9 +165,14 @@ rule sim2real_train:
         CONDA_ENV
     threads: scene_threads
     params:
-        model=lambda wildcards: config["scenes"][wildcards.scene]["model"],
-        sim_to_real=lambda wildcards: sim2real_keys(
-            config["scenes"][wildcards.scene], "train"
+        # shipped+real trains with the shipped weights' own recipe, not the scene's model
+        model=lambda wildcards: (
+            {}
+            if wildcards.condition == "shipped_real"
+            else config["scenes"][wildcards.scene]["model"]
+        ),
+        sim_to_real=lambda wildcards: train_keys(
+            config["scenes"][wildcards.scene], wildcards.condition
         ),
         seed=scene_seed,
         threads=scene_threads,

@@ -59,13 +59,18 @@ def cv_models(wildcards):
 
 
 def sim2real_init(wildcards):
-    """{"pretrained": the fold's sim-pretrained model} for a fine-tuned model, {} for real-only."""
+    """{"pretrained": the fold's sim-pretrained model} for sim+real, {"shipped": the package's
+    weights for the sensor} for shipped+real (found by the training itself; an input so that
+    rebuilt weights retrain), {} for real-only."""
     if wildcards.condition == "sim_real":
         return {
             "pretrained": target(
                 f"{SIM2REAL_PRETRAINED_DIR}/model.pt", wildcards.scene
             ).replace("{fold}", wildcards.fold)
         }
+    if wildcards.condition == "shipped_real":
+        sensor = config["scenes"][wildcards.scene]["sensor"]
+        return {"shipped": str(SHIPPED_DIR / f"{sensor}.pt")}
     return {}
 
 

@@ -1,5 +1,6 @@
 """Rule `sim2real_train`: one fold's model on k of its real training images, fine-tuned from the
-sim-pretrained model (sim_real) or from scratch (real_only) with the same budget."""
+sim-pretrained model (sim_real) or from scratch (real_only) with the same budget, or the shipped
+weights fine-tuned at their frame size (shipped_real)."""
 
 from threedcal.logs import stage_log
 from threedcal.model.sim2real import parse_k, train_k

@@ -361,6 +361,27 @@ def test_sim_to_real_needs_an_imported_vision_scene_and_valid_k():
     )
 
 
+def test_shipped_weights_in_sim_to_real_need_weights_for_the_sensor_and_frames_that_reach_them():
+    imported = {
+        "sensor": "digit",
+        "import": {"format": "ball_folder", "path": "x"},
+        "sim_to_real": {"enabled": True, "shipped": True},
+    }
+    assert "sim_to_real.shipped: no shipped weights for sensor 'digit'" in error_of(
+        {"scenes": {"s": imported}}
+    )
+    imported["sensor"] = "gelsight_mini"
+    scene = validate_config({"scenes": {"s": imported}})["scenes"]["s"]
+    assert scene["sim_to_real"]["shipped_lr"] == 1e-3
+    # `config check` reads the frames: the real Mini set (320 x 240 portrait) reaches the
+    # 120 x 160 weights pooled by 2 and turned; pooled by 3 first (106 x 80) it cannot
+    imported["import"]["path"] = "data/gelsight_ball_fots"
+    validate_config({"scenes": {"s": imported}}, check_files=True)
+    imported["dataset"] = {"downscale": 3}
+    with pytest.raises(ConfigError, match="sim_to_real.shipped: the imported 106 x 80 px frames"):
+        validate_config({"scenes": {"s": imported}}, check_files=True)
+
+
 def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_path, capsys):
     """Repro: `objects: [pil]` (a typo), a missing STL or one that cannot be read passed
     `config check` and the Snakefile's validation; the run collected and trained, then failed at

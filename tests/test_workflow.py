@@ -233,14 +233,18 @@ def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path)
     balls = {
         "sensor": "gelsight_mini",
         "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
-        "sim_to_real": {"enabled": True, "k": [4, "all"], "folds": [1, 3]},
+        # shipped: one more training per k and fold, from the package's weights
+        "sim_to_real": {"enabled": True, "k": [4, "all"], "folds": [1, 3], "shipped": True},
     }
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
     trains = sorted(
         (wc["condition"], wc["k"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train"
     )
     assert trains == [
-        (c, k, f) for c in ("real_only", "sim_real") for k in ("4", "all") for f in ("1", "3")
+        (c, k, f)
+        for c in ("real_only", "shipped_real", "sim_real")
+        for k in ("4", "all")
+        for f in ("1", "3")
     ]
     # One simulated set and one pretraining per chosen fold (the optics fitted to its training images).
     for rule in ("sim2real_simulate", "sim2real_pretrain"):

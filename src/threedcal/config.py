@@ -122,13 +122,14 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
             "sensor (its real frames are what the simulated pretraining is tested on)"
         ]
     if is_imported(scene):
-        if not check_files:
-            return []  # read by `config check` and by the import stage itself
+        shipped = _shipped_problems(scene, sensor)
+        if shipped or not check_files:
+            return shipped  # the files: read by `config check` and by the import stage itself
         try:
             check_import(scene["import"]["format"], scene["import"]["path"])
         except ConfigError as exc:
             return [f"import.path: {exc}"]
-        return []
+        return _shipped_problems(scene, sensor, frames=True)
     problems = []
     try:  # a real printer with the simulated camera: refused by collect, so named here first
         from threedcal.rig import check_devices
@@ -152,6 +153,31 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         text = str(exc)
         problems.append(text if text.startswith("plan") else f"plan: {text}")
     return problems + _object_problems(scene)
+
+
+def _shipped_problems(scene: Mapping, sensor: Mapping, frames: bool = False) -> list[str]:
+    """sim_to_real.shipped: weights shipped for the scene's sensor; with `frames`, the imported
+    frames (after dataset.downscale) can be pooled, or turned and pooled, to their size."""
+    values = scene.get("sim_to_real") or {}
+    if not (values.get("enabled") and values.get("shipped")):
+        return []
+    from threedcal.pretrained import provenance, shipped_sensors
+
+    if sensor.get("name") not in shipped_sensors():
+        return [
+            f"sim_to_real.shipped: no shipped weights for sensor {sensor.get('name')!r} "
+            f"(shipped: {', '.join(shipped_sensors()) or 'none'}); set shipped: false"
+        ]
+    if not frames:
+        return []
+    from threedcal.dataset.importers import load_imported
+    from threedcal.dataset.reframe import reframe_problem
+
+    blank = load_imported(scene["import"]["format"], scene["import"]["path"]).blank
+    factor = int((scene.get("dataset") or {}).get("downscale", 1))
+    shape = (blank.shape[0] // factor, blank.shape[1] // factor)
+    problem = reframe_problem(shape, tuple(provenance(sensor["name"])["image_shape"]))
+    return [f"sim_to_real.shipped: the imported {problem}"] if problem else []
 
 
 def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:

@@ -203,15 +203,19 @@ def test_errors_against_k_pool_folds_with_intervals_and_a_perfect_model_scores_z
                         "group": group,
                         "gradient_mse": offset**2,
                         "cap_depth_mae_um": 1000 * offset,
+                        "predicted_at": f"{condition} frame",
                     }
                 )
-    errors = sim2real.summarise_k(pd.DataFrame(rows), folds, 200, 0)
+    errors = sim2real.summarise_k(pd.DataFrame(rows), folds, 200, 0, scored_at="80x64 px")
     pooled = errors[errors["fold"] == "all"].set_index(["condition", "k"])
     assert pooled.loc[("sim+real", "2"), "gradient_rmse"] == 0
     assert pooled.loc[("real-only", "all"), "cap_depth_mae_um"] == pytest.approx(100)
     assert pooled.loc[("real-only", "all"), "n_train"] == 8
     assert pooled.loc[("real-only", "2"), "cap_depth_mae_um_lo"] == pytest.approx(100)
     assert len(errors) == 4 * (3 + 1)  # per fold and pooled, per (condition, k)
+    # every row names the frame its model predicted in and the one it was scored at
+    assert set(errors["scored_at"]) == {"80x64 px"}
+    assert set(pooled.loc["real-only", "predicted_at"]) == {"real-only frame"}
     sim2real.error_figure(errors, tmp_path / "e.png", "test")
     assert (tmp_path / "e.png").stat().st_size > 0
 
@@ -247,3 +251,128 @@ def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
     make_ball_folder(tmp_path / "nobg", n=4, background=False)
     with pytest.raises(ConfigError, match=r"background.png: missing \(blank frame\)"):
         trainset_of(tmp_path / "nobg", tmp_path / "y")
+
+
+def mini_set(trainset, tmp_path):
+    """The fixture's set as the import stage writes it for a gelsight_mini scene (meta.sensor)."""
+    ts = TrainingSet.load(trainset)
+    ts.meta = {**(ts.meta or {}), "sensor": "gelsight_mini"}
+    ts.save(tmp_path / "mini")
+    return tmp_path / "mini"
+
+
+def fake_shipped(ts_dir, directory):
+    """A weights folder as threedcal.pretrained ships it, for this set's sensor at half its frame
+    turned a quarter (32 x 40 for the 80 x 64 portrait frames): fresh compact weights, no blank."""
+    import json
+
+    from threedcal.dataset.reframe import reframe
+    from threedcal.model.checkpoint import save_checkpoint
+    from threedcal.model.train import TrainSettings, save_initial
+
+    recipe = {
+        **TINY,
+        "patch_px": 16,
+        "batch_size": 4,
+        "stopping": {
+            "rule": "epochs",
+            "holdout": 0.2,
+            "first_cycle": 2,
+            "max_steps": 8,
+            "min_gain": 0.05,
+        },
+    }
+    framed, _ = reframe(TrainingSet.load(ts_dir), (32, 40), "test")
+    directory.mkdir(parents=True, exist_ok=True)
+    settings = TrainSettings.of(**recipe, seed=5, torch_threads=1)
+    checkpoint = save_initial(framed, directory / "gelsight_mini.pt", settings)
+    checkpoint["blank"] = None
+    save_checkpoint(directory / "gelsight_mini.pt", checkpoint)
+    record = {
+        "sensor": "gelsight_mini",
+        "image_shape": [32, 40],
+        "downscale": 2,
+        "preset": "compact",
+        "pretraining": {"model": recipe},
+    }
+    (directory / "gelsight_mini.json").write_text(json.dumps(record))
+    return directory / "gelsight_mini.pt"
+
+
+def test_shipped_weights_fine_tune_on_the_same_k_images_in_their_frame_and_score_back(
+    real, tmp_path
+):
+    root, trainset = real
+    trainset = mini_set(trainset, tmp_path)
+    weights = fake_shipped(trainset, tmp_path / "shipped")
+    still = {"shipped": True, "shipped_lr": 1e-12}  # cannot move the weights: where did it start?
+    out = tmp_path / "k4"
+    checkpoint = sim2real.train_shipped(
+        trainset, root / "folds.csv", 1, 4, still, 0, 1, out, False, weights_dir=weights.parent
+    )
+    assert (out / "losses.csv").is_file()
+    assert checkpoint["training"]["reframe"] == {
+        "full_shape": [80, 64],
+        "factor": 2,
+        "turned": True,
+    }
+    assert tuple(checkpoint["image_shape"]) == (32, 40)
+    trained = checkpoint["training"]
+    assert trained["settings"]["init"] == str(weights) and trained["settings"]["lr"] == 1e-12
+    # the model's own holdout decides how long: the k images split between fitting and judging
+    assert trained["settings"]["stopping"]["rule"] == "doubling"
+    assert trained["fit_frames"] + trained["holdout_frames"] == 4
+    start = read_checkpoint(weights)["state_dict"]
+    tuned = read_checkpoint(out / "model.pt")["state_dict"]
+    assert all(torch.allclose(tuned[k], start[k], atol=1e-6) for k in start)
+    # scored at the set's own frame: gradients brought back to 80 x 64 and integrated there
+    ts = TrainingSet.load(trainset)
+    folds = cv_folds.read_folds(root / "folds.csv", ts)
+    test = folds.loc[folds["fold"] == 1, "frame"]
+    frames, predicted_at = sim2real.predict_frames(ts, test, out / "model.pt", 1)
+    assert predicted_at == "32x40 px (80x64 pooled 2x, turned a quarter)"
+    grads, depth = frames[int(test.iloc[0])]
+    assert grads.shape == (80, 64, 2) and depth.shape == (80, 64)
+    images = sim2real.score_models(ts, folds, {("shipped+real", "4"): {1: out / "model.pt"}}, 1)
+    assert set(images["predicted_at"]) == {predicted_at} and len(images) == len(test)
+    # another set's frames are not the ones it was trained on
+    wide = dataclasses.replace(
+        ts, frames=np.tile(ts.frames, (1, 2, 2, 1)), blank=np.tile(ts.blank, (2, 2, 1))
+    )
+    with pytest.raises(ConfigError, match="not the set it was trained on"):
+        sim2real.predict_frames(wide, test, out / "model.pt", 1)
+
+
+def test_shipped_weights_are_refused_for_a_sensor_without_them_or_frames_that_cannot_reach_them(
+    real, tmp_path
+):
+    root, trainset = real
+    trainset = mini_set(trainset, tmp_path)
+    weights = fake_shipped(trainset, tmp_path / "shipped")
+    ts = TrainingSet.load(trainset)
+    other = dataclasses.replace(ts, meta={**ts.meta, "sensor": "digit"})
+    with pytest.raises(
+        ConfigError, match="sim_to_real.shipped: no shipped weights for sensor 'digit'"
+    ):
+        sim2real.shipped_for(other, weights.parent)
+    record = weights.with_suffix(".json")
+    record.write_text(record.read_text().replace("[32, 40]", "[30, 30]"))
+    with pytest.raises(ConfigError, match="sim_to_real.shipped: 80 x 64 px frames .* 30 x 30"):
+        sim2real.train_shipped(
+            trainset,
+            root / "folds.csv",
+            1,
+            4,
+            {"shipped": True},
+            0,
+            1,
+            tmp_path / "x",
+            False,
+            weights_dir=weights.parent,
+        )
+    assert not (tmp_path / "x").exists()
+    # the condition is trained and scored only when asked for
+    assert "shipped_real" not in sim2real.SimToRealSettings.of().conditions
+    scene = {"cv": {"folds": 3}, "sim_to_real": {"shipped": True, "k": [4], "folds": [1]}}
+    inputs = sim2real.sim2real_inputs("balls", scene)
+    assert inputs["shipped_real_k4"] == ["results/balls/sim2real/shipped_real/k4/fold1/model.pt"]

@@ -14,8 +14,19 @@ For an imported scene (docs/explanation/real-data.md, "Sim-to-real"):
    network (``sim_real``) or from scratch (``real_only``) with the same settings and the same
    number of optimiser steps: k images train ``finetune_epochs x pool / k`` epochs (pool: the
    fold's training images);
-4. :func:`sim2real_eval` scores every model on its fold's held-out real images with ball_eval's
-   figures and the group bootstrap (threedcal.model.crossval), and draws error against k.
+4. with ``shipped: true``, :func:`train_shipped` fine-tunes the weights this package ships for the
+   scene's sensor (threedcal.pretrained: pretrained on simulated presses of many units, never on
+   these frames) on the same k images, brought to the weights' frame by
+   threedcal.dataset.reframe (pooled by the whole factor that gets there, turned a quarter if the
+   frames stand on their side). Its settings are the weights' own recipe (their provenance) with
+   `shipped_lr`, and the model's own holdout decides how long (the `doubling` rule, which may keep
+   the shipped weights unchanged): nothing is chosen on a test image;
+5. :func:`sim2real_eval` scores every model on its fold's held-out real images with ball_eval's
+   figures and the group bootstrap (threedcal.model.crossval), and draws error against k. Every
+   condition is scored at the set's own frame size: a model of another frame (shipped+real) has
+   its gradients brought back to the original pixels (Reframe.gradients_back) and integrated
+   there, so the same truth, discs and integrator score every row; errors.csv names the frame
+   each condition predicted at (`predicted_at`).
 
 With ``profile: as_is`` the simulator sees no real image: the profile is used as it is. (The
 built-in GelSight Mini profile's optics were fitted, once, to the background and contacts of
@@ -37,7 +48,7 @@ from threedcal.dataset.trainset import TrainingSet, samples_table
 from threedcal.errors import ConfigError
 from threedcal.schema import section
 
-CONDITIONS = {"sim_real": "sim+real", "real_only": "real-only"}
+CONDITIONS = {"sim_real": "sim+real", "real_only": "real-only", "shipped_real": "shipped+real"}
 # The scene's own cross-validated model (ball_eval's, the scene's full training budget) at k = all.
 SCENE_MODEL = "scene model"
 ERROR_COLUMNS = (
@@ -52,6 +63,8 @@ ERROR_COLUMNS = (
     "cap_depth_mae_um",
     "cap_depth_mae_um_lo",
     "cap_depth_mae_um_hi",
+    "predicted_at",
+    "scored_at",
 )
 # Evaluation disc of a simulated press: the contact shrunk as the ball importer shrinks it.
 EVAL_SHRINK = 0.9
@@ -69,6 +82,8 @@ class SimToRealSettings:
     finetune_epochs: int
     k: tuple[int | str, ...]
     folds: tuple[int, ...] | None
+    shipped: bool
+    shipped_lr: float
 
     @classmethod
     def of(cls, **settings) -> SimToRealSettings:
@@ -86,7 +101,14 @@ class SimToRealSettings:
             finetune_epochs=int(values["finetune_epochs"]),
             k=tuple(values["k"]),
             folds=None if folds is None else tuple(int(f) for f in folds),
+            shipped=bool(values["shipped"]),
+            shipped_lr=float(values["shipped_lr"]),
         )
+
+    @property
+    def conditions(self) -> tuple[str, ...]:
+        """The trained conditions (CONDITIONS' keys): shipped_real only with `shipped`."""
+        return tuple(c for c in CONDITIONS if c != "shipped_real" or self.shipped)
 
     @classmethod
     def from_scene(cls, scene: Mapping) -> SimToRealSettings:
@@ -112,7 +134,13 @@ STAGE_KEYS = {
     "simulate": ("frames", "depth_mm", "profile"),
     "pretrain": ("pretrain_epochs",),
     "train": ("finetune_epochs",),
+    "shipped": ("shipped_lr",),
 }
+
+
+def train_keys(scene: Mapping, condition: str) -> dict:
+    """The sim_to_real keys a `condition`'s training reads."""
+    return sim2real_keys(scene, "shipped" if condition == "shipped_real" else "train")
 
 
 def sim2real_keys(scene: Mapping, stage: str) -> dict:
@@ -147,7 +175,7 @@ def sim2real_inputs(name: str, scene: Mapping) -> dict[str, list[str]]:
         f"{condition}_k{k}": [
             model(SIM2REAL_MODEL_DIR, condition=condition, k=k, fold=f) for f in folds
         ]
-        for condition in CONDITIONS
+        for condition in settings.conditions
         for k in settings.k
     }
     out["scene"] = [model(CV_MODEL_DIR, method="model", fold=f) for f in folds]
@@ -374,7 +402,8 @@ def train_k(
 ) -> dict:
     """One fold's model on k real images: fine-tuned from `pretrained` (sim_real) or from scratch
     (real_only), both for finetune_epochs x pool / k epochs, pool the fold's training images (the
-    same steps at every k)."""
+    same steps at every k); or the shipped weights fine-tuned on them (shipped_real,
+    :func:`train_shipped`; `model` unused)."""
     from threedcal.model.folds import fold_trainset, read_folds
     from threedcal.model.train import train
 
@@ -385,6 +414,10 @@ def train_k(
     if (condition == "sim_real") != (pretrained is not None):
         raise ConfigError(
             f"sim_to_real: condition {condition} {'needs' if condition == 'sim_real' else 'takes no'} pretrained model"
+        )
+    if condition == "shipped_real":
+        return train_shipped(
+            trainset_dir, folds_path, fold, k, sim_to_real, seed, threads, out_dir, progress
         )
     settings = SimToRealSettings.of(**sim_to_real)
     ts = TrainingSet.load(trainset_dir)
@@ -397,6 +430,72 @@ def train_k(
     return train(subset, out_dir, 80, _train_settings(model, seed, threads, **changes), progress)
 
 
+SHIPPED_KEY = "sim_to_real.shipped"
+
+
+def shipped_for(ts: TrainingSet, directory: Path | None = None) -> tuple[Path, dict]:
+    """The shipped weights of the set's sensor and their provenance; refused, naming
+    sim_to_real.shipped, for a sensor without them."""
+    from threedcal.pretrained import provenance, shipped_sensors, shipped_weights
+
+    sensor = (ts.meta or {}).get("sensor")
+    if sensor not in shipped_sensors(directory):
+        raise ConfigError(
+            f"{SHIPPED_KEY}: no shipped weights for sensor {sensor!r} (shipped: "
+            f"{', '.join(shipped_sensors(directory)) or 'none'}); set shipped: false"
+        )
+    return shipped_weights(sensor, None, directory), provenance(sensor, directory)
+
+
+def shipped_settings(record: Mapping, lr: float, seed: int, threads: int, init: str | Path):
+    """Fine-tuning settings of the shipped weights: their pretraining recipe's `model` (preset,
+    patches, loss, batch), at rate `lr`, for as long as the recipe's doubling rule finds it pays
+    on a holdout of the model's own training images (the weights as shipped are its first
+    candidate)."""
+    recipe = dict(record["pretraining"]["model"])
+    stopping = {**recipe.get("stopping", {}), "rule": "doubling"}
+    return _train_settings(recipe, seed, threads, init=str(init), lr=lr, stopping=stopping)
+
+
+def train_shipped(
+    trainset_dir: str | Path,
+    folds_path: str | Path,
+    fold: int,
+    k: int | str,
+    sim_to_real: Mapping,
+    seed: int,
+    threads: int,
+    out_dir: str | Path,
+    progress: bool = True,
+    *,
+    weights_dir: Path | None = None,
+) -> dict:
+    """The shipped weights of the set's sensor fine-tuned on the fold's k training images (the
+    same nested subset as the other conditions), in the weights' frame (threedcal.dataset.reframe).
+    The checkpoint records how its frames were brought there (training.reframe)."""
+    from threedcal.dataset.reframe import reframe
+    from threedcal.model.checkpoint import save_checkpoint
+    from threedcal.model.folds import fold_trainset, read_folds
+    from threedcal.model.train import train
+
+    settings = SimToRealSettings.of(**sim_to_real)
+    ts = TrainingSet.load(trainset_dir)
+    weights, record = shipped_for(ts, weights_dir)
+    framed, how = reframe(ts, tuple(record["image_shape"]), SHIPPED_KEY)
+    folds = read_folds(folds_path, ts)
+    n_train = n_train_of(folds, fold, k)
+    subset = fold_trainset(framed, folds, fold, None if k == "all" else n_train, seed)
+    train_settings = shipped_settings(record, settings.shipped_lr, seed, threads, weights)
+    checkpoint = train(subset, out_dir, 80, train_settings, progress)
+    checkpoint["training"]["reframe"] = {
+        "full_shape": list(how.full_shape),
+        "factor": how.factor,
+        "turned": how.turned,
+    }
+    save_checkpoint(Path(out_dir) / "model.pt", checkpoint)
+    return checkpoint
+
+
 # ------------------------------------------------------------------------------- evaluation
 def score_models(
     ts: TrainingSet,
@@ -405,17 +504,16 @@ def score_models(
     threads: int,
 ) -> pd.DataFrame:
     """Per-image errors (crossval.image_errors) of every (condition, k) model on its fold's test
-    images: columns condition, k, fold, frame, group, gradient_mse, cap_depth_mae_um."""
-    from threedcal.model.crossval import Truth, image_errors, predict_held_out
+    images, at the set's own frame size: columns condition, k, fold, frame, group, gradient_mse,
+    cap_depth_mae_um, predicted_at (the frame the model predicted in)."""
+    from threedcal.model.crossval import Truth, image_errors
 
     truth = Truth.of(ts)
     rows = []
     for (condition, k), by_fold in models.items():
         for fold, path in by_fold.items():
             only = folds[folds["fold"] == fold]
-            # predict_held_out takes models in fold order; give it this fold's alone.
-            renumbered = only.assign(fold=0)
-            frames = predict_held_out(ts, renumbered, [path], threads)
+            frames, predicted_at = predict_frames(ts, only["frame"], path, threads)
             for frame in only["frame"]:
                 mse, mae, _, _ = image_errors(*frames[int(frame)], ts, int(frame), truth)
                 rows.append(
@@ -427,16 +525,65 @@ def score_models(
                         "group": int(folds.at[frame, "group"]),
                         "gradient_mse": mse,
                         "cap_depth_mae_um": mae,
+                        "predicted_at": predicted_at,
                     }
                 )
     return pd.DataFrame(rows)
 
 
+def frame_size(shape: Sequence[int]) -> str:
+    return f"{int(shape[0])}x{int(shape[1])} px"
+
+
+def predict_frames(
+    ts: TrainingSet, frames: Sequence[int], path: str | Path, threads: int
+) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], str]:
+    """frame -> (gradients, depth) at the set's frame size, and the frame the model predicted in.
+
+    A model trained in another frame (its checkpoint's training.reframe: shipped+real) predicts
+    on the frames brought to it, and its gradients are brought back to the set's pixels before
+    they are integrated (threedcal.dataset.reframe): every model is integrated and scored alike.
+    """
+    import torch
+
+    from threedcal.dataset.reframe import reframe
+    from threedcal.depth import integrate
+    from threedcal.model.checkpoint import read_checkpoint
+    from threedcal.model.inference import DepthEstimator
+
+    torch.set_num_threads(threads)
+    checkpoint = read_checkpoint(path)
+    recorded = (checkpoint.get("training") or {}).get("reframe")
+    source, how = ts, None
+    if recorded is not None:
+        source, how = reframe(ts, tuple(checkpoint["image_shape"]), f"{path}")
+        if [list(how.full_shape), how.factor, how.turned] != [
+            list(recorded["full_shape"]),
+            int(recorded["factor"]),
+            bool(recorded["turned"]),
+        ]:
+            raise ConfigError(
+                f"{path}: trained on frames brought to its size as {recorded}, this set's "
+                f"come there as {how}: not the set it was trained on"
+            )
+    estimator = DepthEstimator(checkpoint, device="cpu")
+    out = {}
+    for frame in frames:
+        grads = estimator.gradients(np.asarray(source.frames[int(frame)]))
+        if how is not None:
+            grads = how.gradients_back(grads)
+        # as crossval.predict_held_out integrates the scene's models
+        depth = integrate(grads[..., 0], grads[..., 1], px_per_mm=ts.px_per_mm)
+        out[int(frame)] = (grads, depth)
+    return out, how.describe() if how is not None else frame_size(ts.image_shape)
+
+
 def summarise_k(
-    images: pd.DataFrame, folds: pd.DataFrame, resamples: int, seed: int
+    images: pd.DataFrame, folds: pd.DataFrame, resamples: int, seed: int, scored_at: str = ""
 ) -> pd.DataFrame:
     """errors.csv: per (k, condition) the figures of each fold and pooled over the folds (fold
-    'all', with a 95 % interval from the group bootstrap, the same resamples for every model)."""
+    'all', with a 95 % interval from the group bootstrap, the same resamples for every model),
+    with the frame each condition predicted at and the one it was scored at."""
     from threedcal.model.crossval import group_bootstrap, interval, pooled
 
     keys = list(dict.fromkeys(zip(images["condition"], images["k"], strict=True)))
@@ -451,12 +598,16 @@ def summarise_k(
     rows = []
     for key, table in tables.items():
         condition, k = key
+        sizes = {"scored_at": scored_at}
+        if "predicted_at" in table:
+            sizes["predicted_at"] = "; ".join(dict.fromkeys(table["predicted_at"]))
         for fold, part in table.groupby("fold"):
             n_train = pool_size[int(fold)] if k == "all" else int(k)
             rows.append(
                 {"k": k, "n_train": n_train, "condition": condition, "fold": str(fold)}
                 | {"n_test_images": len(part)}
                 | pooled(part)
+                | sizes
             )
         n_train = (
             float(np.mean([pool_size[int(f)] for f in table["fold"].unique()]))
@@ -464,7 +615,7 @@ def summarise_k(
             else int(k)
         )
         row = {"k": k, "n_train": n_train, "condition": condition, "fold": "all"}
-        row |= {"n_test_images": len(table)} | pooled(table)
+        row |= {"n_test_images": len(table)} | pooled(table) | sizes
         for metric in ("gradient_rmse", "cap_depth_mae_um"):
             row[f"{metric}_lo"], row[f"{metric}_hi"] = interval(boot[key][metric])
         rows.append(row)
@@ -472,7 +623,7 @@ def summarise_k(
 
 
 def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
-    """Error against k (log axis; 'all' at the mean training-set size), both conditions with their
+    """Error against k (log axis; 'all' at the mean training-set size), each condition with its
     95 % intervals, and the scene's own model as a band."""
     from threedcal.plotting import pyplot
 
@@ -485,8 +636,8 @@ def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
         (axes[1], "cap_depth_mae_um", "cap depth MAE (µm)"),
     ):
         for offset, (condition, colour) in zip(
-            (0.97, 1.03),
-            ((CONDITIONS["sim_real"], "C0"), (CONDITIONS["real_only"], "C1")),
+            (0.96, 1.0, 1.04),
+            [(CONDITIONS[c], f"C{i}") for i, c in enumerate(CONDITIONS)],
             strict=True,
         ):
             part = pooled_rows[pooled_rows["condition"] == condition].sort_values("n_train")
@@ -545,7 +696,8 @@ def sim2real_eval(
     folds = read_folds(folds_path, ts)
     chosen = chosen_folds(settings, cv_settings.folds)
     by_model: dict[tuple[str, str], dict[int, str | Path]] = {}
-    for condition, name in CONDITIONS.items():
+    for condition in settings.conditions:
+        name = CONDITIONS[condition]
         for k in settings.k:
             paths = list(models[f"{condition}_k{k}"])
             if len(paths) != len(chosen):
@@ -557,7 +709,9 @@ def sim2real_eval(
         raise ConfigError(f"sim2real: {len(scene_models)} scene models for folds {chosen}")
     by_model[(SCENE_MODEL, "all")] = dict(zip(chosen, scene_models, strict=True))
     images = score_models(ts, folds, by_model, threads)
-    errors = summarise_k(images, folds, cv_settings.bootstrap, seed)
+    errors = summarise_k(
+        images, folds, cv_settings.bootstrap, seed, scored_at=frame_size(ts.image_shape)
+    )
     Path(errors_path).parent.mkdir(parents=True, exist_ok=True)
     errors.to_csv(errors_path, index=False, float_format="%.6g")
     if images_path is not None:
@@ -566,7 +720,7 @@ def sim2real_eval(
     error_figure(
         errors,
         figure_path,
-        f"sim-pretrained vs real-only, folds {', '.join(map(str, chosen))} "
-        f"({n_test} held-out real images), 95 % group-bootstrap intervals",
+        f"folds {', '.join(map(str, chosen))}: {n_test} held-out real images, scored at "
+        f"{frame_size(ts.image_shape)}; 95 % group-bootstrap intervals",
     )
     return errors
