@@ -112,3 +112,11 @@ def test_the_outputs_page_lists_every_file_the_workflow_names():
         if "/.partial/" in path or (parent not in normal) or (stem and stem not in page):
             undocumented.append(path)
     assert undocumented == [f"{scenes.SCENE}/.partial/raw.zarr"] or not undocumented, undocumented
+
+
+def test_an_example_is_skipped_only_for_hardware():
+    """Every other block runs in `make test` (on a small input, or as a dry run)."""
+    hardware = ("printer", "camera", "video", "board", "serial", "/dev/")
+    for page in PAGES:
+        for reason in re.findall(r"<!-- docs-test: skip: (.*?) -->", page.read_text()):
+            assert any(word in reason for word in hardware), f"{page.relative_to(REPO)}: {reason}"
