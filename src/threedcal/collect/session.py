@@ -167,7 +167,7 @@ def collect_scene(
     else:
         store = open_store(staging, name, scene, prepared, settings)
         if not store.complete:
-            _collect_on_rig(scene, prepared, store, progress, ask)
+            collect_on_rig(scene, prepared, store, progress, ask)
             store.finalize({"summary": store_summary(store)})
         elif staging != store_path:  # completed, then killed before the rename: maybe before
             store.consolidate()  # finalize's last step too
@@ -257,10 +257,11 @@ def _sample_layout(prepared: ScenePlan):
 ATTACH_PROBE = "Attach the probe to the print head"
 
 
-def _collect_on_rig(
-    scene, prepared: ScenePlan, store: RawStore, progress: bool, ask: Ask | None
+def collect_on_rig(
+    scene, prepared: ScenePlan, store: RawStore, progress: bool, ask: Ask | None, **rounds
 ) -> RunResult:
-    """The scene's rig (threedcal.rig): the simulated bench, or the printer and the sensor."""
+    """The scene's rig (threedcal.rig): the simulated bench, or the printer and the sensor.
+    `rounds`: collect's `boundaries` and `at_boundary`, for a plan probed round by round."""
     with open_rig(scene, prepared.sensor, prepared.printer, ask=ask) as rig:
         # Replay on the bench: a resumed run goes through the plan from the start, so the
         # simulated sensor sees an uninterrupted run's timeline and the store comes out
@@ -276,6 +277,7 @@ def _collect_on_rig(
             attach_probe=None if rig.simulated else lambda: rig.prompt(ATTACH_PROBE),
             progress=progress,
             replay=rig.simulated,
+            **rounds,
         )
 
 

@@ -350,22 +350,8 @@ def _finished_rows(path: Path, plan: pd.DataFrame, settings: Mapping) -> int:
 
 def _collect_rounds(scene, prepared, store, loop: QuickLoop, progress: bool, ask) -> None:
     """One collection run over the rig, stopping at the round the rule ends."""
-    from threedcal.collect.run import collect
-    from threedcal.collect.session import ATTACH_PROBE
-    from threedcal.rig import open_rig
+    from threedcal.collect.session import collect_on_rig
 
-    with open_rig(scene, prepared.sensor, prepared.printer, ask=ask) as rig:
-        collect(
-            store,
-            prepared.sensor,
-            rig.printer,
-            rig.sensor,
-            prepared.settings,
-            hardware_clock=rig.hardware_clock,
-            clock=rig.clock,
-            attach_probe=None if rig.simulated else lambda: rig.prompt(ATTACH_PROBE),
-            progress=progress,
-            replay=rig.simulated,
-            boundaries=loop.ends,
-            at_boundary=loop.round_done,
-        )
+    collect_on_rig(
+        scene, prepared, store, progress, ask, boundaries=loop.ends, at_boundary=loop.round_done
+    )
