@@ -22,7 +22,6 @@ from threedcal.model.sim2real import (
     sim2real_keys,
     train_keys,
 )
-from threedcal.pretrained import SHIPPED_DIR
 from threedcal.scenes import (
     BALL_EVAL,
     BENCH_TRUTH,

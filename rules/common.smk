@@ -69,8 +69,12 @@ def sim2real_init(wildcards):
             ).replace("{fold}", wildcards.fold)
         }
     if wildcards.condition == "shipped_real":
-        sensor = config["scenes"][wildcards.scene]["sensor"]
-        return {"shipped": str(SHIPPED_DIR / f"{sensor}.pt")}
+        from threedcal.pretrained import shipped_weights
+        from threedcal.profiles import load_profile
+
+        # by the profile's name, as the config check and the training find them
+        sensor = load_profile("sensor", config["scenes"][wildcards.scene]["sensor"])["name"]
+        return {"shipped": str(shipped_weights(sensor))}
     return {}
 
 

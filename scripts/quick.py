@@ -2,14 +2,19 @@
 
 import json
 
+import torch
+
 from threedcal.cli import ask_on_console
 from threedcal.logs import stage_log
 from threedcal.quick.loop import quick_stage
 
+scene = json.loads(snakemake.params.scene)
 with stage_log(snakemake.log[0]):
+    # every round's scoring and training at the config's threads: a replay then decides alike
+    torch.set_num_threads(scene["torch_threads"])
     quick_stage(
         snakemake.wildcards.scene,
-        json.loads(snakemake.params.scene),
+        scene,
         store=snakemake.params.store,
         staging=snakemake.params.staging,
         model=snakemake.output.model,

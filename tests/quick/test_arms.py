@@ -168,7 +168,7 @@ def test_verdicts_are_computed_from_the_final_round():
     assert targets["objects"]["verdict"] == "not met"
     assert targets["objects"]["per_object"]["pawn"]["verdict"] == "met"
     assert "pill +14.0 µm" in targets["objects"]["line"]
-    assert targets["presses"]["verdict"] == "not met" and "(51)" in targets["presses"]["line"]
+    assert targets["presses"]["verdict"] == "not met" and "(51 in all" in targets["presses"]["line"]
     assert targets["printer_minutes"]["verdict"] == "not met"
 
 
@@ -234,3 +234,13 @@ def test_compare_with_only_for_quick_scenes():
     bad["scenes"]["full"]["quick"] = {"compare_with": "q"}
     with pytest.raises(ConfigError, match=r"scenes.full.quick.compare_with: only a quick scene"):
         validate_config(bad)
+
+
+def test_the_presses_target_counts_the_touch_search_and_registration_too():
+    """50 presses in rounds after 116 touch-search and registration presses are 166 presses."""
+    record = verdicts(_table((0.04, -0.01, 0.09), (3.0, -1.0, 8.0)), "q", "full", setup_presses=116)
+    presses = record["targets"]["presses"]
+    assert presses["value"] == record["presses"] + 116 == record["presses_in_all"]
+    assert (
+        presses["verdict"] == "not met" and "116 touch search and registration" in presses["line"]
+    )

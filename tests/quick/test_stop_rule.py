@@ -93,3 +93,18 @@ def test_bad_margin_or_confidence_named():
     assert rule_problems(float("nan"), 1.0)[1].startswith("quick.confidence")
     with pytest.raises(ValueError, match="positive"):
         paired_improvement([1.0, 0.0], [1.0, 1.0], 0.9)
+
+
+def test_infinite_or_missing_errors_are_refused_not_read_as_a_gain():
+    """A diverged model's error (inf, NaN) is no evidence either way: refused, named."""
+    import numpy as np
+    import pytest
+
+    from threedcal.quick.stop_rule import paired_improvement
+
+    good = np.array([1.0, 2.0, 3.0])
+    for bad in (np.array([1.0, np.inf, 3.0]), np.array([1.0, np.nan, 3.0])):
+        with pytest.raises(ValueError, match="positive and finite"):
+            paired_improvement(bad, good, 0.9)
+        with pytest.raises(ValueError, match="positive and finite"):
+            paired_improvement(good, bad, 0.9)

@@ -260,5 +260,5 @@ def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):
     line = next(x for x in text.splitlines() if "quick against full_scene's P = 80" in x)
     assert "mean validation MSE within 10% of full_scene's P = 80: not met (+20.0%" in line
     assert "every object (printer protocol): met (highest bound: pill +2.0 µm" in line
-    assert "at most 50 presses: met (30)" in line
+    assert "at most 50 presses: met (30 in all" in line
     assert "at most 5 printer minutes (motion model): not met (6.50)" in line

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from threedcal.collect.plan import quick_rounds
-from threedcal.errors import ConfigError
+from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.quick.stop_rule import Improvement, decide, mean_interval, rule_problems
 
 ROUND_COLUMNS = (
@@ -216,9 +216,11 @@ class QuickLoop:
             "stopped": self.stopped,
             "round": last.round,
             "presses": last.presses,
+            "presses_in_all": last.presses
+            + self.first_row,  # the touch search's and registration's too
             "printer_s": last.printer_s,
             "printer_minutes": round(last.printer_s / 60, 2),
-            "mse": last.mse,
+            "mse": None if math.isnan(last.mse) else last.mse,
             "improvement": None if math.isnan(last.improvement) else last.improvement,
             "improvement_upper": None
             if math.isnan(last.improvement_upper)
@@ -240,7 +242,10 @@ def _paired(before: np.ndarray, after: np.ndarray, confidence: float) -> Improve
 
     if len(before) == 0:
         return None
-    return paired_improvement(before, after, confidence)
+    try:
+        return paired_improvement(before, after, confidence)
+    except ValueError as exc:  # a diverged model: named, not a bare statistics error
+        raise ThreedcalError(f"quick round: {exc} (did a fine-tuning diverge?)") from exc
 
 
 def quick_stage(
@@ -288,8 +293,12 @@ def quick_stage(
         loop.store_path = staging
         raw = open_store(staging, name, scene, prepared, settings)
         if not raw.complete:
-            _collect_rounds(scene, prepared, raw, loop, progress, ask)
-            loop.round_done(int(np.sum(raw.captured)))  # rounds a resumed run did not pass
+            held = int(np.sum(raw.captured))
+            if held:  # a resumed run: the rounds it holds are decided before the printer moves
+                loop.round_done(held)
+            if loop.stopped is None:
+                _collect_rounds(scene, prepared, raw, loop, progress, ask)
+                loop.round_done(int(np.sum(raw.captured)))  # rounds a resumed run did not pass
             if loop.stopped is None:
                 raise StoreError(f"{staging}: the collection ended before the stop rule decided")
             raw.finalize({"quick": loop.stop_record()}, rows=loop.rows_used)

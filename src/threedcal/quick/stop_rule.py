@@ -50,7 +50,9 @@ def paired_improvement(before, after, confidence: float) -> Improvement:
     after = np.asarray(after, dtype=float)
     if before.shape != after.shape or before.ndim != 1 or before.size == 0:
         raise ValueError(f"paired errors expected, got shapes {before.shape} and {after.shape}")
-    if not (np.all(before > 0) and np.all(after > 0)):
+    if not (
+        np.all(np.isfinite(before) & (before > 0)) and np.all(np.isfinite(after) & (after > 0))
+    ):
         raise ValueError("per-press errors must be positive and finite")
     d = np.log(before) - np.log(after)
     mean = float(d.mean())

@@ -71,7 +71,8 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
             (
                 "quick calibration",
                 f"stopped ({quick['stopped']}) after {quick['presses']} presses in "
-                f"{quick['round']} rounds, {quick['printer_minutes']:.1f} printer minutes",
+                f"{quick['round']} rounds ({quick.get('presses_in_all', quick['presses'])} with the "
+                f"touch search and registration), {quick['printer_minutes']:.1f} printer minutes",
             )
         )
     arms = read_json(root / "quick" / "arms.json")
