@@ -94,3 +94,20 @@ def pretrained_input(wildcards):
 
     sensor = load_profile("sensor", scene["sensor"])["name"]
     return {"pretrained": str(shipped_weights(sensor))}  # a clear error when missing
+
+
+def arms_inputs(wildcards):
+    """The compared scene's files: its P = 80 models, validation set, registration, object presses."""
+    full = compared_with(config["scenes"][wildcards.scene])
+    return {
+        "full": [
+            model_file(full, p, r)
+            for p, r in model_keys(config["scenes"][full])
+            if p == FULL_TRAINING_P
+        ],
+        "trainset": target(TRAINSET, full),
+        "splits": target(SPLITS, full),
+        "summary": target(COLLECT["summary"], full),
+        "registration": target(REGISTRATION, full),
+        **{f"pressing_{k}": target(v, full) for k, v in PRESSING.items()},
+    }

@@ -42,23 +42,6 @@ rule quick:
 # Stage `quick_arms`, for quick scenes with `quick.compare_with`: the rounds' models (quick), the same
 # presses trained from scratch, and the compared scene's P = 80 models (full), scored on that scene's
 # validation coordinates and test-object presses (threedcal.quick.arms).
-def arms_inputs(wildcards):
-    """The compared scene's files: its P = 80 models, validation set, registration, object presses."""
-    full = compared_with(config["scenes"][wildcards.scene])
-    return {
-        "full": [
-            model_file(full, p, r)
-            for p, r in model_keys(config["scenes"][full])
-            if p == FULL_TRAINING_P
-        ],
-        "trainset": target(TRAINSET, full),
-        "splits": target(SPLITS, full),
-        "summary": target(COLLECT["summary"], full),
-        "registration": target(REGISTRATION, full),
-        **{f"pressing_{k}": target(v, full) for k, v in PRESSING.items()},
-    }
-
-
 rule quick_arms:
     input:
         unpack(arms_inputs),
