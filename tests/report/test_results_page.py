@@ -356,7 +356,7 @@ def test_the_page_reads_each_figure_from_the_results(small):
     results, _ = small
     text = results_page(results)
     # provenance: threedcal, host, the last job's end (benchmark files); no commit
-    assert "threedcal 0.1.0; host Linux-test, x86_64, 2 CPUs" in text
+    assert "threedcal 0.1.0; torch 2.13.0; host Linux-test, x86_64, 2 CPUs" in text
     assert "last job ended 2027-01-15 08:00 UTC" in text
     assert "commit" not in text
     # scenes in the study's order, each with whether the simulator made its frames
@@ -415,7 +415,10 @@ def test_the_page_reads_each_figure_from_the_results(small):
     time = section(text, "## Where the time goes")
     assert "10.0 min from the first job's start to the last one's end" in time
     assert "| train (sim) | 3 | 3.0 |" in time
-    assert "From `environment.json`: python 3.11.7, torch 2.13.0; seed 0." in text
+    assert (
+        "threedcal 0.1.0; torch 2.13.0; host" in text
+        and "(every version: `environment.json`)" in text
+    )
 
 
 def test_the_top_stages_then_the_others_and_the_total(tmp_path):
@@ -474,7 +477,6 @@ def test_sections_follow_what_the_scenes_ran(tmp_path):
         "## Scenes",
         "## Inference speed",
         "## Where the time goes",
-        "## Run environment",
     ]
     assert "commit" not in text
 
@@ -490,7 +492,7 @@ def test_write_refuses_a_folder_without_scene_records_and_the_cli_writes_the_pag
     results, _ = small
     out = tmp_path / "page.md"
     assert main(["report", "results-page", str(results), "--out", str(out)]) == 0
-    assert "threedcal 0.1.0; host Linux-test" in out.read_text()
+    assert re.search(r"threedcal 0\.1\.0; (torch \S+; )?host Linux-test", out.read_text())
     assert main(["report", "stage-times", str(results)]) == 0
     assert "| train | sim | 3 |" in capsys.readouterr().out
 

@@ -28,7 +28,7 @@ from threedcal.config import convergence_fractions, training_fractions
 from threedcal.config import is_imported as config_is_imported
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, sim2real_rows
-from threedcal.scenes import has_ablation, has_objects, has_sim2real
+from threedcal.scenes import has_ablation, has_objects, has_sim2real, is_quick
 
 TITLE = "Results of the default study"
 # The fraction whose test-object figures lead the page (the paper's Table II reports P = 20 %).
@@ -243,7 +243,7 @@ def provenance_lines(results: Path) -> list[str]:
             environment.get("processor"),
             environment.get("cpu"),
             f"{environment['cpu_count']} CPUs" if environment.get("cpu_count") else None,
-            f"vector instructions {words(environment['cpu_flags'])}"
+            f"with {words(_widest(environment['cpu_flags']))}"
             if environment.get("cpu_flags")
             else None,
             f"capped by {words(limits)}" if limits and limits != "none" else None,
@@ -263,12 +263,14 @@ def provenance_lines(results: Path) -> list[str]:
     )
     facts = [
         f"threedcal {software['threedcal']}" if "threedcal" in software else None,
+        f"torch {software['torch']}" if "torch" in software else None,
         f"host {host}" if host else "host not recorded",
         f"last job ended {when}" if when else None,
     ]
     return [
         "Written by `make results-page` from one finished study's `results/` (regenerate, do "
-        f"not edit): {'; '.join(f for f in facts if f)}. Other hosts give other digits.",
+        f"not edit): {'; '.join(f for f in facts if f)} (every version: `environment.json`). "
+        "Other hosts give other digits.",
         "",
     ]
 
@@ -747,8 +749,18 @@ def reskin_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     ]
 
 
+def _widest(flags) -> list[str]:
+    """The vector extensions that decide torch's kernels (AVX2, AVX-512, native bfloat16), of a
+    CPU's flags: the page names the host, not every flag."""
+    flags = flags.split() if isinstance(flags, str) else list(flags)
+    return [f for f in ("avx2", "avx512f", "avx512_bf16") if f in flags] or ["no AVX2"]
+
+
 def inference_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
-    chosen = {name: r for name, r in scenes.items() if not is_magnetic(r)}
+    # a quick scene's model is timed by no stage (its rounds are its figures)
+    chosen = {
+        name: r for name, r in scenes.items() if not is_magnetic(r) and not is_quick(_config(r))
+    }
     if not chosen:
         return []
     rows = []
@@ -838,35 +850,6 @@ def time_section(results: Path) -> list[str]:
     ]
 
 
-# What the provenance line already says.
-_PROVENANCE_KEYS = {"platform", "processor", "cpu", "cpu_count", "cpu_flags", "isa_limits"}
-_PROVENANCE_KEYS |= {"torch_cpu_capability", "threedcal"}
-
-
-def environment_section(results: Path) -> list[str]:
-    environment = read_json(results / "environment.json")
-    if not environment:
-        return []
-    software = {
-        k: v for k, v in environment.get("software", {}).items() if k not in _PROVENANCE_KEYS
-    }
-    settings = {
-        k: v
-        for k, v in environment.items()
-        if not isinstance(v, dict) and k not in _PROVENANCE_KEYS
-    }
-    parts = [
-        ", ".join(f"{k} {v}" for k, v in software.items()),
-        ", ".join(f"{k} {v}" for k, v in settings.items()),
-    ]
-    return [
-        "## Run environment",
-        "",
-        f"From `environment.json`: {'; '.join(p for p in parts if p)}.",
-        "",
-    ]
-
-
 # ---------------------------------------------------------------------------------------------
 # The page
 
@@ -890,7 +873,6 @@ def results_page(results: str | Path, *, title: str = TITLE) -> str:
         *inference_section(scenes, results),
         *integrators_section(results),
         *time_section(results),
-        *environment_section(results),
     ]
     return "\n".join(lines).rstrip("\n") + "\n"
 
