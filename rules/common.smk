@@ -73,7 +73,9 @@ def sim2real_init(wildcards):
         from threedcal.profiles import load_profile
 
         # by the profile's name, as the config check and the training find them
-        sensor = load_profile("sensor", config["scenes"][wildcards.scene]["sensor"])["name"]
+        sensor = load_profile("sensor", config["scenes"][wildcards.scene]["sensor"])[
+            "name"
+        ]
         return {"shipped": str(shipped_weights(sensor))}
     return {}
 
