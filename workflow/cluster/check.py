@@ -203,6 +203,13 @@ def collected_scenes(config: Path) -> list[str]:
     return [name for name, scene in scenes.items() if "import" not in scene]
 
 
+def printer_file(config: Path, name: str) -> str:
+    """What a scene's printer job writes: a quick scene collects in its `quick` stage."""
+    scene = yaml.safe_load(config.read_text())["scenes"][name]
+    quick = (scene.get("plan") or {}).get("pattern") == "quick"
+    return f"results/{name}/quick/stop.json" if quick else f"results/{name}/collect/summary.json"
+
+
 def captured_points(store: Path) -> tuple[int, int]:
     import zarr
 
@@ -512,8 +519,7 @@ def main(argv=None) -> int:
     print(f"local run (snakemake --cores 2, no profile, beside the cluster runs): {local_s:.0f} s")
     check(rc == 0, f"the local run succeeded (log: {work / 'local.log'})")
     spans = sorted(
-        metadata_times(local, f"results/{name}/collect/summary.json")
-        for name in collected_scenes(config)
+        metadata_times(local, printer_file(config, name)) for name in collected_scenes(config)
     )
     check(
         all(a[1] <= b[0] for a, b in zip(spans, spans[1:], strict=False)),
