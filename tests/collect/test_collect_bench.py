@@ -275,6 +275,23 @@ def test_touch_search_finds_the_hidden_touch_height_at_d_equal_r(calibration, wi
     assert_search_found_the_touch(record, folder, within_mm)
 
 
+def test_a_plan_without_registration_presses_registers_the_rows_captured_so_far(
+    paper_digit_calibration,
+):
+    """A quick calibration between rounds registers its first rows alone; with no registration
+    presses their grid presses are located, not the plan's whole grid (not yet pressed)."""
+    from threedcal.dataset.build import register_store
+
+    scene, folder, _ = paper_digit_calibration
+    whole = register_store(scene, folder / "raw.zarr", progress=False)
+    rows = int(whole.rows("grid")[0]) + 40
+    so_far = register_store(scene, folder / "raw.zarr", progress=False, rows=rows)
+    assert len(so_far.phase) == rows and so_far.registered_rows.max() < rows
+    assert list(so_far.registered_rows) == [r for r in whole.registered_rows if r < rows]
+    ideal = so_far.registration.fit.ideal(np.array([[10.0, 10.0]]))
+    assert np.allclose(ideal, whole.registration.fit.ideal(np.array([[10.0, 10.0]])), atol=1.0)
+
+
 def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path):
     """A cross plan cycling d < R and d > R (a vertical contact rim)."""
     plan = {

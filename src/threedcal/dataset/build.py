@@ -158,7 +158,9 @@ def register_store(
     point_of_frame = raw["point"].values
     n_rows = int(point_of_frame.max()) + 1
     plan_config = raw.attrs.get("config", {}).get("plan", {})
+    # the rows captured so far (`rows`): a grid row not yet pressed has no frames to locate
     phase = plan_phases(raw.attrs["plan"], plan_config, raw.attrs.get("sensor_profile", sensor))
+    phase = phase[:n_rows]
     first = np.searchsorted(point_of_frame, np.arange(n_rows))
     last = np.searchsorted(point_of_frame, np.arange(n_rows), side="right")
     cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
