@@ -34,6 +34,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
+from threedcal.model.presets_study import PATCH_BALL_SETTINGS
 from threedcal.model.train import training_autocast
 
 HEIGHT, WIDTH = 240, 320
@@ -47,18 +48,8 @@ STEP_SHAPES = {
     "multiscale": (8, 128),
     "touchnet": (2, 64),
 }
-# The settings the accuracy table trains with, as an imported ball scene's `model:` section would set
-# them (docs/explanation/models.md, "Choosing a preset"); chosen on an inner validation split of the training images.
-BALL_SETTINGS = dict(
-    lr=3e-3,
-    lr_schedule="cosine",
-    epochs_base=20,
-    batch_size=16,
-    patch_px=48,
-    contact_patches=16,
-    background_patches=32,
-    skirt_reach=2.5,
-)
+# The settings the accuracy table trains with (docs/explanation/models.md, "Choosing a preset").
+BALL_SETTINGS = PATCH_BALL_SETTINGS
 
 
 def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> DepthEstimator:

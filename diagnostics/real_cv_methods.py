@@ -33,21 +33,11 @@ from threedcal.depth import integrate
 from threedcal.model import crossval
 from threedcal.model import folds as cv_folds
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.presets_study import depth_ms_per_frame
+from threedcal.model.presets_study import PATCH_BALL_SETTINGS, depth_ms_per_frame
 from threedcal.model.train import TrainSettings, train
 
-# fots_ball's settings before this study (chosen on an inner split; the models explanation,
-# Choosing a preset): benchmarks/bench_model.py's BALL_SETTINGS.
-BALL = dict(
-    lr=3e-3,
-    lr_schedule="cosine",
-    epochs_base=20,
-    batch_size=16,
-    patch_px=48,
-    contact_patches=16,
-    background_patches=32,
-    skirt_reach=2.5,
-)
+# fots_ball's settings before this study (the models explanation, Choosing a preset).
+BALL = PATCH_BALL_SETTINGS
 # The multiscale budget: two large windows per image and epoch (the context branch needs room), a
 # third of BALL's pixels per epoch, twice the epochs.
 MULTISCALE = {
