@@ -244,3 +244,54 @@ def test_the_presses_target_counts_the_touch_search_and_registration_too():
     assert (
         presses["verdict"] == "not met" and "116 touch search and registration" in presses["line"]
     )
+
+
+def test_every_arm_is_scored_with_the_validation_sets_blank(tmp_path):
+    """A model carrying another blank (its own lens's rectification) is scored as if it carried
+    the validation set's: the two checkpoints below differ only in their blank."""
+    from conftest import write_untrained_model
+
+    from threedcal.dataset.trainset import TrainingSet
+    from threedcal.quick.arms import validation_scores
+
+    rng = np.random.default_rng(0)
+    blank = np.full((40, 48, 3), 100.0, np.float32)
+    frames = np.clip(blank + rng.normal(0, 20, (4, 40, 48, 3)), 0, 255).astype(np.uint8)
+    samples = pd.DataFrame(
+        {
+            "frame": np.arange(4),
+            "point": np.arange(4),
+            "center_x_px": [20.0, 24.0, 28.0, 22.0],
+            "center_y_px": [18.0, 20.0, 22.0, 24.0],
+            "depth_mm": [0.5, 0.6, 0.7, 0.8],
+            "eval_radius_px": np.full(4, 6.0),
+            "split": ["train", "train", "val", "val"],
+            "min_p": [80, 80, 0, 0],
+        }
+    )
+    trainset = TrainingSet(frames, blank, samples, px_per_mm=8.0, sphere_radius_mm=2.0)
+    other_blank = np.roll(trainset.blank + 7.0, 2, axis=1)  # brighter and shifted
+    own = write_untrained_model(tmp_path / "own.pt", "compact_tiny", trainset.blank, px_per_mm=8.0)
+    shifted = write_untrained_model(
+        tmp_path / "shifted.pt", "compact_tiny", other_blank, px_per_mm=8.0
+    )
+    splits = pd.DataFrame(
+        {
+            "point": trainset.point,
+            "x_mm": trainset.point * 1.0,
+            "y_mm": np.zeros(len(trainset.point)),
+        }
+    ).drop_duplicates("point")
+    models = [
+        ArmModel("full", None, 4, 1.0, 0, (own,)),
+        ArmModel("quick", 1, 4, 1.0, 0, (shifted,)),
+    ]
+    scores = validation_scores(models, trainset, splits)
+    full, quick = (scores[scores["arm"] == arm]["mse"].to_numpy() for arm in ("full", "quick"))
+    assert len(full) == 2 and np.all(full > 0)
+    np.testing.assert_array_equal(quick, full)
+    with pytest.raises(ConfigError, match="dataset.downscale must agree"):
+        small = write_untrained_model(
+            tmp_path / "small.pt", "compact_tiny", trainset.blank[::2, ::2]
+        )
+        validation_scores([ArmModel("quick", 1, 4, 1.0, 0, (small,))], trainset, splits)

@@ -165,21 +165,28 @@ def full_arm(paths: Sequence[str | Path], n_points: int, hardware_s: float | Non
 
 
 def validation_scores(models: Sequence[ArmModel], trainset, splits: pd.DataFrame) -> pd.DataFrame:
-    """arm, round, replicate, point, x_mm, y_mm, mse: every model on the validation coordinates."""
+    """arm, round, replicate, point, x_mm, y_mm, mse: every model on the validation coordinates.
+
+    Each model compares the frames with the validation set's blank, not the one it carries: the
+    frames were rectified with the compared scene's lens, and a blank rectified with another fit
+    (the quick flow's own) leaves a shifted shading in every difference, an error no rig makes
+    (there, frames and blank pass through one lens; the object presses are scored likewise)."""
     from threedcal.evaluate.validation import coordinate_mse
+    from threedcal.model.checkpoint import read_checkpoint
     from threedcal.model.inference import DepthEstimator
 
     coords = splits.set_index("point")[["x_mm", "y_mm"]]
     tables = []
     for model in models:
         for replicate, path in enumerate(model.paths):
-            estimator = DepthEstimator.from_checkpoint(path, device="cpu")
-            if tuple(estimator.image_shape) != tuple(trainset.image_shape):
+            checkpoint = read_checkpoint(path)
+            shape = tuple(checkpoint.get("image_shape") or np.shape(checkpoint["blank"])[:2])
+            if shape != tuple(trainset.image_shape):
                 raise ConfigError(
-                    f"{path}: works on {tuple(estimator.image_shape)} px frames, the compared "
-                    f"scene's validation frames are {tuple(trainset.image_shape)} "
-                    "(dataset.downscale must agree)"
+                    f"{path}: works on {shape} px frames, the compared scene's validation frames "
+                    f"are {tuple(trainset.image_shape)} (dataset.downscale must agree)"
                 )
+            estimator = DepthEstimator(checkpoint, device="cpu", blank=trainset.blank)
             table = coordinate_mse(estimator, trainset).join(coords, on="point")
             tables.append(table.assign(arm=model.arm, round=model.key[1], replicate=replicate))
     return pd.concat(tables, ignore_index=True)
