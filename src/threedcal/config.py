@@ -190,6 +190,8 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     quick = scene["quick"]
     problems = quick_problems(scene["plan"], sensor)
     problems += rule_problems(float(quick["margin"]), float(quick["confidence"]))
+    if not problems and sensor.get("type") == "vision" and sensor.get("lens"):
+        problems += _quick_registration_problems(scene, sensor)
     asked = {
         "ablation": bool(normalise_ablation(scene.get("ablation"))["fractions"]),
         "objects": bool(scene.get("objects")),
@@ -203,6 +205,29 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     if model.get("init") == "pretrained" and sensor.get("type") == "vision":
         problems += _pretrained_problems(sensor, model, int(scene["dataset"]["downscale"]))
     return problems
+
+
+def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
+    """A quick plan whose registration presses (or, with none, its first round's) leave too few
+    whole contacts for the lens fit: registered by the affine alone, every label would carry the
+    lens's distortion, and a few presses cannot make up for it."""
+    from threedcal.collect.plan import quick_plan, registration_presses_of, whole_contacts
+    from threedcal.dataset.camera_fit import MIN_LENS_CONTACTS
+
+    plan = scene["plan"]
+    rows = registration_presses_of(plan, sensor)
+    which = f"its {len(rows)} registration presses"
+    if rows.empty:
+        rows = quick_plan(sensor, plan).iloc[: int(plan["round_presses"])]
+        which = f"with no registration presses, its first round's {len(rows)}"
+    whole = whole_contacts(sensor, rows, float(scene["probe"]["radius_mm"]))
+    if whole >= MIN_LENS_CONTACTS:
+        return []
+    return [
+        f"plan.registration: {which} would leave about {whole} contacts whole in the frame; the "
+        f"lens fit needs {MIN_LENS_CONTACTS} (a smaller spacing_mm, e.g. 1.0; "
+        "docs/explanation/registration.md#registration-presses)"
+    ]
 
 
 # The bench settings that decide which unit is simulated and how it sits in its base (with the

@@ -28,7 +28,7 @@ def scene(margin: float) -> dict:
                     "frames": 1,
                     "round_presses": 4,
                     "max_presses": 12,
-                    "registration": {"spacing_mm": 3.0, "depth_mm": 0.25},
+                    "registration": {"spacing_mm": 2.0, "depth_mm": 0.25},
                     "touch_search": {"points": 1},
                 },
                 "bench": {"unit": 1},

@@ -237,6 +237,9 @@ MIN_ROUND_PRESSES = 4
 # The quick plan's default area keeps this far inside the camera's nominal view: a seating error
 # of the sensor in its base (the bench draws up to 0.4 mm) must not carry a press out of the frame.
 QUICK_VIEW_MARGIN_MM = 0.5
+# A contact is located only when its rim lies this far inside the frame (the registration's
+# `whole` test, threedcal.dataset.build.register_store).
+WHOLE_CONTACT_MARGIN_PX = 5
 
 
 def camera_view_mm(sensor: Mapping) -> tuple[float, float, float, float]:
@@ -585,11 +588,37 @@ def touch_search_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
 
 def registration_presses_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
     """The registration presses a scene's plan holds after its touch search (none for a magnetic
-    sensor or spacing 0)."""
+    sensor or spacing 0). A quick plan keeps only the lattice's presses inside its area: one
+    farther out leaves no whole contact in the frame, so the registration never uses it, and a
+    quick calibration is short of printer time, not of lattice."""
     presses = plan_config.get("registration") or {}
     if sensor.get("type") != "vision":
         return registration_plan(sensor, {"spacing_mm": 0})
-    return registration_plan(sensor, presses)
+    rows = registration_plan(sensor, presses)
+    if plan_config.get("pattern") != "quick" or rows.empty:
+        return rows
+    x0, y0, x1, y1 = quick_area_mm(sensor, plan_config)
+    inside = rows["x_mm"].between(x0 - 1e-9, x1 + 1e-9) & rows["y_mm"].between(y0 - 1e-9, y1 + 1e-9)
+    return rows[inside].reset_index(drop=True)
+
+
+def whole_contacts(sensor: Mapping, rows: pd.DataFrame, probe_radius_mm: float) -> int:
+    """How many of the presses `rows` (plan mm, depth below the touch) leave a contact whole in
+    the frame, the sensor seated as its base puts it and the ball's contact radius that of a rigid
+    gel: what the registration will locate, and so whether its lens fit can be made (a gel that
+    yields widens a contact, a seating error moves it, so the count is an estimate)."""
+    if rows.empty:
+        return 0
+    vx0, vy0, _, _ = camera_view_mm(sensor)
+    scale = float(sensor["px_per_mm"])
+    sag = dome_sag_mm(sensor, rows["x_mm"].to_numpy(float), rows["y_mm"].to_numpy(float))
+    depth = np.clip(rows["depth_mm"].to_numpy(float) - sag, 0.0, probe_radius_mm)
+    reach = np.sqrt(2 * probe_radius_mm * depth - depth**2) * scale + WHOLE_CONTACT_MARGIN_PX
+    x = (rows["x_mm"].to_numpy(float) - vx0) * scale
+    y = (rows["y_mm"].to_numpy(float) - vy0) * scale
+    width, height = sensor["image"]["width_px"], sensor["image"]["height_px"]
+    whole = (x >= reach) & (x <= width - 1 - reach) & (y >= reach) & (y <= height - 1 - reach)
+    return int(whole.sum())
 
 
 def plan_phases(stored_plan: Mapping, plan_config: Mapping, sensor: Mapping) -> np.ndarray:

@@ -146,7 +146,12 @@ def register_store(
     its frames), and each frame's depth below the gel where the affine places it. The store is
     read whole and checked (`threedcal.collect.store.open_checked`); `rows`: only its first that
     many plan rows, captured so far."""
-    from threedcal.collect.plan import dome_sag_at_px, dome_sag_mm, plan_phases
+    from threedcal.collect.plan import (
+        WHOLE_CONTACT_MARGIN_PX,
+        dome_sag_at_px,
+        dome_sag_mm,
+        plan_phases,
+    )
     from threedcal.collect.store import open_checked
     from threedcal.dataset.dome_contacts import DomedContacts
     from threedcal.dataset.registration import register_camera
@@ -166,7 +171,7 @@ def register_store(
     cmd_xy = np.column_stack([raw["cmd_x_mm"].values, raw["cmd_y_mm"].values])
 
     def whole(contact) -> bool:  # the rim and a margin inside the image
-        margin = contact.radius_px + 5
+        margin = contact.radius_px + WHOLE_CONTACT_MARGIN_PX
         return (
             margin <= contact.x_px <= width - 1 - margin
             and margin <= contact.y_px <= height - 1 - margin
