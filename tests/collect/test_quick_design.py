@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import lens_free
 
 from threedcal.collect.design import (
     covering_radius,
@@ -14,7 +15,10 @@ from threedcal.collect.plan import (
     plan_from_config,
     quick_area_mm,
     quick_rounds,
+    registration_plan,
+    registration_presses_of,
     validate_plan,
+    whole_contacts,
 )
 from threedcal.config import validate_config
 from threedcal.profiles import load_profile
@@ -23,8 +27,10 @@ SENSOR = load_profile("sensor", "digit_fots")
 
 
 def quick_plan_config(**plan) -> dict:
+    """A quick plan checked as a scene's; its DIGIT lens-free, so that no registration presses
+    are asked for (the design, not the registration, is under test: SENSOR builds the plans)."""
     scene = {
-        "sensor": "digit_fots",
+        "sensor": lens_free("digit_fots"),
         "printer": "ender3",
         "plan": {"pattern": "quick", "depth_mm": 1.0, "frames": 2, **plan},
         "dataset": {"downscale": 2},
@@ -100,3 +106,46 @@ def test_each_round_is_a_set_of_the_halton_prefix():
     for start in (0, 10, 20):
         ours = {tuple(p) for p in quick[start : start + 10]}
         assert ours == {tuple(p) for p in design[start : start + 10]}
+
+
+@pytest.mark.parametrize(("sensor", "depth"), [("digit_fots", 0.25), ("gelsight_mini", 0.4)])
+def test_a_quick_plans_registration_presses_are_the_lattices_inside_its_area(sensor, depth):
+    """Only the lattice's presses inside the quick area are kept, and none that would leave a whole
+    contact is lost: the registration sees the same contacts for fewer presses."""
+    profile = load_profile("sensor", sensor)
+    presses = {"spacing_mm": 1.0, "depth_mm": depth, "frames": 1}
+    lattice = registration_plan(profile, presses)
+    quick = registration_presses_of({"pattern": "quick", "registration": presses}, profile)
+    x0, y0, x1, y1 = quick_area_mm(profile, {})
+    assert quick["x_mm"].between(x0, x1).all() and quick["y_mm"].between(y0, y1).all()
+    assert 0 < len(quick) < len(lattice)
+    kept = lattice.merge(quick, on=["x_mm", "y_mm", "depth_mm"])
+    assert len(kept) == len(quick)  # lattice points, not new ones
+    assert whole_contacts(profile, quick, 2.0) == whole_contacts(profile, lattice, 2.0) >= 30
+    # a grid plan keeps its whole lattice
+    grid = registration_presses_of({"pattern": "grid", "registration": presses}, profile)
+    assert len(grid) == len(lattice)
+
+
+def test_whole_contacts_counts_the_contacts_whose_rim_and_margin_lie_in_the_frame():
+    """A press at the view's centre is whole; one whose contact reaches past the frame's edge is
+    not: a flat gel (the Mini) at 0.4 mm under a 2 mm ball has a contact radius of
+    sqrt(2 R d - d^2) = 1.2 mm."""
+    import pandas as pd
+
+    from threedcal.collect.plan import WHOLE_CONTACT_MARGIN_PX, camera_view_mm
+
+    mini = load_profile("sensor", "gelsight_mini")
+    vx0, vy0, vx1, vy1 = camera_view_mm(mini)
+    scale = float(mini["px_per_mm"])
+    reach_mm = (np.sqrt(2 * 2.0 * 0.4 - 0.4**2) * scale + WHOLE_CONTACT_MARGIN_PX) / scale
+    rows = pd.DataFrame(
+        {
+            "x_mm": [(vx0 + vx1) / 2, vx0 + reach_mm + 0.01, vx0 + reach_mm - 0.05],
+            "y_mm": [(vy0 + vy1) / 2] * 3,
+            "depth_mm": [0.4] * 3,
+        }
+    )
+    assert whole_contacts(mini, rows, 2.0) == 2
+    assert whole_contacts(mini, rows.iloc[2:], 2.0) == 0
+    assert whole_contacts(mini, rows.iloc[:0], 2.0) == 0

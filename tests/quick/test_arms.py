@@ -189,7 +189,12 @@ def config(full_changes=None, quick_changes=None) -> dict:
     quick = {
         "sensor": "digit_fots",
         "printer": "ender3",
-        "plan": {"pattern": "quick", "depth_mm": 1.0, "frames": 1},
+        "plan": {
+            "pattern": "quick",
+            "depth_mm": 1.0,
+            "frames": 1,
+            "registration": {"spacing_mm": 1.0, "depth_mm": 0.25},
+        },
         "bench": {"unit": 1},
         "dataset": {"downscale": 2},
         "model": {"preset": "context_half", "init": "pretrained"},

@@ -14,7 +14,12 @@ def quick_scene(**changes) -> dict:
     scene = {
         "sensor": "digit_fots",
         "printer": "ender3",
-        "plan": {"pattern": "quick", "depth_mm": 1.0, "frames": 1},
+        "plan": {
+            "pattern": "quick",
+            "depth_mm": 1.0,
+            "frames": 1,
+            "registration": {"spacing_mm": 1.0, "depth_mm": 0.25},
+        },
         "dataset": {"downscale": 2},
         "model": {"preset": "context_half", "init": "pretrained"},
     }
@@ -67,6 +72,17 @@ def test_example_config_checks_and_asks_only_for_the_quick_outputs(repo, capsys)
         ),
         ({"dataset": {"downscale": 1}}, "the digit_fots weights were made for 160 x 120 px"),
         ({"sensor": "digit"}, "no pretrained weights for sensor 'digit'"),
+        # the DIGIT's lens fit needs 30 whole contacts: a 3 mm lattice over the quick area leaves
+        # 15, the first round's 1 mm presses without one 5
+        (
+            {"plan": {"registration": {"spacing_mm": 3.0, "depth_mm": 0.25}}},
+            "scenes.q.plan.registration: its 20 registration presses would leave about 15 "
+            "contacts whole in the frame; the lens fit needs 30",
+        ),
+        (
+            {"plan": {"registration": {"spacing_mm": 0.0}}},
+            "scenes.q.plan.registration: with no registration presses, its first round's 10",
+        ),
         ({"ablation": [20, 80]}, "scenes.q.ablation: a quick calibration"),
         ({"objects": ["pill"]}, "scenes.q.objects: a quick calibration"),
     ],

@@ -534,7 +534,7 @@ def test_the_quick_table_reads_each_compared_scenes_verdicts(small, tmp_path):
     quick = {
         "sensor": "digit",
         "printer": "ender3",
-        "plan": {"pattern": "quick", "depth_mm": 1.0},
+        "plan": {"pattern": "quick", "depth_mm": 1.0, "registration": {"spacing_mm": 1.0}},
         "quick": {"compare_with": "sim"},
     }
     config = validate_config({**SMALL, "scenes": {**SMALL["scenes"], "q": quick}})
