@@ -145,7 +145,11 @@ def test_stats_settings_default_to_the_papers_alpha_and_a_ten_percent_margin():
 
 
 def test_shipped_configs_are_valid(repo):
-    for path in [repo / "config.yaml", *sorted((repo / "tests/config").glob("*.yaml"))]:
+    shipped = [
+        *sorted((repo / "config").glob("*.yaml")),
+        *sorted((repo / "tests/config").glob("*.yaml")),
+    ]
+    for path in [repo / "config.yaml", *shipped]:
         assert load_config(path)["scenes"], path
 
 
