@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -122,6 +123,14 @@ def snakemake_command(workdir: Path, configfile: Path, *args: str, cores: int = 
         str(cores),
         *args,
     ]
+
+
+def assert_same_array(actual, desired, err_msg: str = "") -> None:
+    """np.testing.assert_array_equal, but quick when the arrays are equal: it compares element by
+    element through several temporaries (5.5 s for a 600-frame store's 150 MB of frames, against
+    0.03 s for np.array_equal); only arrays that differ go through it, for its report."""
+    if not np.array_equal(actual, desired):
+        np.testing.assert_array_equal(actual, desired, err_msg=err_msg)
 
 
 def snapshot(path: Path) -> dict[str, tuple[int, int, str]]:

@@ -13,11 +13,10 @@ import signal
 import subprocess
 import time
 
-import numpy as np
 import pytest
 import yaml
 import zarr
-from conftest import snakemake, snakemake_command, snapshot
+from conftest import assert_same_array, snakemake, snakemake_command, snapshot
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -105,8 +104,8 @@ def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
     scene = validate_config(CONFIG)["scenes"]["t"]
     collect_scene("t", scene, tmp_path / "reference.zarr", progress=False)
     a, b = open_raw(tmp_path / "reference.zarr"), open_raw(store)
-    np.testing.assert_array_equal(a.frames.values, b.frames.values)
-    np.testing.assert_array_equal(a.cmd_z_mm.values, b.cmd_z_mm.values)
+    assert_same_array(a.frames.values, b.frames.values)
+    assert_same_array(a.cmd_z_mm.values, b.cmd_z_mm.values)
     kept = snapshot(store)
 
     # Repro: swapping spacing_mm and depth_mm (same values) made Snakemake delete and recollect.

@@ -12,7 +12,14 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO, collect_and_register, collect_on_bench, lens_free, snapshot
+from conftest import (
+    REPO,
+    assert_same_array,
+    collect_and_register,
+    collect_on_bench,
+    lens_free,
+    snapshot,
+)
 
 from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
@@ -63,10 +70,10 @@ def scene_config(**bench):
 
 def assert_same_store(a, b):
     one, two = open_raw(a), open_raw(b)
-    np.testing.assert_array_equal(one.frames.values, two.frames.values)
-    np.testing.assert_array_equal(one.blank_frames.values, two.blank_frames.values)
+    assert_same_array(one.frames.values, two.frames.values)
+    assert_same_array(one.blank_frames.values, two.blank_frames.values)
     for name in LABELS:
-        np.testing.assert_array_equal(one[name].values, two[name].values, err_msg=name)
+        assert_same_array(one[name].values, two[name].values, err_msg=name)
     assert bool(one.captured.all()) and bool(two.captured.all())
 
 
