@@ -120,16 +120,14 @@ def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
     assert snapshot(store) == kept
 
     # --forcerun collect: the job runs and writes its summary again; the store is left alone.
-    before = summary.stat().st_mtime_ns
-    snakemake(tmp_path, configfile, SUMMARY, "--forcerun", "collect")
-    assert summary.stat().st_mtime_ns > before
-    assert snapshot(store) == kept
-
     # Repro: Ctrl-C just after the store was in place (the figures being drawn), then
     # --rerun-incomplete, deleted the finished store and recollected from zero. Now it is kept.
-    # Snakemake removes a forced job's outputs before it starts; the summary coming back means the
-    # job has written it and is drawing the figures. Should the job still end before the Ctrl-C
-    # (Snakemake then exits 0), only the timing is retried; each try must keep the store.
+    # Snakemake removes a forced job's outputs before it starts; the summary coming back (newer
+    # than the one before) means the forced job has written it again and is drawing the figures.
+    # Should the job still end before the Ctrl-C (Snakemake then exits 0), only the timing is
+    # retried; each try must keep the store. The rerun then runs the same job to its end.
+    before = summary.stat().st_mtime_ns
+    rewritten = []
     for _ in range(5):
         seen_gone = []
 
@@ -137,6 +135,8 @@ def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
             if not summary.exists():
                 seen_gone.append(True)
                 return False
+            if seen_gone:
+                rewritten.append(summary.stat().st_mtime_ns)
             return bool(seen_gone)
 
         if interrupt(tmp_path, configfile, drawing_figures, "--forcerun", "collect") != 0:
@@ -144,6 +144,7 @@ def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
         assert snapshot(store) == kept
     else:
         pytest.fail("five Ctrl-Cs all landed after the collect job had ended")
+    assert rewritten and rewritten[-1] > before, "the forced job did not write its summary again"
     assert snapshot(store) == kept
     snakemake(tmp_path, configfile, SUMMARY, "--rerun-incomplete")
     assert snapshot(store) == kept and summary.is_file()
