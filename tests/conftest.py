@@ -17,6 +17,34 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "data"
 SNAKEMAKE = Path(sys.executable).with_name("snakemake")
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def share_the_cores_between_workers() -> int | None:
+    """Under pytest-xdist, each worker's BLAS and OpenMP (torch) pools get its share of the cores
+    (the thread variables, where not set already), as Snakemake gives each job its threads, and
+    OpenMP's idle threads sleep rather than spin (OMP_WAIT_POLICY=PASSIVE; the arithmetic is the
+    same). Unlimited, each worker's pools start a thread per core: `make test`'s 2 workers on 2
+    cores ran 4 busy-waiting threads, and a BLAS-bound test took twice the time and twice the CPU
+    (two realism fits side by side: 18 s of CPU each, 9.5 s on one thread). A training keeps its
+    torch_threads (2 by default: CPU results depend on it); spinning, two such trainings side by
+    side took 8 times the CPU they take with PASSIVE. NumPy has loaded its BLAS before this file,
+    so its pool is limited in place too. Returns the share (None: not a worker)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT") or 1)
+    if workers <= 1:
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    share = max(1, (cores or 1) // workers)
+    for name in THREAD_VARIABLES:
+        os.environ.setdefault(name, str(share))
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=int(os.environ["OPENBLAS_NUM_THREADS"]), user_api="blas")
+    return share
+
+
+share_the_cores_between_workers()
 
 
 def pytest_collection_modifyitems(config, items):
