@@ -222,6 +222,8 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
     assert ("ball_eval", {"scene": "balls"}) in jobs
     folds = sorted((wc["method"], wc["fold"]) for rule, wc in jobs if rule == "cv_train")
     assert folds == [(m, str(f)) for m in ("lookup", "model") for f in range(6)]
+    # sim_to_real off (the default): no sim-to-real job
+    assert not [rule for rule, _ in jobs if rule.startswith("sim2real")]
     # Asking for one P schedules that training alone (plus the dataset it reads).
     one = scheduled_jobs(
         tmp_path, write_config(tmp_path, config), "results/balls/models/P20/r0/model.pt"
@@ -250,10 +252,8 @@ def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path)
     for rule in ("sim2real_simulate", "sim2real_pretrain"):
         assert sorted(wc["fold"] for r, wc in jobs if r == rule) == ["1", "3"]
     assert ("sim2real_eval", {"scene": "balls"}) in jobs
-    # Off (the default): no sim-to-real job.
-    del balls["sim_to_real"]
-    jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
-    assert not [rule for rule, _ in jobs if rule.startswith("sim2real")]
+    # Off (the default): no sim-to-real job (the same imported scene without sim_to_real is
+    # test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes's dry run).
 
 
 def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_single_model_stages(
