@@ -415,13 +415,19 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
     tmp_path, monkeypatch
 ):
     # The hardware path (serial printer + ReSkin reader), with both serial ends simulated.
+    from conftest import _profile_variant
+
     from threedcal.collect.session import collect_scene
     from threedcal.collect.store import open_raw
 
+    # A real rig waits probing.settle_s (0.3 s) at every press, on the wall clock; the simulated
+    # printer's time is virtual (instant moves) and the board reads on it, so the wait only took
+    # time (14 s of sleep): the profile with a 10 ms settle, its readings the same.
+    sensor = _profile_variant("reskin", "settle-10ms", lambda p: p["probing"].update(settle_s=0.01))
     asked = []  # the rig asks its user through the callback, never on the terminal itself
     with ReSkinBench(PROFILE, 2.0, {}, 0) as bench:
         scene = {
-            "sensor": "reskin",
+            "sensor": sensor,
             "printer": "ender3",
             "port": bench.url,
             "reader": bench.sensor_url,
