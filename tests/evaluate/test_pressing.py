@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import lens_free
+from conftest import _profile_variant, lens_free
 from scipy import ndimage
 
 from threedcal.config import validate_config
@@ -428,13 +428,20 @@ def test_bad_input_is_refused_before_any_motion(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def _settle_10ms(profile):
+    profile["probing"]["settle_s"] = 0.01
+
+
 def test_a_real_rig_asks_for_each_object_and_records_no_truth(tmp_path, monkeypatch):
     """The real rig's path (threedcal.rig.open_rig): a Marlin printer at `port` (here the bench's
     simulated one, behind its serial URL) and the sensor's camera (here the bench's, in place of
     OpenCV's); the user is asked through `ask` to mount each object, once per session."""
     import threedcal.rig
 
-    scene = scene_config()
+    # A real rig waits probing.settle_s (0.3 s) at every pose, on the wall clock; the bench's
+    # printer and camera run on its virtual clock, so the wait only took time (2.4 s): the
+    # profile with a 10 ms settle presses and records the same frames.
+    scene = scene_config(sensor=_profile_variant("digit", "settle-10ms", _settle_10ms))
     registration = perfect_registration(scene, tmp_path / "registration.json")
     sensor = load_profile("sensor", scene["sensor"])
     asked = []
