@@ -61,6 +61,7 @@ from threedcal.scenes import (
     TRAINSET,
     ablation_scenes,
     compared_with,
+    first_runs,
     full_model_file,
     has_objects,
     model_file,
@@ -68,6 +69,7 @@ from threedcal.scenes import (
     realism_files,
     realism_sets,
     reskin_scenes,
+    runs_of,
     stage_config,
     study_targets,
     target,
@@ -104,8 +106,8 @@ IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
 QUICK_SCENES = quick_scenes(config)
-# quick scenes measured against a full calibration of their unit (quick.compare_with)
-COMPARED_SCENES = [n for n in QUICK_SCENES if compared_with(config["scenes"][n])]
+# quick scenes measured against a full calibration of their unit (quick.compare_with), run 1 of each
+COMPARED_SCENES = first_runs(config)
 # scenes the collect stage probes (a quick scene collects in its own stage, round by round)
 COLLECTED_SCENES = [
     name for name in SCENES if name not in IMPORTED_SCENES and name not in QUICK_SCENES

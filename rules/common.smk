@@ -99,9 +99,13 @@ def pretrained_input(wildcards):
 
 
 def arms_inputs(wildcards):
-    """The compared scene's files: its P = 80 models, validation set, registration, object presses."""
+    """The compared scene's files: its P = 80 models, validation set, registration, object presses;
+    and the rounds of the calibration's other runs (threedcal.scenes.runs_of)."""
     full = compared_with(config["scenes"][wildcards.scene])
+    others = runs_of(config, wildcards.scene)[1:]
     return {
+        "runs_rounds": [target(QUICK["rounds"], n) for n in others],
+        "runs_work": [target(QUICK_ROUNDS, n) for n in others],
         "full": [
             model_file(full, p, r)
             for p, r in model_keys(config["scenes"][full])

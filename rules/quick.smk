@@ -39,9 +39,10 @@ rule quick:
         "../scripts/quick.py"
 
 
-# Stage `quick_arms`, for quick scenes with `quick.compare_with`: the rounds' models (quick), the same
-# presses trained from scratch, and the compared scene's P = 80 models (full), scored on that scene's
-# validation coordinates and test-object presses (threedcal.quick.arms).
+# Stage `quick_arms`, for quick scenes with `quick.compare_with` (run 1 of each): the rounds' models
+# of every run (quick; stopped: where each run stopped), run 1's presses trained from scratch, and the
+# compared scene's P = 80 models (full), scored on that scene's validation coordinates and
+# test-object presses (threedcal.quick.arms).
 rule quick_arms:
     input:
         unpack(arms_inputs),
@@ -77,6 +78,7 @@ rule quick_arms:
             "objects",
         ),
         store=lambda wildcards: target(STORE, wildcards.scene),
+        runs=lambda wildcards: runs_of(config, wildcards.scene)[1:],
         code=code_digest("quick_arms.py"),
     script:
         "../scripts/quick_arms.py"

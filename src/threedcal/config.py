@@ -146,7 +146,7 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         if quick:
             return problems + quick
     try:
-        plan = plan_from_config(scene["plan"], sensor)
+        plan = plan_from_config(scene["plan"], sensor, (scene.get("quick") or {}).get("run", 1))
         csv = scene["plan"].get("csv")
         validate_plan(plan, sensor, printer, source=f"plan ({csv})" if csv else "plan")
     except ConfigError as exc:
@@ -218,7 +218,8 @@ def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     rows = registration_presses_of(plan, sensor)
     which = f"its {len(rows)} registration presses"
     if rows.empty:
-        rows = quick_plan(sensor, plan).iloc[: int(plan["round_presses"])]
+        run = int(scene["quick"].get("run", 1))
+        rows = quick_plan(sensor, plan, run).iloc[: int(plan["round_presses"])]
         which = f"with no registration presses, its first round's {len(rows)}"
     whole = whole_contacts(sensor, rows, float(scene["probe"]["radius_mm"]))
     if whole >= MIN_LENS_CONTACTS:
@@ -288,6 +289,31 @@ def compare_problems(config: Mapping) -> list[str]:
             )
         if not full.get("objects"):
             problems.append(f"{key}: {other} presses no test objects (its `objects`)")
+    return problems + _run_problems_of(config)
+
+
+def _run_problems_of(config: Mapping) -> list[str]:
+    """Compared runs of one quick calibration (`quick.run`): a run 1 alike in all but
+    `description` and `quick.run`, whose quick_arms pools them, and no run number twice."""
+    from threedcal.scenes import compared_with, quick_run, runs_of
+
+    problems = []
+    for name, scene in config["scenes"].items():
+        if not compared_with(scene) or quick_run(scene) == 1:
+            continue
+        runs = runs_of(config, name)
+        numbers = [quick_run(config["scenes"][n]) for n in runs]
+        key = f"scenes.{name}.quick.run"
+        if 1 not in numbers:
+            problems.append(
+                f"{key}: {quick_run(scene)}, but no quick scene alike in all but description and "
+                "quick.run is run 1 (the run whose quick_arms pools the others)"
+            )
+        elif numbers.count(quick_run(scene)) > 1:
+            twins = ", ".join(n for n in runs if quick_run(config["scenes"][n]) == quick_run(scene))
+            problems.append(
+                f"{key}: {quick_run(scene)} is the run of more than one scene ({twins})"
+            )
     return problems
 
 

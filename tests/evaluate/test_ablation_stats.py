@@ -18,6 +18,7 @@ from threedcal.evaluate.ablation import (
     contrast,
     difference_test,
     holm,
+    independent_contrast,
     paper_family,
     ratio_interval,
     spatial_blocks,
@@ -196,6 +197,63 @@ def test_contrast_matches_the_two_way_anova_by_hand():
     one = d[:1]
     estimate, se, df = contrast(one, np.zeros_like(one))
     assert se == pytest.approx(one.std(ddof=1) / math.sqrt(3)) and df == 2
+
+
+def test_independent_contrast_matches_its_formula_by_hand():
+    s = np.array([[1.0, 2.0, 4.0, 3.0], [2.0, 4.0, 5.0, 6.0], [0.5, 1.0, 3.0, 3.5]])
+    f = np.array([[1.0, 1.5, 3.0, 2.0], [1.5, 2.5, 3.5, 3.0]])
+    theta, blocks = 0.8, 4
+    u = s.mean(0) - theta * f.mean(0)
+    variance, shares = u.var(ddof=1) / blocks, [(u.var(ddof=1) / blocks, 3.0)]
+    for x, weight in ((s, 1.0), (f, theta**2)):
+        r = x.shape[0]
+        rows, cols = x.mean(1), x.mean(0)
+        ms_r = blocks * rows.var(ddof=1)
+        ms_e = ((x - rows[:, None] - cols[None] + x.mean()) ** 2).sum() / ((r - 1) * 3)
+        assert ms_r > ms_e  # both replicate terms count in this table
+        c = weight / (blocks * r)
+        variance += c * (ms_r - ms_e)
+        shares += [(c * ms_r, r - 1.0), (-c * ms_e, (r - 1.0) * 3)]
+    estimate, se, df = independent_contrast(s, f, theta)
+    assert estimate == pytest.approx(s.mean() - theta * f.mean())
+    assert se == pytest.approx(math.sqrt(variance))
+    assert df == pytest.approx(variance**2 / sum(v**2 / d for v, d in shares))
+
+
+def test_independent_contrast_with_one_run_is_the_paired_contrast_broadcast():
+    rng = np.random.default_rng(3)
+    one, many = rng.normal(1, 0.2, (1, 6)), rng.normal(1, 0.2, (3, 6))
+    for sample, reference, theta in ((one, many, 1.1), (many, one, 0.9)):
+        paired = [float(v) for v in contrast(sample, reference, theta)]
+        assert independent_contrast(sample, reference, theta) == pytest.approx(paired)
+    with pytest.raises(ValueError, match="6 and 5 blocks"):
+        independent_contrast(many, many[:, :5])
+
+
+def test_independent_runs_intervals_cover_at_their_level():
+    """Two arms of independent runs (3 and 2; run effects, shared block effects, residuals):
+    the interval of the difference of their means holds the true difference at its level, and
+    the ratio's Fieller interval the true ratio, where ignoring the runs' spread would not."""
+    rng = np.random.default_rng(11)
+    draws, blocks, level = 1500, 12, 0.9
+    hits, naive, ratios = 0, 0, []
+    for _ in range(draws):
+        shared = rng.normal(0, 0.3, blocks)
+        s = 2.0 + shared + rng.normal(0, 0.25, (3, 1)) + rng.normal(0, 0.1, (3, blocks))
+        f = 1.6 + shared + rng.normal(0, 0.15, (2, 1)) + rng.normal(0, 0.1, (2, blocks))
+        estimate, se, df = independent_contrast(s, f)
+        half = stats.t.ppf(0.5 + level / 2, df) * se
+        hits += abs(estimate - 0.4) <= half
+        u = s.mean(0) - f.mean(0)
+        naive += abs(estimate - 0.4) <= stats.t.ppf(0.5 + level / 2, blocks - 1) * u.std(
+            ddof=1
+        ) / math.sqrt(blocks)
+        if len(ratios) < 300:  # Fieller's search is slower: fewer draws, a wider tolerance
+            low, high = ratio_interval(s, f, (1 - level) / 2, independent=True)
+            ratios.append(low <= 2.0 / 1.6 <= high)
+    assert abs(hits / draws - level) <= 0.03, hits / draws
+    assert abs(np.mean(ratios) - level) <= 0.05, np.mean(ratios)
+    assert naive / draws < level - 0.1, naive / draws
 
 
 def test_contrast_is_statsmodels_mixed_model_on_the_same_blocks():

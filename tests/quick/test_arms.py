@@ -1,7 +1,9 @@
 """The three-arm measurement's numbers (threedcal.quick.arms) on synthetic scores with known
 answers, its verdicts computed from the table, and the config check of `quick.compare_with`."""
 
+import copy
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -13,14 +15,17 @@ from threedcal.errors import ConfigError
 from threedcal.quick.arms import (
     ArmModel,
     arms_table,
+    difference_interval,
     judged,
     mean_interval_blocks,
     object_rows,
+    quick_arm,
     relative_change,
+    stopped_arm,
     validation_rows,
     verdicts,
 )
-from threedcal.scenes import scene_targets
+from threedcal.scenes import first_runs, runs_of, scene_targets
 
 
 def test_one_replicate_mean_interval_is_the_t_interval_over_blocks():
@@ -109,6 +114,45 @@ def test_object_rows_pair_each_arm_with_full_on_the_presses():
     assert full_row["value"] == pytest.approx(3.0) and math.isnan(full_row["change"])
 
 
+def test_runs_are_pooled_round_by_round_and_judged_where_each_stopped():
+    """Run 1 stopped at round 2, run 2 at round 3: round 3 holds run 2 alone; the stopped point
+    holds each run's last model, costed at the most presses and minutes a run took."""
+    one = [_model("quick", k, presses=10 * k, minutes=1.0 + k) for k in range(3)]
+    two = [
+        replace(_model("quick", k, presses=10 * k, minutes=2.0 + k), paths=(f"b{k}.pt",))
+        for k in range(4)
+    ]
+    pooled = quick_arm([one, two])
+    assert [p.round for p in pooled] == [0, 1, 2, 3]
+    assert pooled[2].paths == ("quick2_0.pt", "b2.pt") and pooled[3].paths == ("b3.pt",)
+    assert pooled[2].printer_min == pytest.approx(3.5) and pooled[2].presses == 20
+    stopped = stopped_arm([one, two])
+    assert stopped.arm == "stopped" and stopped.paths == ("quick2_0.pt", "b3.pt")
+    assert (stopped.presses, stopped.printer_min) == (30, 5.0)
+
+
+def test_object_differences_of_independent_runs_widen_with_their_spread():
+    """Three quick runs against three full replicates, presses paired: the difference interval
+    is the independent-runs contrast (the runs' spread counted), not the one of the presses'
+    pairwise differences taken replicate by replicate."""
+    from threedcal.evaluate.ablation import independent_contrast
+
+    rng = np.random.default_rng(5)
+    press = rng.normal(0, 3.0, 8)
+    own = 20 + press + rng.normal(0, 2.0, (3, 1)) + rng.normal(0, 0.5, (3, 8))
+    reference = 15 + press + rng.normal(0, 0.5, (3, 8))
+    mean, low, high = difference_interval(own, reference)
+    estimate, se, df = independent_contrast(own, reference)
+    assert mean == pytest.approx(own.mean() - reference.mean()) == pytest.approx(estimate)
+    assert (low, high) == pytest.approx(
+        stats.t.interval(0.95, df, loc=estimate, scale=se), rel=1e-9
+    )
+    own[0, 2] = np.nan  # a press without a Type 2 pixel in one run: left out of every run
+    mean, _, _ = difference_interval(own, reference)
+    keep = np.arange(8) != 2
+    assert mean == pytest.approx(own[:, keep].mean() - reference[:, keep].mean())
+
+
 def test_judged_on_an_interval():
     assert judged(-0.2, 0.08, 0.10) == "met"
     assert judged(0.11, 0.3, 0.10) == "not met"
@@ -117,7 +161,8 @@ def test_judged_on_an_interval():
 
 def _table(mse_change, pill_change, presses=40, minutes=4.0) -> pd.DataFrame:
     rows = []
-    for arm, round_ in (("quick", 0), ("quick", 4), ("scratch", 4), ("full", None)):
+    points = (("quick", 0), ("quick", 4), ("stopped", None), ("scratch", 4), ("full", None))
+    for arm, round_ in points:
         rows.append(
             {
                 "arm": arm,
@@ -152,10 +197,11 @@ def _table(mse_change, pill_change, presses=40, minutes=4.0) -> pd.DataFrame:
     return arms_table(rows)
 
 
-def test_verdicts_are_computed_from_the_final_round():
-    record = verdicts(_table((0.04, -0.01, 0.09), (3.0, -1.0, 8.0)), "q", "full")
+def test_verdicts_are_computed_from_the_stopped_models():
+    runs = [{"scene": "q", "round": 4, "decision": "stop: improvement below margin"}]
+    record = verdicts(_table((0.04, -0.01, 0.09), (3.0, -1.0, 8.0)), "q", "full", runs=runs)
     targets = record["targets"]
-    assert record["round"] == 4 and record["presses"] == 40
+    assert record["runs"] == runs and record["presses"] == 40
     assert targets["validation_mse"]["verdict"] == "met"
     assert targets["objects"]["verdict"] == "met"
     assert targets["presses"]["verdict"] == "met" and targets["printer_minutes"]["verdict"] == "met"
@@ -300,3 +346,69 @@ def test_every_arm_is_scored_with_the_validation_sets_blank(tmp_path):
             tmp_path / "small.pt", "compact_tiny", trainset.blank[::2, ::2]
         )
         validation_scores([ArmModel("quick", 1, 4, 1.0, 0, (small,))], trainset, splits)
+
+
+# ---- runs of one quick calibration (quick.run) --------------------------------------------
+
+
+def with_runs(*runs: dict) -> dict:
+    """config() with quick scenes q2, q3, ... changed from q by each dict."""
+    out = config()
+    for i, changes in enumerate(runs, start=2):
+        scene = copy.deepcopy(out["scenes"]["q"])
+        for key, value in changes.items():
+            scene[key] = {**scene.get(key, {}), **value} if isinstance(value, dict) else value
+        out["scenes"][f"q{i}"] = scene
+    return out
+
+
+def test_runs_of_a_calibration_are_pooled_by_run_one():
+    runs = with_runs(
+        {"quick": {"run": 2}, "description": "another run"},
+        {"quick": {"run": 3}},
+        {"quick": {"steps": 600}},  # another calibration (run 1 of its own), not a run of q
+    )
+    checked = validate_config(runs)
+    assert runs_of(checked, "q") == ["q", "q2", "q3"]
+    assert first_runs(checked) == ["q", "q4"]
+    scenes = checked["scenes"]
+    assert "results/q/quick/arms.json" in scene_targets("q", scenes["q"])
+    assert not any("arms" in t for t in scene_targets("q2", scenes["q2"]))
+    assert "results/q2/quick/stop.json" in scene_targets("q2", scenes["q2"])
+
+
+@pytest.mark.parametrize(
+    ("runs", "message"),
+    [
+        (({"quick": {"run": 2, "steps": 600}},), "scenes.q2.quick.run: 2, but no quick scene"),
+        (
+            ({"quick": {"run": 2}}, {"quick": {"run": 2}}),
+            "scenes.q2.quick.run: 2 is the run of more than one scene (q2, q3)",
+        ),
+    ],
+)
+def test_runs_without_their_run_one_or_twice_the_same_are_refused(runs, message):
+    with pytest.raises(ConfigError) as error:
+        validate_config(with_runs(*runs))
+    assert message in str(error.value)
+
+
+def test_a_run_presses_its_own_design_and_trains_with_its_own_seed(tmp_path):
+    """Run 2 draws other quick presses after the same touch search and registration lattice, and
+    fine-tunes with the seed's replicate 1; run 1 is the calibration as it always was."""
+    from threedcal.collect.session import prepare
+    from threedcal.dataset.splits import replicate_seed
+    from threedcal.quick.loop import QuickLoop
+
+    scenes = validate_config(with_runs({"quick": {"run": 2}}))["scenes"]
+    plans, seeds = [], []
+    for name in ("q", "q2"):
+        prepared = prepare(scenes[name])
+        loop = QuickLoop(scenes[name], prepared.plan, tmp_path, tmp_path, {}, {})
+        plans.append(prepared.plan)
+        seeds.append(loop.train_settings.seed)
+    one, two = plans
+    first = int((one["phase"] == "grid").to_numpy().argmax())
+    assert one.iloc[:first].equals(two.iloc[:first]) and len(one) == len(two)
+    assert not one.iloc[first:][["x_mm", "y_mm"]].equals(two.iloc[first:][["x_mm", "y_mm"]])
+    assert seeds == [scenes["q"]["seed"], replicate_seed(scenes["q"]["seed"], 1)]

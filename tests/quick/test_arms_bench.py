@@ -8,7 +8,7 @@ from test_quick_bench import scene
 
 from threedcal.collect.session import prepare
 from threedcal.model.checkpoint import read_checkpoint
-from threedcal.quick.arms import quick_arm, scratch_arm
+from threedcal.quick.arms import run_arm, scratch_arm
 from threedcal.quick.loop import QuickLoop, quick_stage
 
 
@@ -31,7 +31,7 @@ def test_scratch_models_train_on_each_rounds_presses_with_its_budget(tmp_path):
         settings, prepared.plan, store, tmp_path / "w", prepared.sensor, prepared.printer
     )
     start_min = loop.printer_s(loop.first_row) / 60
-    quick = quick_arm(rounds, outputs["work"], start_min)
+    quick = run_arm(rounds, outputs["work"], start_min)
     assert [(m.round, m.presses, m.steps) for m in quick] == [(0, 0, 0), (1, 4, 10), (2, 8, 20)]
     assert quick[0].printer_min == pytest.approx(start_min) and start_min > 0
     assert [m.printer_min * 60 for m in quick[1:]] == pytest.approx(rounds["printer_s"].tolist())

@@ -509,7 +509,8 @@ def write_arms(root: Path, full: str, mse_change: tuple, pawn: tuple) -> None:
     from threedcal.quick.arms import arms_table, verdicts
 
     rows = []
-    for arm, round_, presses in (("quick", 5, 50), ("scratch", 5, 50), ("full", None, 2956)):
+    points = (("quick", 5, 50), ("stopped", None, 50), ("scratch", 5, 50), ("full", None, 2956))
+    for arm, round_, presses in points:
         base = {"arm": arm, "round": round_, "presses": presses, "printer_min": 3.2, "steps": 1500}
         base |= {"replicates": 1, "value": 1.0, "value_lo": 0.9, "value_hi": 1.1}
         change = (float("nan"),) * 3 if arm == "full" else mse_change

@@ -238,8 +238,8 @@ def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):
     root = tmp_path / "results"
     (root / "q/quick").mkdir(parents=True)
     rows = []
-    for arm, round_ in (("quick", 3), ("full", None)):
-        base = {"arm": arm, "round": round_, "presses": 30 if arm == "quick" else 2956}
+    for arm, round_ in (("quick", 3), ("stopped", None), ("full", None)):
+        base = {"arm": arm, "round": round_, "presses": 2956 if arm == "full" else 30}
         base |= {"printer_min": 6.5, "steps": 900, "replicates": 1, "value": 1.0}
         base |= {"value_lo": 0.9, "value_hi": 1.1}
         rows.append(

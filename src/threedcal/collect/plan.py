@@ -307,11 +307,13 @@ def quick_problems(plan_config: Mapping, sensor: Mapping) -> list[str]:
     return problems
 
 
-def quick_plan(sensor: Mapping, plan_config: Mapping) -> pd.DataFrame:
+def quick_plan(sensor: Mapping, plan_config: Mapping, run: int = 1) -> pd.DataFrame:
     """The quick plan's presses: `max_presses` of a seeded scrambled Halton design over the quick
     area (threedcal.collect.design), each `depth_mm` deep (dome compensated) for `frames` frames,
-    in rounds of `round_presses` (each round's prefix spreads evenly), each round a short path."""
+    in rounds of `round_presses` (each round's prefix spreads evenly), each round a short path.
+    Run r of a calibration (`quick.run`) scrambles with plan.seed's replicate r − 1."""
     from threedcal.collect.design import halton_design, round_order
+    from threedcal.dataset.splits import replicate_seed
 
     problems = quick_problems(plan_config, sensor)
     if problems:
@@ -319,7 +321,8 @@ def quick_plan(sensor: Mapping, plan_config: Mapping) -> pd.DataFrame:
     most, per_round = int(plan_config.get("max_presses", 50)), int(plan_config["round_presses"])
     check_plan_size(most, most * int(plan_config["frames"]), f"plan.max_presses={most}")
     area = quick_area_mm(sensor, plan_config)
-    xy = halton_design(most, area, int(plan_config.get("seed", 0)), per_round)
+    seed = replicate_seed(int(plan_config.get("seed", 0)), run - 1)
+    xy = halton_design(most, area, seed, per_round)
     xy = np.round(xy[round_order(xy, per_round, start=(area[0], area[1]))], 4)
     depth = float(plan_config["depth_mm"]) + dome_sag_mm(sensor, xy[:, 0], xy[:, 1])
     return pd.DataFrame(
@@ -528,7 +531,7 @@ def check_plan_size(points: float, frames: float, what: str = "the plan") -> Non
         )
 
 
-def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
+def plan_from_config(plan_config: Mapping, sensor: Mapping, run: int = 1) -> pd.DataFrame:
     """The plan a scene's `plan:` section describes: the touch search (vision sensors, when
     `touch_search.points` > 0), the registration presses (vision sensors, when
     `registration.spacing_mm` > 0), then the grid rows (CSV, grid or cross); column `phase`
@@ -537,7 +540,7 @@ def plan_from_config(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
         rows = read_plan_csv(plan_config["csv"])
         check_plan_size(len(rows), rows["frames"].sum(), str(plan_config["csv"]))
     elif plan_config.get("pattern") == "quick":
-        rows = quick_plan(sensor, plan_config)
+        rows = quick_plan(sensor, plan_config, run)
     else:
         depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
         mode = plan_config.get("depth_mode", "every")

@@ -38,6 +38,7 @@ from threedcal.collect.store import (
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.rig import Ask, BenchClock, check_devices, is_magnetic, open_rig
+from threedcal.scenes import quick_run
 
 
 @dataclass
@@ -52,7 +53,7 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
     """Load the profiles and the plan and validate all of it; nothing moves yet."""
     sensor = load_profile("sensor", scene["sensor"])
     printer = load_profile("printer", scene["printer"])
-    plan = plan_from_config(scene["plan"], sensor)
+    plan = plan_from_config(scene["plan"], sensor, quick_run(scene))
     plan_source = scene["plan"].get("csv") or f"{source} grid plan"
     validate_plan(plan, sensor, printer, source=str(plan_source))
     if scene["port"] == "sim":

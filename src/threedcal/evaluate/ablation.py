@@ -258,8 +258,47 @@ def contrast(
     return grand, np.sqrt(variance / (replicates * blocks)), df
 
 
-def _t(sample, reference, theta):
-    estimate, se, df = contrast(sample, reference, theta)
+def independent_contrast(
+    sample: np.ndarray, reference: np.ndarray, theta: float = 1.0
+) -> tuple[float, float, float]:
+    """`contrast` for two arms whose replicates are independent runs (no replicate r of one is
+    paired with replicate r of the other), possibly of different counts; blocks still paired.
+
+    u_k = mean_i sample_ik - theta·mean_j reference_jk; the grand mean's variance is
+    var(u)/K + (MS_R - MS_E)/(K R) of each arm with R >= 2 (theta² for the reference), an arm's
+    replicate term left out where it is negative, with Satterthwaite's degrees of freedom. With
+    one replicate on either side this is `contrast` with that row broadcast, which it returns.
+    """
+    s, f = np.atleast_2d(np.asarray(sample, float)), np.atleast_2d(np.asarray(reference, float))
+    if s.shape[-1] != f.shape[-1]:
+        raise ValueError(f"arms scored on {s.shape[-1]} and {f.shape[-1]} blocks cannot be paired")
+    if min(s.shape[0], f.shape[0]) == 1:
+        return tuple(float(v) for v in contrast(s, f, theta))
+    blocks = s.shape[1]
+    if blocks < 2:
+        raise ConfigError(
+            "the validation coordinates fill one spatial block; the paired test needs two or more"
+        )
+    u = s.mean(axis=0) - theta * f.mean(axis=0)
+    terms = [(u.var(ddof=1) / blocks, blocks - 1.0)]  # (variance share, its degrees of freedom)
+    for x, weight in ((s, 1.0), (f, theta**2)):
+        replicates = x.shape[0]
+        rows, columns, grand = x.mean(axis=1), x.mean(axis=0), x.mean()
+        ms_r = blocks * rows.var(ddof=1)
+        df_e = (replicates - 1) * (blocks - 1)
+        ms_e = ((x - rows[:, None] - columns[None, :] + grand) ** 2).sum() / df_e
+        if ms_r > ms_e:
+            scale = weight / (blocks * replicates)
+            terms += [(scale * ms_r, replicates - 1.0), (-scale * ms_e, float(df_e))]
+    variance = sum(v for v, _ in terms)
+    denominator = sum(v**2 / df for v, df in terms)
+    df = variance**2 / denominator if denominator > 0 else blocks - 1.0
+    return float(u.mean()), math.sqrt(variance), float(df)
+
+
+def _t(sample, reference, theta, independent: bool = False):
+    measure = independent_contrast if independent else contrast
+    estimate, se, df = measure(sample, reference, theta)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(se > 0, estimate / np.where(se > 0, se, 1.0), np.sign(estimate) * np.inf)
     return t, df
@@ -286,14 +325,17 @@ def tost(
     return t_low, df_low, t_high, df_high, p
 
 
-def ratio_interval(sample, reference, tail: float) -> tuple[float, float]:
+def ratio_interval(
+    sample, reference, tail: float, independent: bool = False
+) -> tuple[float, float]:
     """Fieller-type interval of mean(sample) / mean(reference): the ratios theta whose contrast
     sample - theta·reference is not rejected by a one-sided test at `tail` on either side
-    (a 1 - 2·tail interval). An end is +-inf where no finite ratio is rejected."""
+    (a 1 - 2·tail interval). An end is +-inf where no finite ratio is rejected. `independent`:
+    the arms' replicates are unpaired runs (independent_contrast), not nested replicates."""
     ratio = float(np.mean(sample) / np.mean(reference))
 
     def excess(theta: float, side: int) -> float:
-        t, df = _t(sample, reference, theta)
+        t, df = _t(sample, reference, theta, independent)
         return float(t) - side * float(stats.t.isf(tail, df))
 
     ends = []

@@ -51,7 +51,7 @@ TYPE2_WITHIN_UM = 10.0  # Type 2 MAE, every object, printer protocol
 MAX_PRESSES = 50
 MAX_PRINTER_MINUTES = 5.0
 
-ARMS = ("quick", "scratch", "full")
+ARMS = ("quick", "stopped", "scratch", "full")
 COLUMNS = (
     "arm",
     "round",
@@ -95,8 +95,8 @@ def _checkpoint_steps(path: str | Path) -> int:
     return int(read_checkpoint(path)["training"].get("steps") or 0)
 
 
-def quick_arm(rounds: pd.DataFrame, rounds_dir: str | Path, start_min: float) -> list[ArmModel]:
-    """The quick flow's models r0..rK (rounds.csv's rounds), with the presses, printer minutes and
+def run_arm(rounds: pd.DataFrame, rounds_dir: str | Path, start_min: float) -> list[ArmModel]:
+    """One run's models r0..rK (rounds.csv's rounds), with the presses, printer minutes and
     cumulative training steps each had. `start_min`: the printer's minutes before the first round
     (registration and first-touch search), the cost of r0."""
     rounds_dir = Path(rounds_dir)
@@ -113,6 +113,36 @@ def quick_arm(rounds: pd.DataFrame, rounds_dir: str | Path, start_min: float) ->
             )
         )
     return out
+
+
+def quick_arm(runs: Sequence[Sequence[ArmModel]]) -> list[ArmModel]:
+    """The runs' models pooled round by round: round k holds every run that reached it (one
+    model each), at its presses and the runs' mean printer minutes."""
+    out = []
+    for k in range(max(len(points) for points in runs)):
+        reached = [points[k] for points in runs if len(points) > k]
+        out.append(
+            replace(
+                reached[0],
+                printer_min=float(np.mean([p.printer_min for p in reached])),
+                paths=tuple(path for p in reached for path in p.paths),
+            )
+        )
+    return out
+
+
+def stopped_arm(runs: Sequence[Sequence[ArmModel]]) -> ArmModel:
+    """Each run's model where its stop rule stopped (what a user keeps), costed at the most
+    presses, minutes and steps a run took: the point the targets are judged on."""
+    last = [points[-1] for points in runs]
+    return ArmModel(
+        "stopped",
+        None,
+        max(p.presses for p in last),
+        max(p.printer_min for p in last),
+        max(p.steps for p in last),
+        tuple(path for p in last for path in p.paths),
+    )
 
 
 def scratch_arm(
@@ -176,9 +206,14 @@ def validation_scores(models: Sequence[ArmModel], trainset, splits: pd.DataFrame
     from threedcal.model.inference import DepthEstimator
 
     coords = splits.set_index("point")[["x_mm", "y_mm"]]
-    tables = []
+    tables, scored = [], {}  # a run's stopped model is also its round's: scored once
     for model in models:
         for replicate, path in enumerate(model.paths):
+            if path in scored:
+                tables.append(
+                    scored[path].assign(arm=model.arm, round=model.key[1], replicate=replicate)
+                )
+                continue
             checkpoint = read_checkpoint(path)
             shape = tuple(checkpoint.get("image_shape") or np.shape(checkpoint["blank"])[:2])
             if shape != tuple(trainset.image_shape):
@@ -187,8 +222,10 @@ def validation_scores(models: Sequence[ArmModel], trainset, splits: pd.DataFrame
                     f"are {tuple(trainset.image_shape)} (dataset.downscale must agree)"
                 )
             estimator = DepthEstimator(checkpoint, device="cpu", blank=trainset.blank)
-            table = coordinate_mse(estimator, trainset).join(coords, on="point")
-            tables.append(table.assign(arm=model.arm, round=model.key[1], replicate=replicate))
+            scored[path] = coordinate_mse(estimator, trainset).join(coords, on="point")
+            tables.append(
+                scored[path].assign(arm=model.arm, round=model.key[1], replicate=replicate)
+            )
     return pd.concat(tables, ignore_index=True)
 
 
@@ -215,11 +252,12 @@ def mean_interval_blocks(matrix: np.ndarray, level: float = LEVEL) -> tuple[floa
 def relative_change(
     sample: np.ndarray, reference: np.ndarray, level: float = LEVEL
 ) -> tuple[float, float, float]:
-    """mean(sample) / mean(reference) − 1 and its Fieller interval, paired on blocks."""
+    """mean(sample) / mean(reference) − 1 and its Fieller interval, paired on blocks; the arms'
+    runs are independent of each other (a quick run is no replicate of a full model)."""
     from threedcal.evaluate.ablation import ratio_interval
 
     ratio = float(np.mean(sample) / np.mean(reference))
-    low, high = ratio_interval(sample, reference, (1 - level) / 2)
+    low, high = ratio_interval(sample, reference, (1 - level) / 2, independent=True)
     return ratio - 1, low - 1, high - 1
 
 
@@ -250,11 +288,11 @@ def object_presses(
     rows of the objects stage, `P` standing for the model point's position in `models`)."""
     from threedcal.evaluate.object_scores import evaluate_objects
 
-    paths = {i: list(model.paths) for i, model in enumerate(models)}
+    unique = list(dict.fromkeys(path for model in models for path in model.paths))
     with tempfile.TemporaryDirectory() as scratch:
         evaluate_objects(
             objects_scene,
-            paths,
+            {j: [path] for j, path in enumerate(unique)},  # each file pressed once
             pressing_dir,
             registration,
             scratch,
@@ -263,7 +301,14 @@ def object_presses(
         )
         presses = pd.read_csv(Path(scratch) / "presses.csv")
     keep = (presses["set"] == "reporting") & (presses["protocol"] == "printer")
-    return presses[keep].reset_index(drop=True)
+    presses = presses[keep]
+    index = {path: j for j, path in enumerate(unique)}
+    parts = [
+        presses[presses["P"] == index[path]].assign(P=i, replicate=replicate)
+        for i, model in enumerate(models)
+        for replicate, path in enumerate(model.paths)
+    ]
+    return pd.concat(parts, ignore_index=True)
 
 
 def object_rows(models: Sequence[ArmModel], presses: pd.DataFrame) -> list[dict]:
@@ -284,10 +329,27 @@ def object_rows(models: Sequence[ArmModel], presses: pd.DataFrame) -> list[dict]
             value = crossed_mean_interval(own, LEVEL)
             if model.arm == "full":
                 change = (math.nan,) * 3
-            else:  # one run against every replicate of the full calibration, press by press
-                change = crossed_mean_interval(own - reference, LEVEL)
+            else:  # its runs against every replicate of the full calibration, press by press
+                change = difference_interval(own, reference)
             rows.append(_row(model, "type2_um", str(name), value, change))
     return rows
+
+
+def difference_interval(own: np.ndarray, reference: np.ndarray, level: float = LEVEL):
+    """mean(own) − mean(reference) of two (runs, presses) tables paired on the presses, the runs
+    of each independent (threedcal.evaluate.ablation.independent_contrast), and its t interval.
+    Presses with a NaN in either (no Type 2 pixel) are left out."""
+    from scipy.special import stdtrit
+
+    from threedcal.evaluate.ablation import independent_contrast
+    from threedcal.evaluate.object_errors import crossed_mean_interval
+
+    keep = np.isfinite(own).all(axis=0) & np.isfinite(reference).all(axis=0)
+    if min(len(own), len(reference)) == 1 or keep.sum() < 2:  # one run: the pairs' own model
+        return crossed_mean_interval(own - reference, level)
+    mean, se, df = independent_contrast(own[:, keep], reference[:, keep])
+    half = float(stdtrit(df, 0.5 + level / 2)) * se
+    return mean, mean - half, mean + half
 
 
 def _row(model: ArmModel, metric: str, name: str, value, change) -> dict:
@@ -327,13 +389,20 @@ def judged(low: float, high: float, limit: float) -> str:
     return "undecided"
 
 
-def verdicts(table: pd.DataFrame, scene: str, full_scene: str, setup_presses: int = 0) -> dict:
-    """arms.json: each target's verdict on the quick flow's final round, computed from arms.csv,
-    with the same round's scratch model beside it. The presses' target counts every press of the
-    unit: the rounds' and the `setup_presses` (touch search and registration) before them."""
-    quick = table[table["arm"] == "quick"]
-    last = int(quick["round"].max())
-    final = quick[quick["round"] == last]
+def verdicts(
+    table: pd.DataFrame,
+    scene: str,
+    full_scene: str,
+    setup_presses: int = 0,
+    runs: Sequence[Mapping] = (),
+) -> dict:
+    """arms.json: each target's verdict on the runs' stopped models (arms.csv's `stopped` rows),
+    with run 1's scratch model of its stopped round beside it; `runs`: where each stopped and
+    why. The presses' target counts every press of the unit, at the most a run took: the
+    rounds' and the `setup_presses` (touch search and registration) before them."""
+    final = table[table["arm"] == "stopped"]
+    if final.empty:
+        raise ValueError(f"{scene}: arms.csv has no `stopped` rows to judge")
     mse = final[final["metric"] == "validation_mse"].iloc[0]
     objects = final[final["metric"] == "type2_um"]
     presses, minutes = int(mse["presses"]), float(mse["printer_min"])
@@ -391,15 +460,12 @@ def verdicts(table: pd.DataFrame, scene: str, full_scene: str, setup_presses: in
             f"{'met' if minutes <= MAX_PRINTER_MINUTES else 'not met'} ({minutes:.2f})",
         },
     }
-    scratch = table[
-        (table["arm"] == "scratch")
-        & (table["round"] == last)
-        & (table["metric"] == "validation_mse")
-    ]
+    scratch = table[(table["arm"] == "scratch") & (table["metric"] == "validation_mse")]
+    scratch = scratch[scratch["round"] == scratch["round"].max()]  # run 1's stopped round
     return {
         "scene": scene,
         "compare_with": full_scene,
-        "round": last,
+        "runs": list(runs),
         "presses": presses,
         "presses_in_all": presses + setup_presses,
         "printer_minutes": round(minutes, 2),
@@ -455,6 +521,18 @@ def arms_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
                     c=colours[arm],
                     label=arm,
                 )
+            stopped = part[part["arm"] == "stopped"]
+            for point in stopped.itertuples(index=False):
+                ax.errorbar(
+                    [getattr(point, column)],
+                    [point.value],
+                    yerr=[[point.value - point.value_lo], [point.value_hi - point.value]],
+                    fmt="D",
+                    ms=5,
+                    capsize=3,
+                    c="black",
+                    label=f"stopped ({point.replicates} run{'s' * (point.replicates > 1)})",
+                )
             ax.axhline(full["value"], c=colours["full"], lw=1)
             ax.axhspan(full["value_lo"], full["value_hi"], color=colours["full"], alpha=0.2, lw=0)
             ax.plot(
@@ -496,9 +574,12 @@ def arms_stage(
     pressing_dir: str | Path,
     registration: str | Path,
     out: Mapping[str, str | Path],
+    more_runs: Sequence[tuple[str, str | Path, str | Path]] = (),
     progress: bool = True,
 ) -> dict:
-    """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json."""
+    """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json. `more_runs`:
+    (scene, rounds.csv, rounds dir) of the calibration's runs 2, 3, ... (threedcal.scenes.runs_of),
+    pooled with this scene's (run 1) in the quick and stopped arms; scratch retrains run 1's."""
     from threedcal.collect.session import prepare
     from threedcal.dataset.trainset import TrainingSet
     from threedcal.evaluate.ablation import spatial_blocks
@@ -507,14 +588,18 @@ def arms_stage(
 
     prepared = prepare(scene, source=f"scenes.{name}")
     loop = QuickLoop(scene, prepared.plan, store, out["scratch"], prepared.sensor, prepared.printer)
-    table = pd.read_csv(rounds)
-    quick = quick_arm(table, rounds_dir, loop.printer_s(loop.first_row) / 60)
-    scratch = scratch_arm(loop, quick, out["scratch"], progress)
+    start_min = loop.printer_s(loop.first_row) / 60
+    runs = [(name, rounds, rounds_dir), *more_runs]
+    tables = [pd.read_csv(path) for _, path, _ in runs]
+    per_run = [run_arm(t, d, start_min) for t, (_, _, d) in zip(tables, runs, strict=True)]
+    quick = quick_arm(per_run)
+    scratch = scratch_arm(loop, per_run[0], out["scratch"], progress)
     hardware_s = None
     if collect_summary is not None and Path(collect_summary).is_file():
         hardware_s = json.loads(Path(collect_summary).read_text()).get("estimated_hardware_s")
     split_table = pd.read_csv(splits)
-    models = [*quick, *scratch, full_arm(full_models, len(split_table), hardware_s)]
+    full = full_arm(full_models, len(split_table), hardware_s)
+    models = [*quick, stopped_arm(per_run), *scratch, full]
     validation = TrainingSet.load(trainset)
     scores = validation_scores(models, validation, split_table)
     blocks = spatial_blocks(scores, scoring_disc_mm(validation))
@@ -524,7 +609,17 @@ def arms_stage(
     arms = arms_table(rows)
     arms.to_csv(out["table"], index=False, float_format="%.6g")
     arms_figure(arms, out["figure"], f"{name}: quick, scratch and {full_name}'s P = 80")
-    record = verdicts(arms, name, full_name, setup_presses=loop.first_row)
+    stops = [
+        {
+            "scene": run_name,
+            "round": int(t["round"].iloc[-1]),
+            "presses": int(t["presses"].iloc[-1]),
+            "printer_minutes": round(float(t["printer_s"].iloc[-1]) / 60, 2),
+            "decision": str(t["decision"].iloc[-1]),
+        }
+        for (run_name, _, _), t in zip(runs, tables, strict=True)
+    ]
+    record = verdicts(arms, name, full_name, setup_presses=loop.first_row, runs=stops)
     Path(out["verdicts"]).write_text(json.dumps(record, indent=2) + "\n")
     for target in record["targets"].values():
         logging.getLogger("threedcal").info("%s", target["line"])

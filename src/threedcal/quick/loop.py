@@ -107,7 +107,11 @@ class QuickLoop:
         self.settings = QuickSettings.from_scene(scene)
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
         self.ends = quick_rounds(scene["plan"], self.first_row)
-        base = TrainSettings.from_scene(scene)
+        from threedcal.dataset.splits import replicate_seed
+        from threedcal.scenes import quick_run
+
+        base = TrainSettings.from_scene(scene)  # run r trains with the seed's replicate r − 1
+        base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
         steps = self.settings.steps
         # a fixed budget: one cosine cycle of `steps`, on every press so far (nothing held out)
         fixed = {"rule": "doubling", "holdout": 0.0, "first_cycle": steps, "min_gain": 0.0}

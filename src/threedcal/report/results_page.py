@@ -28,7 +28,14 @@ from threedcal.config import convergence_fractions, training_fractions
 from threedcal.config import is_imported as config_is_imported
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, sim2real_rows
-from threedcal.scenes import has_ablation, has_objects, has_sim2real, is_quick
+from threedcal.scenes import (
+    compared_with,
+    has_ablation,
+    has_objects,
+    has_sim2real,
+    is_quick,
+    quick_run,
+)
 
 TITLE = "Results of the default study"
 # The fraction whose test-object figures lead the page (the paper's Table II reports P = 20 %).
@@ -313,7 +320,11 @@ def _objects_of(scenes: Mapping[str, dict]) -> list[str]:
 def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     """Each compared quick scene's final round against its unit's full calibration (arms.json),
     and the same presses from scratch."""
-    chosen = [n for n, r in scenes.items() if (_config(r).get("quick") or {}).get("compare_with")]
+    chosen = [
+        n
+        for n, r in scenes.items()
+        if compared_with(_config(r)) and quick_run(_config(r)) == 1  # run 1 holds the runs' arms
+    ]
     if not chosen:
         return []
     rows = []
@@ -330,7 +341,8 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
         )
         rows.append(
             [
-                f"`{name}` vs `{arms['compare_with']}`",
+                f"`{name}` vs `{arms['compare_with']}`"
+                + (f" ({len(arms['runs'])} runs)" if len(arms.get("runs") or []) > 1 else ""),
                 f"{arms.get('presses_in_all', arms['presses'])}, {arms['printer_minutes']:.1f}",
                 f"{_pct(mse['change'])} {_interval(*mse['interval95'])} ({mse['verdict']})",
                 MISSING
@@ -344,7 +356,7 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Quick calibration",
         "",
-        "The stopped round against the unit's P = 80 models; 95 % intervals; targets: "
+        "Each run's stopped model against the unit's P = 80 models; 95 % intervals; targets: "
         "+10 %, +10 µm (printer protocol), 50 presses (touch search and registration included), "
         "5 minutes.",
         "",
