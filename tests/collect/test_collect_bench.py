@@ -297,6 +297,14 @@ def test_a_plan_without_registration_presses_registers_the_rows_captured_so_far(
     assert list(so_far.registered_rows) == [r for r in whole.registered_rows if r < rows]
     ideal = so_far.registration.fit.ideal(np.array([[10.0, 10.0]]))
     assert np.allclose(ideal, whole.registration.fit.ideal(np.array([[10.0, 10.0]])), atol=1.0)
+    # registered again (a quick calibration's next round): the last fit when it located the same
+    # rows, whose frames never change; fitted anew when the rows differ
+    same = register_store(scene, folder / "raw.zarr", progress=False, rows=rows, prior=so_far)
+    assert same.registration is so_far.registration
+    assert np.array_equal(same.centres, so_far.centres)
+    sooner = register_store(scene, folder / "raw.zarr", progress=False, rows=rows - 5, prior=so_far)
+    assert sooner.registration is not so_far.registration
+    assert len(sooner.registered_rows) < len(so_far.registered_rows)
 
 
 def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path):

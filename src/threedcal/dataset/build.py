@@ -141,20 +141,16 @@ def register_store(
     progress: bool = True,
     expect_digest: str | None = None,
     rows: int | None = None,
+    prior: RegisteredStore | None = None,
 ) -> RegisteredStore:
     """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
     its frames), and each frame's depth below the gel where the affine places it. The store is
     read whole and checked (`threedcal.collect.store.open_checked`); `rows`: only its first that
-    many plan rows, captured so far."""
-    from threedcal.collect.plan import (
-        WHOLE_CONTACT_MARGIN_PX,
-        dome_sag_at_px,
-        dome_sag_mm,
-        plan_phases,
-    )
+    many plan rows, captured so far. `prior`: this store registered earlier (a quick calibration's
+    last round); its fit is reused when it located the same rows, whose frames a store never
+    changes, rather than located and fitted again (most of a round's labelling time)."""
+    from threedcal.collect.plan import WHOLE_CONTACT_MARGIN_PX, dome_sag_at_px, plan_phases
     from threedcal.collect.store import open_checked
-    from threedcal.dataset.dome_contacts import DomedContacts
-    from threedcal.dataset.registration import register_camera
     from threedcal.profiles import load_profile
 
     sensor = load_profile("sensor", scene["sensor"])
@@ -183,6 +179,27 @@ def register_store(
     rows = np.flatnonzero(phase == "register")
     if not len(rows):
         rows = np.flatnonzero(phase == "grid")
+    if prior is not None and np.array_equal(prior.registered_rows, rows):
+        registration = prior.registration
+    else:
+        registration = _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress)
+    # where each press lies in the ideal frame: what the trainset's rectified frames show
+    centres = registration.fit.ideal(cmd_xy)
+    # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
+    # registration says, and the sag there is what the press's depth is measured from.
+    depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
+    return RegisteredStore(
+        raw, sensor, plan_config, phase, first, last, registration, rows, centres, depth
+    )
+
+
+def _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress):
+    """register_camera on the contacts of plan rows `rows` (their mean frames)."""
+    from threedcal.collect.plan import dome_sag_mm
+    from threedcal.dataset.dome_contacts import DomedContacts
+    from threedcal.dataset.registration import register_camera
+
+    height, width = raw["frames"].shape[1:3]
     dome = None
     if sensor["gel"].get("dome"):
         # each press's depth below the gel as the plan meant it (its dome compensation undone)
@@ -197,7 +214,7 @@ def register_store(
             (height, width),
             material=contact_material(scene, sensor),
         )
-    registration = register_camera(
+    return register_camera(
         cmd_xy[first[rows]],
         [_mean_frame(raw, first[p], last[p]) for p in rows],
         raw["blank_frames"].values.astype(np.float32).mean(axis=0),
@@ -206,14 +223,6 @@ def register_store(
         progress=progress,
         lens=bool(sensor.get("lens")),
         dome=dome,
-    )
-    # where each press lies in the ideal frame: what the trainset's rectified frames show
-    centres = registration.fit.ideal(cmd_xy)
-    # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
-    # registration says, and the sag there is what the press's depth is measured from.
-    depth = raw["depth_mm"].values - dome_sag_at_px(sensor, centres[:, 0], centres[:, 1])
-    return RegisteredStore(
-        raw, sensor, plan_config, phase, first, last, registration, rows, centres, depth
     )
 
 
@@ -272,14 +281,19 @@ def build_collected(
 
 
 def collected_so_far(
-    scene: Mapping, store_path: str | Path, rows: int, progress: bool = False
-) -> tuple[TrainingSet, dict]:
+    scene: Mapping,
+    store_path: str | Path,
+    rows: int,
+    progress: bool = False,
+    prior: RegisteredStore | None = None,
+) -> tuple[TrainingSet, dict, RegisteredStore]:
     """The model-ready set of a store's first `rows` plan rows, while it is being collected (a
-    quick calibration between rounds), and its registration record. Registered and labelled as
-    `build_collected` does, but every labelled press trains: the next round's presses, not a
-    split of these, judge the model. Samples' `plan_row` names each frame's press."""
+    quick calibration between rounds), its registration record and the registered store (the
+    next round's `prior`: register_store). Registered and labelled as `build_collected` does, but
+    every labelled press trains: the next round's presses, not a split of these, judge the
+    model. Samples' `plan_row` names each frame's press."""
     radius_mm = float(scene["probe"]["radius_mm"])
-    store = register_store(scene, store_path, progress, rows=rows)
+    store = register_store(scene, store_path, progress, rows=rows, prior=prior)
     method = "search" if len(store.rows("touch")) else "rim"
     touch = touch_height(store, radius_mm, method, progress)
     offset = touch["touch_offset_mm"]
@@ -288,7 +302,7 @@ def collected_so_far(
     trainset = _collected_trainset(scene, store, labels, contact_z_mm, every_press_trains=True)
     trainset.samples["plan_row"] = store.raw["point"].values[labels.keep]
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
-    return trainset, _registration_record(store, touch, labels, contact_z_mm)
+    return trainset, _registration_record(store, touch, labels, contact_z_mm), store
 
 
 @dataclass

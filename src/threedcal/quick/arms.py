@@ -159,12 +159,14 @@ def scratch_arm(
 
     out_dir = Path(out_dir)
     base = loop.train_settings
-    models = []
+    models, registered = [], None
     for point in quick:
         if point.round == 0:
             continue
         rows = loop.ends[point.round - 1]
-        trainset, _ = collected_so_far(loop.scene, loop.store_path, rows)
+        trainset, _, registered = collected_so_far(
+            loop.scene, loop.store_path, rows, prior=registered
+        )
         budget = max(1, point.steps)
         settings = replace(
             base,

@@ -120,6 +120,7 @@ class QuickLoop:
         self.records: list[RoundRecord] = []
         self.stopped: str | None = None
         self.registration: dict = {}
+        self._registered = None  # the last round's registered store: its fit serves the next
 
     @property
     def rows_used(self) -> int:
@@ -141,7 +142,9 @@ class QuickLoop:
 
         began = time.perf_counter()
         k = len(self.records) + 1
-        trainset, self.registration = collected_so_far(self.scene, self.store_path, rows)
+        trainset, self.registration, self._registered = collected_so_far(
+            self.scene, self.store_path, rows, prior=self._registered
+        )
         if not self.models:
             initial = self.work / "r0" / "model.pt"
             save_initial(trainset, initial, self.train_settings)
