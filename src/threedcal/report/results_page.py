@@ -35,6 +35,7 @@ from threedcal.scenes import (
     has_sim2real,
     is_quick,
     quick_run,
+    runs_of,
 )
 
 TITLE = "Results of the default study"
@@ -292,14 +293,18 @@ def reading_lines() -> list[str]:
 
 
 def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
+    """One row a scene; a quick calibration's runs 2, 3, ... in its run 1's row."""
+    configs = {"scenes": {name: _config(record) for name, record in scenes.items()}}
     rows = [
         [
-            f"`{name}`",
+            f"`{name}`" + (f" ({len(runs)} runs)" if len(runs) > 1 else ""),
             str(_config(record).get("sensor", MISSING)),
             str(_config(record).get("printer") or MISSING),
             frames_of(record),
         ]
         for name, record in scenes.items()
+        if quick_run(_config(record)) == 1
+        for runs in [runs_of(configs, name) if is_quick(_config(record)) else [name]]
     ]
     return [
         "## Scenes",
