@@ -1,10 +1,12 @@
-"""A quick calibration measured against its unit's full one: three arms, one yardstick.
+"""A quick calibration measured against its unit's full one: its arms, one yardstick.
 
 A quick scene with `quick.compare_with: S` was calibrated on the same unit (sensor, bench unit,
-seating, seed) as the collected scene S. Three arms of models are scored alike:
+seating, seed) as the collected scene S. Its arms of models are scored alike:
 
 quick    the quick flow's model after each round, results/{scene}/quick/rounds/r{k}/model.pt
-         (r0: the starting weights, `model.init`'s, before any press);
+         (r0: the starting weights, `model.init`'s, before any press), one per run that reached
+         round k (the scene and its runs 2, 3, ...: `quick.run`, threedcal.scenes.runs_of);
+stopped  each run's model where its stop rule stopped;
 scratch  for each round k ≥ 1, a model trained from fresh weights (the scene's preset, no init) on
          the same presses as round k, with the quick model's cumulative step budget by then (the
          steps its rounds' checkpoints record), in one cosine cycle at the scene's rate and seed;
@@ -18,11 +20,12 @@ blocks one scoring disc across; the two-way replicate + block model, Satterthwai
 freedom): an arm's mean MSE over blocks, and its relative change against `full` with Fieller's
 interval. (ii) pairs them on the presses: an arm's mean Type 2 MAE, and its difference from
 `full`'s, each with the crossed (replicate x press) interval of object_errors.crossed_mean_interval.
-A quick or scratch arm is one training run, so only `full`'s replicates bring training randomness
-into an interval; the quick run's own does not (a rerun with another seed would be the check).
+An arm's runs and `full`'s replicates are independent trainings, paired only on blocks or presses
+(threedcal.evaluate.ablation.independent_contrast); with one quick run, its own training
+randomness is in no interval. The scratch arm retrains run 1's presses only.
 
-The issue's targets are judged on the quick flow's final model (the round the stop rule stopped
-at): its validation MSE within 10 % of `full`'s, its Type 2 MAE within 10 µm of `full`'s on every
+The issue's targets are judged on the `stopped` models (at the most presses and minutes a run
+took): its validation MSE within 10 % of `full`'s, its Type 2 MAE within 10 µm of `full`'s on every
 object (both one-sided: better is within), at most 50 presses, at most 5 printer minutes (the
 motion model's estimate, registration and first-touch search included). A target judged on an
 interval is `met` when the whole interval lies within it, `not met` when the whole interval lies
