@@ -132,13 +132,24 @@ def _closure(script: Path, root: Path) -> tuple[Path, ...]:
         for name in _with_parents(module):
             if name in seen:
                 continue
-            path = module_file(name, root)
+            path, imports = _module_imports(name, root)
             if path is None:
                 continue  # an attribute (`from threedcal.config import load_yaml`), not a module
             seen[name] = path
-            package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-            todo.extend(imported_modules(path, package, root) - set(seen))
+            todo.extend(imports - set(seen))
     return tuple(sorted(set(seen.values())))
+
+
+@cache
+def _module_imports(name: str, root: Path) -> tuple[Path | None, frozenset[str]]:
+    """A module's file (None: not a module) and the threedcal modules it imports, looked up once
+    per process: a Snakefile parse walks ~30 scripts' closures, which share most modules, and
+    finding and reading each module again for every script cost ~0.1 s of CPU per parse."""
+    path = module_file(name, root)
+    if path is None:
+        return None, frozenset()
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    return path, frozenset(imported_modules(path, package, root))
 
 
 def _data_files(root: Path) -> list[Path]:
