@@ -6,8 +6,10 @@ import fcntl
 import os
 import pickle
 import re
+import shutil
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +47,35 @@ def share_the_cores_between_workers() -> int | None:
 
 
 share_the_cores_between_workers()
+
+
+def remove_tree(path, ignore_errors: bool = False, **kwargs) -> None:
+    """shutil.rmtree, removing the folders of each depth in parallel (deepest first): where each
+    removal waits on the disk (this machine's ext4, mounted with `discard`: ~2 ms a folder), one at a
+    time took ~6 s for two tests' tmp_path (1400 folders of zarr chunks) and ~0.5 s on 8 threads.
+    Every folder is emptied by shutil.rmtree itself, which never follows a symlink (the docs
+    tests' workspaces link the repository's folders); what is left (a top-level file or link, a
+    folder that could not go) goes through shutil.rmtree as before, with the caller's options."""
+    if not os.path.islink(path) and os.path.isdir(path):
+        levels: dict[int, list[str]] = {}
+        for folder, _, _ in os.walk(path):  # real folders only: links are not walked into
+            levels.setdefault(folder.count(os.sep), []).append(folder)
+        with ThreadPoolExecutor(8) as pool:
+            for depth in sorted(levels, reverse=True):
+                list(pool.map(lambda f: shutil.rmtree(f, ignore_errors=True), levels[depth]))
+    if os.path.lexists(path):
+        shutil.rmtree(path, ignore_errors=ignore_errors, **kwargs)
+
+
+def pytest_configure(config):
+    """pytest removes each passed test's tmp_path (tmp_path_retention_policy = "failed") and, after
+    a passing run, the whole base folder, with shutil.rmtree: remove_tree does the same, faster.
+    (pytest's tmpdir plugin calls `rmtree` by that module-level name; if a later pytest does not,
+    this changes nothing.)"""
+    from _pytest import tmpdir
+
+    if getattr(tmpdir, "rmtree", None) is shutil.rmtree:
+        tmpdir.rmtree = remove_tree
 
 
 def pytest_collection_modifyitems(config, items):
