@@ -9,6 +9,7 @@ from threedcal.config import (
     convergence_fractions,
     is_imported,
     model_keys,
+    runs_of,
     validate_config,
 )
 from threedcal.evaluate.objects import check_object_files
@@ -69,7 +70,6 @@ from threedcal.scenes import (
     realism_files,
     realism_sets,
     reskin_scenes,
-    runs_of,
     stage_config,
     study_targets,
     target,

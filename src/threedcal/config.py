@@ -146,7 +146,7 @@ def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
         if quick:
             return problems + quick
     try:
-        plan = plan_from_config(scene["plan"], sensor, (scene.get("quick") or {}).get("run", 1))
+        plan = plan_from_config(scene["plan"], sensor, quick_run(scene))
         csv = scene["plan"].get("csv")
         validate_plan(plan, sensor, printer, source=f"plan ({csv})" if csv else "plan")
     except ConfigError as exc:
@@ -292,14 +292,40 @@ def compare_problems(config: Mapping) -> list[str]:
     return problems + _run_problems_of(config)
 
 
+def quick_run(scene: Mapping) -> int:
+    """Which run of its quick calibration a quick scene is (`quick.run`, 1 unless set): run r
+    draws its own presses and training seed, as a second calibration of the unit would."""
+    quick = not is_imported(scene) and (scene.get("plan") or {}).get("pattern") == "quick"
+    return int((scene.get("quick") or {}).get("run", 1)) if quick else 1
+
+
+def _run_free(scene: Mapping) -> dict:
+    """A scene's settings less what tells its runs apart (`description`, `quick.run`)."""
+    out = {k: v for k, v in scene.items() if k != "description"}
+    out["quick"] = {k: v for k, v in (scene.get("quick") or {}).items() if k != "run"}
+    return out
+
+
+def runs_of(config: Mapping, name: str) -> list[str]:
+    """The runs of quick scene `name`'s calibration, by run: `name` and every quick scene alike in
+    all but `description` and `quick.run` (quick/arms.csv pools them)."""
+    scenes = config["scenes"]
+    alike = [
+        other
+        for other, scene in scenes.items()
+        if (scene.get("plan") or {}).get("pattern") == "quick"
+        and not is_imported(scene)
+        and _run_free(scene) == _run_free(scenes[name])
+    ]
+    return sorted(alike, key=lambda other: quick_run(scenes[other]))
+
+
 def _run_problems_of(config: Mapping) -> list[str]:
     """Compared runs of one quick calibration (`quick.run`): a run 1 alike in all but
     `description` and `quick.run`, whose quick_arms pools them, and no run number twice."""
-    from threedcal.scenes import compared_with, quick_run, runs_of
-
     problems = []
     for name, scene in config["scenes"].items():
-        if not compared_with(scene) or quick_run(scene) == 1:
+        if not (scene.get("quick") or {}).get("compare_with") or quick_run(scene) == 1:
             continue
         runs = runs_of(config, name)
         numbers = [quick_run(config["scenes"][n]) for n in runs]

@@ -18,6 +18,7 @@ from threedcal.config import (
     convergence_fractions,
     is_imported,
     model_keys,
+    quick_run,
     realism_sets,
     training_fractions,
 )
@@ -267,31 +268,6 @@ def quick_scenes(config: Mapping) -> list[str]:
 def compared_with(scene: Mapping) -> str | None:
     """The scene a quick scene's rounds are scored against (`quick.compare_with`), or None."""
     return (scene.get("quick") or {}).get("compare_with") if is_quick(scene) else None
-
-
-def quick_run(scene: Mapping) -> int:
-    """Which run of its quick calibration a quick scene is (`quick.run`, 1 unless set): run r
-    draws its own presses and training seed, as a second calibration of the unit would."""
-    return int((scene.get("quick") or {}).get("run", 1)) if is_quick(scene) else 1
-
-
-def _run_free(scene: Mapping) -> dict:
-    """A scene's settings less what tells its runs apart (`description`, `quick.run`)."""
-    out = {k: v for k, v in scene.items() if k != "description"}
-    out["quick"] = {k: v for k, v in (scene.get("quick") or {}).items() if k != "run"}
-    return out
-
-
-def runs_of(config: Mapping, name: str) -> list[str]:
-    """The runs of quick scene `name`'s calibration, by run: `name` and every quick scene alike in
-    all but `description` and `quick.run` (quick/arms.csv pools them)."""
-    scenes = config["scenes"]
-    alike = [
-        other
-        for other, scene in scenes.items()
-        if is_quick(scene) and _run_free(scene) == _run_free(scenes[name])
-    ]
-    return sorted(alike, key=lambda other: quick_run(scenes[other]))
 
 
 def first_runs(config: Mapping) -> list[str]:

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from threedcal.config import validate_config
+from threedcal.config import runs_of, validate_config
 from threedcal.errors import ConfigError
 from threedcal.quick.arms import (
     ArmModel,
@@ -25,7 +25,7 @@ from threedcal.quick.arms import (
     validation_rows,
     verdicts,
 )
-from threedcal.scenes import first_runs, runs_of, scene_targets
+from threedcal.scenes import first_runs, scene_targets
 
 
 def test_one_replicate_mean_interval_is_the_t_interval_over_blocks():

@@ -35,10 +35,10 @@ from threedcal.collect.store import (
     settings_digest,
     store_summary,
 )
+from threedcal.config import quick_run
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.rig import Ask, BenchClock, check_devices, is_magnetic, open_rig
-from threedcal.scenes import quick_run
 
 
 @dataclass

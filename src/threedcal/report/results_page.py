@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.config import convergence_fractions, training_fractions
+from threedcal.config import convergence_fractions, runs_of, training_fractions
 from threedcal.config import is_imported as config_is_imported
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, sim2real_rows
@@ -35,7 +35,6 @@ from threedcal.scenes import (
     has_sim2real,
     is_quick,
     quick_run,
-    runs_of,
 )
 
 TITLE = "Results of the default study"
