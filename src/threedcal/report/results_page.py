@@ -360,7 +360,7 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Quick calibration",
         "",
-        "Each run's stopped model against the unit's P = 80 models; 95 % intervals; targets: "
+        "Each run's stopped model against the unit's P = 80 models; targets: "
         "+10 %, +10 µm (printer protocol), 50 presses (touch search and registration included), "
         "5 minutes.",
         "",
