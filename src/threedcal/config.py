@@ -218,8 +218,7 @@ def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     rows = registration_presses_of(plan, sensor)
     which = f"its {len(rows)} registration presses"
     if rows.empty:
-        run = int(scene["quick"].get("run", 1))
-        rows = quick_plan(sensor, plan, run).iloc[: int(plan["round_presses"])]
+        rows = quick_plan(sensor, plan, quick_run(scene)).iloc[: int(plan["round_presses"])]
         which = f"with no registration presses, its first round's {len(rows)}"
     whole = whole_contacts(sensor, rows, float(scene["probe"]["radius_mm"]))
     if whole >= MIN_LENS_CONTACTS:
@@ -292,11 +291,15 @@ def compare_problems(config: Mapping) -> list[str]:
     return problems + _run_problems_of(config)
 
 
+def is_quick(scene: Mapping) -> bool:
+    """A scene calibrated in rounds of presses (plan.pattern: quick)."""
+    return not is_imported(scene) and (scene.get("plan") or {}).get("pattern") == "quick"
+
+
 def quick_run(scene: Mapping) -> int:
     """Which run of its quick calibration a quick scene is (`quick.run`, 1 unless set): run r
     draws its own presses and training seed, as a second calibration of the unit would."""
-    quick = not is_imported(scene) and (scene.get("plan") or {}).get("pattern") == "quick"
-    return int((scene.get("quick") or {}).get("run", 1)) if quick else 1
+    return int((scene.get("quick") or {}).get("run", 1)) if is_quick(scene) else 1
 
 
 def _run_free(scene: Mapping) -> dict:
@@ -313,9 +316,7 @@ def runs_of(config: Mapping, name: str) -> list[str]:
     alike = [
         other
         for other, scene in scenes.items()
-        if (scene.get("plan") or {}).get("pattern") == "quick"
-        and not is_imported(scene)
-        and _run_free(scene) == _run_free(scenes[name])
+        if is_quick(scene) and _run_free(scene) == _run_free(scenes[name])
     ]
     return sorted(alike, key=lambda other: quick_run(scenes[other]))
 

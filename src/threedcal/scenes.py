@@ -17,6 +17,7 @@ from threedcal.config import (
     FULL_TRAINING_P,
     convergence_fractions,
     is_imported,
+    is_quick,
     model_keys,
     quick_run,
     realism_sets,
@@ -254,11 +255,6 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if convergence_fractions(scene):
         targets += of(*CONVERGENCE.values())
     return targets
-
-
-def is_quick(scene: Mapping) -> bool:
-    """A scene calibrated in rounds of presses (plan.pattern: quick)."""
-    return not is_imported(scene) and (scene.get("plan") or {}).get("pattern") == "quick"
 
 
 def quick_scenes(config: Mapping) -> list[str]:

@@ -99,6 +99,8 @@ class QuickLoop:
         printer: Mapping,
         progress: bool = False,
     ):
+        from threedcal.config import quick_run
+        from threedcal.dataset.splits import replicate_seed
         from threedcal.model.train import TrainSettings
 
         self.scene, self.plan, self.sensor, self.printer = scene, plan, sensor, printer
@@ -107,9 +109,6 @@ class QuickLoop:
         self.settings = QuickSettings.from_scene(scene)
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
         self.ends = quick_rounds(scene["plan"], self.first_row)
-        from threedcal.config import quick_run
-        from threedcal.dataset.splits import replicate_seed
-
         base = TrainSettings.from_scene(scene)  # run r trains with the seed's replicate r − 1
         base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
         steps = self.settings.steps
