@@ -560,8 +560,9 @@ def test_a_quick_calibrations_runs_share_its_row(tmp_path):
         "quick": {"compare_with": "sim"},
     }
     again = {**quick, "description": "run 2", "quick": {"compare_with": "sim", "run": 2}}
-    scenes = {**SMALL["scenes"], "q": quick, "q2": again}
+    alone = {**quick, "quick": {"run": 2, "steps": 600}}  # a second calibration, its run 1 not here
+    scenes = {**SMALL["scenes"], "q": quick, "q2": again, "r2": alone}
     results = build_results(tmp_path / "results", validate_config({**SMALL, "scenes": scenes}))
     part = section(results_page(results), "## Scenes")
     assert "| `q` (2 runs) | digit |" in part and "`q2`" not in part
-    assert "| `sim` | digit |" in part  # a scene of one run keeps its plain name
+    assert "| `sim` | digit |" in part and "| `r2` | digit |" in part  # one run: its own row

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.config import convergence_fractions, runs_of, training_fractions
+from threedcal.config import convergence_fractions, quick_run, runs_of, training_fractions
 from threedcal.config import is_imported as config_is_imported
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, sim2real_rows
@@ -34,7 +34,6 @@ from threedcal.scenes import (
     has_objects,
     has_sim2real,
     is_quick,
-    quick_run,
 )
 
 TITLE = "Results of the default study"
@@ -292,7 +291,7 @@ def reading_lines() -> list[str]:
 
 
 def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
-    """One row a scene; a quick calibration's runs 2, 3, ... in its run 1's row."""
+    """One row a scene; a quick calibration's runs in the row of its first run here."""
     configs = {"scenes": {name: _config(record) for name, record in scenes.items()}}
     rows = [
         [
@@ -302,8 +301,8 @@ def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
             frames_of(record),
         ]
         for name, record in scenes.items()
-        if quick_run(_config(record)) == 1
         for runs in [runs_of(configs, name) if is_quick(_config(record)) else [name]]
+        if runs[0] == name
     ]
     return [
         "## Scenes",
@@ -322,8 +321,8 @@ def _objects_of(scenes: Mapping[str, dict]) -> list[str]:
 
 
 def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
-    """Each compared quick scene's final round against its unit's full calibration (arms.json),
-    and the same presses from scratch."""
+    """Each compared quick calibration's stopped models against its unit's full calibration
+    (run 1's arms.json), and run 1's presses from scratch."""
     chosen = [
         n
         for n, r in scenes.items()
