@@ -51,7 +51,8 @@ class LookupTable(nn.Module):
         sums = np.zeros((n_bins, 2))
         counts = np.zeros(n_bins)
         for x, y in pairs:
-            flat = self.bin_index(torch.from_numpy(np.ascontiguousarray(x))[None]).numpy().ravel()
+            inputs = torch.from_numpy(np.ascontiguousarray(x))[None].to(self.low.device)
+            flat = self.bin_index(inputs).cpu().numpy().ravel()
             counts += np.bincount(flat, minlength=n_bins)
             for c in range(2):
                 sums[:, c] += np.bincount(flat, weights=y[c].ravel(), minlength=n_bins)
