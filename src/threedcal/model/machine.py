@@ -62,17 +62,16 @@ BFLOAT16_SAFE = ("context", "context_half")
 
 
 def resolve_precision(precision: str, device: torch.device, preset: str | None = None) -> str:
-    """The arithmetic a training on `device` runs in: `auto` → bfloat16 where it is native
-    (a CUDA device that supports it, or a CPU with native_bfloat16) and the network is known to
-    train in it (`preset` in BFLOAT16_SAFE; None: not asked), float32 elsewhere."""
+    """The arithmetic a training on `device` runs in: `auto` → bfloat16 on a CPU with
+    native_bfloat16 where the network is known to train in it (`preset` in BFLOAT16_SAFE; None:
+    not asked), float32 elsewhere. On a GPU these small networks are bound by kernel launches, not
+    arithmetic: bfloat16's casts only add kernels (docs/explanation/models.md)."""
     if precision not in PRECISIONS:
         raise ConfigError(f"model.precision: {precision!r} (allowed: {', '.join(PRECISIONS)})")
     if precision != "auto":
         return precision
     if preset is not None and preset not in BFLOAT16_SAFE:
         return "float32"
-    if device.type == "cuda":
-        return "bfloat16" if torch.cuda.is_bf16_supported() else "float32"
     if device.type == "cpu":
         return "bfloat16" if native_bfloat16() else "float32"
     return "float32"
