@@ -15,7 +15,9 @@ With --accuracy FOLDER (a ball_folder dataset, e.g. data/gelsight_ball_fots) it 
 every CPU preset there with BALL_SETTINGS on the seeded 80/20 image split and prints the accuracy per
 millisecond table (held-out gradient RMSE and cap depth MAE, threedcal.model.ball_eval).
 
-Usage: python benchmarks/bench_model.py [--threads N] [--seconds S] [--accuracy FOLDER]
+With --device cuda the same tables are timed on a GPU (the integration stays on the CPU).
+
+Usage: python benchmarks/bench_model.py [--threads N] [--seconds S] [--accuracy FOLDER] [--device D]
 """
 
 from __future__ import annotations
@@ -52,7 +54,9 @@ STEP_SHAPES = {
 BALL_SETTINGS = PATCH_BALL_SETTINGS
 
 
-def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> DepthEstimator:
+def estimator(
+    preset: str, blank: np.ndarray, channels_last: bool = True, device: str = "cpu"
+) -> DepthEstimator:
     """A fresh `preset` for camera frames of blank's size (pooled by POOLING, as it is trained)."""
     torch.manual_seed(0)
     factor = POOLING.get(preset, 1)
@@ -73,7 +77,7 @@ def estimator(preset: str, blank: np.ndarray, channels_last: bool = True) -> Dep
         "image_shape": [height, width],
         "camera": {"lens": None, "downscale": factor},
     }
-    return DepthEstimator(checkpoint, device="cpu", batch_size=1, channels_last=channels_last)
+    return DepthEstimator(checkpoint, device=device, batch_size=1, channels_last=channels_last)
 
 
 def ms_per_frame(est: DepthEstimator, frame: np.ndarray, seconds: float, calls: int = 3) -> float:
@@ -95,6 +99,7 @@ def training_samples_per_s(
     loss: str = "huber",
     layout: torch.memory_format | None = None,
     precision: str = "float32",
+    device: str = "cpu",
 ) -> float:
     """Training samples/s: AdamW steps (forward, loss, backward) on random (batch, 5, patch, patch)
     inputs, the batch, patch and loss the default sim scenes train with; median step time. The
@@ -105,9 +110,9 @@ def training_samples_per_s(
     if not parameters:
         return float("nan")
     layout = preferred_memory_format(model) if layout is None else layout
-    model = model.to(memory_format=layout)
+    model = model.to(device=device, memory_format=layout)
     optimizer = torch.optim.AdamW(parameters, lr=1e-3)
-    x = torch.randn(batch, 5, patch, patch).contiguous(memory_format=layout)
+    x = torch.randn(batch, 5, patch, patch).to(device).contiguous(memory_format=layout)
     with torch.no_grad():
         y = torch.randn_like(model(x))
 
@@ -117,6 +122,8 @@ def training_samples_per_s(
             prediction = model(x)
         gradient_loss(prediction.float(), y, loss).backward()
         optimizer.step()
+        if x.device.type == "cuda":
+            torch.cuda.synchronize()  # time the work, not its launch
 
     step()  # warm-up
     times, began = [], time.perf_counter()
@@ -160,25 +167,34 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--seconds", type=float, default=2.0, help="timing per preset")
     parser.add_argument("--accuracy", type=Path, help="ball_folder dataset for the accuracy table")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda, ... (inference and training)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"host: {host_line()}")
     rng = np.random.default_rng(0)
     blank = rng.uniform(60, 200, (HEIGHT, WIDTH, 3)).astype(np.float32)
     frame = np.clip(blank + rng.normal(0, 20, blank.shape), 0, 255).astype(np.uint8)
-    print(f"live depth from {HEIGHT}x{WIDTH} camera frames, CPU, torch threads {args.threads}")
-    # TouchNet takes seconds a frame: one timed call is its figure
+    where = (
+        "CPU"
+        if args.device == "cpu"
+        else f"{args.device} ({torch.cuda.get_device_name(args.device)})"
+    )
+    print(f"live depth from {HEIGHT}x{WIDTH} camera frames, {where}, torch threads {args.threads}")
+    # TouchNet takes seconds a frame on a CPU: there one timed call is its figure
+    slow = {"touchnet"} if args.device == "cpu" else set()
     ms = {
         p: ms_per_frame(
-            estimator(p, blank),
+            estimator(p, blank, device=args.device),
             frame,
-            0.0 if p == "touchnet" else args.seconds,
-            1 if p == "touchnet" else 3,
+            0.0 if p in slow else args.seconds,
+            1 if p in slow else 3,
         )
         for p in PRESET_NAMES
     }
     nchw = {
-        p: ms_per_frame(estimator(p, blank, channels_last=False), frame, args.seconds)
+        p: ms_per_frame(
+            estimator(p, blank, channels_last=False, device=args.device), frame, args.seconds
+        )
         for p in PRESET_NAMES
         if p != "touchnet"
     }
@@ -198,7 +214,7 @@ def main() -> None:
             f"{preset:14s} {size:>12s} {1000 / value:9.2f} {value:9.1f} {base / value:10.0f}x "
             f"{layout}{mark}"
         )
-    auto = resolve_precision("auto", torch.device("cpu"))
+    auto = resolve_precision("auto", torch.device(args.device))
     print(
         f"\ntraining samples/s (AdamW steps, huber loss, the study's step shape); "
         f"precision: auto picks {auto} here"
@@ -211,7 +227,7 @@ def main() -> None:
         batch, patch = STEP_SHAPES.get(preset, (64, 64))
         rates = {
             precision: training_samples_per_s(
-                preset, args.seconds, batch, patch, precision=precision
+                preset, args.seconds, batch, patch, precision=precision, device=args.device
             )
             for precision in ("float32", "bfloat16")
         }
@@ -219,7 +235,7 @@ def main() -> None:
             print(f"{preset:14s} {'':13s} {'(no gradient training)':>22s}")
             continue
         nchw_rate = training_samples_per_s(
-            preset, args.seconds, batch, patch, layout=torch.contiguous_format
+            preset, args.seconds, batch, patch, layout=torch.contiguous_format, device=args.device
         )
         faster = max(rates, key=rates.get)
         verdict = f"{auto}" + (" (faster)" if auto == faster else f" ({faster} faster)")
