@@ -10,6 +10,7 @@ import torch
 from test_model import SHAPE, TINY, synthetic_set
 
 from threedcal.model import PRESET_NAMES
+from threedcal.model.drift import drift_offset
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, configure_torch, train
 
@@ -53,6 +54,19 @@ def test_a_gpu_trained_model_predicts_on_the_cpu_as_on_the_gpu(tmp_path, preset)
     np.testing.assert_allclose(gpu.gradients(frames[1]), on_gpu[1], atol=1e-3 * scale)
     depth = gpu.depth(frames)
     assert depth.shape == (3, *SHAPE) and np.isfinite(depth).all()
+
+
+def test_the_drift_offset_is_the_cpus_on_the_gpu_under_deterministic_algorithms():
+    x = torch.randn(2, 5, 40, 48)
+    x[0, 1, :2] = float("nan")
+    before = torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True)  # as after a training in this process
+    try:
+        on_gpu = drift_offset(x.to(CUDA))
+    finally:
+        torch.use_deterministic_algorithms(before)
+    assert on_gpu.device.type == "cuda"
+    torch.testing.assert_close(on_gpu.cpu(), drift_offset(x), rtol=0, atol=0, equal_nan=True)
 
 
 def test_a_gpu_training_follows_the_cpus_losses(tmp_path):

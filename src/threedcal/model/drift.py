@@ -27,14 +27,9 @@ STRIDE = 4
 def drift_offset(diff: torch.Tensor) -> torch.Tensor:
     """(N, 3, 1, 1) median of each colour channel of (N, >=3, H, W) inputs (frame - blank)/255."""
     sample = diff[:, :3, ::STRIDE, ::STRIDE].reshape(diff.shape[0], 3, -1)
-    # torch.median's lower median, by sorting: CUDA has no deterministic median, and a process that
-    # trained (deterministic algorithms on) would refuse to run inference there
-    ordered = sample.sort(
-        dim=2
-    ).values  # NaN last: a row holding one has its median NaN, as torch's
-    last = ordered[..., -1]
-    median = torch.where(last.isnan(), last, ordered[..., (sample.shape[2] - 1) // 2])
-    return median[..., None, None]
+    # on the CPU: CUDA has no deterministic median, and a process that trained (deterministic
+    # algorithms on) would refuse to run inference there; a few thousand values cross
+    return sample.cpu().median(dim=2).values.to(diff.device)[..., None, None]
 
 
 def remove_drift(x: torch.Tensor, mode: str, offset: torch.Tensor | None = None) -> torch.Tensor:
