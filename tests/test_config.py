@@ -489,3 +489,12 @@ def test_a_real_printer_with_the_simulated_camera_is_refused_by_the_config_check
     assert "scenes.s" in message and "camera: port '/dev/ttyUSB0' is a real printer" in message
     ok = validate_config(config_with(port="/dev/ttyUSB0", camera="/dev/video0"))
     assert ok["scenes"]["s"]["camera"] == "/dev/video0"
+
+
+def test_a_model_device_torch_does_not_know_is_refused_at_parse_time():
+    """Before the collection, not at its training: `gpu` is no torch device."""
+    assert "scenes.s.model.device: 'gpu' does not match" in error_of(
+        config_with(model={"device": "gpu"})
+    )
+    for device in ("auto", "cpu", "cuda", "cuda:1", "mps"):
+        validate_config(config_with(model={"device": device}))

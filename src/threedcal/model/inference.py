@@ -23,6 +23,7 @@ from threedcal.lens import RadialLens, rectify_if
 from threedcal.model.allocator import reuse_freed_memory
 from threedcal.model.checkpoint import adapt_inputs, model_from_checkpoint, read_checkpoint
 from threedcal.model.drift import drift_offset, remove_drift
+from threedcal.model.machine import torch_device
 from threedcal.model.points import (
     CONTACT_DEPTH_MM,
     PointCloud,
@@ -67,7 +68,7 @@ class DepthEstimator:
         like the frames (`rectify`); by default it is already the model's input. `registration`:
         registration.json (path or record) for `points(frame_of="printer")`, in place of the
         checkpoint's own (checkpoints trained before it was recorded carry none)."""
-        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.device = torch_device(device, "device")
         reuse_freed_memory()
         self.preset = checkpoint["preset"]
         self.normalisation = dict(checkpoint["normalisation"])

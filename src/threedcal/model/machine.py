@@ -61,6 +61,30 @@ def native_bfloat16() -> bool:
 BFLOAT16_SAFE = ("context", "context_half")
 
 
+def torch_device(name: str | None, key: str = "model.device") -> torch.device:
+    """`name` as a torch device (`auto` or None: CUDA when present, else the CPU), refused with the
+    setting's `key` when it names no device type or a CUDA device this torch cannot reach: a raw
+    torch assertion would otherwise end a training after its collection."""
+    if name in (None, "auto"):
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError) as exc:
+        raise ConfigError(
+            f"{key}: {name!r} is no torch device (auto, cpu, cuda, cuda:1, ...)"
+        ) from exc
+    if device.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise ConfigError(
+                f"{key}: {name!r}, but torch {torch.__version__} sees no CUDA device (a CPU build "
+                "of torch, or no driver): use auto or cpu, or install a CUDA build"
+            )
+        if device.index is not None and device.index >= count:
+            raise ConfigError(f"{key}: {name!r}, but torch sees {count} CUDA device(s)")
+    return device
+
+
 def resolve_precision(precision: str, device: torch.device, preset: str | None = None) -> str:
     """The arithmetic a training on `device` runs in: `auto` → bfloat16 on a CPU with
     native_bfloat16 where the network is known to train in it (`preset` in BFLOAT16_SAFE; None:

@@ -41,7 +41,7 @@ from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.loss_log import plot_losses, write_losses
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import describe as describe_machine
-from threedcal.model.machine import resolve_precision
+from threedcal.model.machine import resolve_precision, torch_device
 from threedcal.model.presets import (
     build_model,
     is_learned,
@@ -207,9 +207,7 @@ def configure_torch(settings: TrainSettings) -> torch.device:
     torch.set_num_threads(settings.torch_threads)
     torch.use_deterministic_algorithms(True)
     torch.backends.cudnn.benchmark = False
-    if settings.device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(settings.device)
+    return torch_device(settings.device)
 
 
 # Bumped when the same settings train differently: a checkpoint of an interrupted run of the older
