@@ -79,3 +79,25 @@ def test_every_rule_digests_the_script_it_runs():
             digests = re.findall(r'code=code_digest\("([\w.]+)"\)', block)
             assert digests == [script.group(1)], f"{smk.name}: rule {name}"
     assert rules >= 15
+
+
+def test_import_summaries_cached_across_processes_give_what_a_fresh_parse_gives(
+    tmp_path, monkeypatch
+):
+    from threedcal import provenance
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    script = tmp_path / "stage.py"
+    script.write_text(
+        "import threedcal.cli\n\ndef f():\n    from threedcal import DepthEstimator\n"
+    )
+    source = script.read_bytes()
+    parsed = provenance._summarise(provenance.ast.parse(source))
+    key = provenance.hashlib.sha256(source).hexdigest()
+    stored = tmp_path / f"cache/threedcal/provenance-{provenance.CACHE_VERSION}/{key}.json"
+    fresh = provenance._cached_summary.__wrapped__  # as a new process: no in-memory cache
+    assert fresh(key, source, str(script)) == parsed and stored.is_file()
+    assert fresh(key, source, str(script)) == parsed  # read back from the file
+    stored.write_text("{not json")  # a damaged entry is parsed anew
+    assert fresh(key, source, str(script)) == parsed
+    assert provenance.json.loads(stored.read_text()) == parsed
