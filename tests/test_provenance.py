@@ -94,7 +94,7 @@ def test_import_summaries_cached_across_processes_give_what_a_fresh_parse_gives(
     source = script.read_bytes()
     parsed = provenance._summarise(provenance.ast.parse(source))
     key = provenance.hashlib.sha256(source).hexdigest()
-    stored = tmp_path / f"cache/threedcal/provenance-{provenance.CACHE_VERSION}/{key}.json"
+    stored = tmp_path / f"cache/threedcal/provenance-{provenance.cache_version()}/{key}.json"
     fresh = provenance._cached_summary.__wrapped__  # as a new process: no in-memory cache
     assert fresh(key, source, str(script)) == parsed and stored.is_file()
     assert fresh(key, source, str(script)) == parsed  # read back from the file

@@ -40,12 +40,18 @@ def module_file(module: str, root: Path = PACKAGE_ROOT) -> Path | None:
 # call parses the Snakefile, which digests ~30 scripts' closures (~140 modules); parsing them cost
 # ~0.65 s of CPU a call (AMD EPYC), reading the cached summaries ~0.02 s. A summary is exactly what
 # the syntax tree gave (see `_summarise`); a missing, unreadable or unwritable cache is parsed anew.
-CACHE_VERSION = 1
+
+
+@cache
+def cache_version() -> str:
+    """The digest of this file: a summary is valid for the code that wrote it, so a change here
+    starts a new cache folder rather than reading summaries of another shape."""
+    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
 def _cache_dir() -> Path:
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "threedcal" / f"provenance-{CACHE_VERSION}"
+    return Path(base) / "threedcal" / f"provenance-{cache_version()}"
 
 
 def _summary(source: bytes, filename: str) -> dict:
