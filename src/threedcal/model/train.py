@@ -212,8 +212,8 @@ def configure_torch(settings: TrainSettings) -> torch.device:
 
 # Bumped when the same settings train differently: a checkpoint of an interrupted run of the older
 # code is then not resumed under the newer one (2: the cosine rate per batch, no longer per epoch;
-# 3: the stopping rules and the precision resolved per machine).
-TRAINING_SEMANTICS = 3
+# 3: the stopping rules and the precision resolved per machine; 4: `auto` is float32 on GPUs).
+TRAINING_SEMANTICS = 4
 
 
 def _resume_key(settings: TrainSettings, percent: int, replicate: int, ts: TrainingSet, run) -> str:
