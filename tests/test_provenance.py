@@ -101,3 +101,9 @@ def test_import_summaries_cached_across_processes_give_what_a_fresh_parse_gives(
     stored.write_text("{not json")  # a damaged entry is parsed anew
     assert fresh(key, source, str(script)) == parsed
     assert provenance.json.loads(stored.read_text()) == parsed
+    # no home to cache in: parsed, and nothing written under the working folder
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setattr(provenance.os.path, "expanduser", lambda path: path)
+    monkeypatch.chdir(tmp_path)
+    assert fresh(key, source, str(script)) == parsed
+    assert not (tmp_path / "~").exists()

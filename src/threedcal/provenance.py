@@ -10,6 +10,7 @@ one does.
 from __future__ import annotations
 
 import ast
+import contextlib
 import hashlib
 import json
 import os
@@ -49,8 +50,11 @@ def cache_version() -> str:
     return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
-def _cache_dir() -> Path:
+def _cache_dir() -> Path | None:
+    """None where there is no home to cache in (a relative path would land in the working folder)."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    if not os.path.isabs(base):
+        return None
     return Path(base) / "threedcal" / f"provenance-{cache_version()}"
 
 
@@ -61,12 +65,22 @@ def _summary(source: bytes, filename: str) -> dict:
 
 @cache
 def _cached_summary(key: str, source: bytes, filename: str) -> dict:
-    path = _cache_dir() / f"{key}.json"
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        pass
+    folder = _cache_dir()
+    path = folder / f"{key}.json" if folder is not None else None
+    if path is not None:
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError):
+            pass
     summary = _summarise(ast.parse(source, filename=filename))
+    if path is not None:
+        _store(path, summary)
+    return summary
+
+
+def _store(path: Path, summary: dict) -> None:
+    """Written whole or not at all (a reader never sees half a file); a failure only costs a parse."""
+    temporary = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
@@ -74,8 +88,9 @@ def _cached_summary(key: str, source: bytes, filename: str) -> dict:
             json.dump(summary, out)
         os.replace(temporary, path)
     except OSError:
-        pass
-    return summary
+        if temporary is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(temporary)
 
 
 def _summarise(tree: ast.Module) -> dict:
