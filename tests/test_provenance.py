@@ -95,15 +95,18 @@ def test_import_summaries_cached_across_processes_give_what_a_fresh_parse_gives(
     parsed = provenance._summarise(provenance.ast.parse(source))
     key = provenance.hashlib.sha256(source).hexdigest()
     stored = tmp_path / f"cache/threedcal/provenance-{provenance.cache_version()}/{key}.json"
-    fresh = provenance._cached_summary.__wrapped__  # as a new process: no in-memory cache
-    assert fresh(key, source, str(script)) == parsed and stored.is_file()
-    assert fresh(key, source, str(script)) == parsed  # read back from the file
+    fresh = provenance._summary.__wrapped__  # as a new process: no in-memory cache
+    assert fresh(source, str(script)) == parsed and stored.is_file()
+    assert provenance.json.loads(stored.read_text()) == parsed
+    marked = {"imports": [[["threedcal.marker"]]], "lazy": {}}
+    stored.write_text(provenance.json.dumps(marked))
+    assert fresh(source, str(script)) == marked  # read from the file, not parsed again
     stored.write_text("{not json")  # a damaged entry is parsed anew
-    assert fresh(key, source, str(script)) == parsed
+    assert fresh(source, str(script)) == parsed
     assert provenance.json.loads(stored.read_text()) == parsed
     # no home to cache in: parsed, and nothing written under the working folder
     monkeypatch.delenv("XDG_CACHE_HOME")
     monkeypatch.setattr(provenance.os.path, "expanduser", lambda path: path)
     monkeypatch.chdir(tmp_path)
-    assert fresh(key, source, str(script)) == parsed
+    assert fresh(source, str(script)) == parsed
     assert not (tmp_path / "~").exists()

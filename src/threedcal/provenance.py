@@ -58,14 +58,11 @@ def _cache_dir() -> Path | None:
     return Path(base) / "threedcal" / f"provenance-{cache_version()}"
 
 
-def _summary(source: bytes, filename: str) -> dict:
-    """The file's imports (see `_summarise`), from the cache when it holds them."""
-    return _cached_summary(hashlib.sha256(source).hexdigest(), source, filename)
-
-
 @cache
-def _cached_summary(key: str, source: bytes, filename: str) -> dict:
+def _summary(source: bytes, filename: str) -> dict:
+    """The file's imports (see `_summarise`), from the disk cache when it holds them."""
     folder = _cache_dir()
+    key = hashlib.sha256(source).hexdigest()
     path = folder / f"{key}.json" if folder is not None else None
     if path is not None:
         try:
@@ -130,15 +127,8 @@ def imported_modules(path: Path, package: str | None, root: Path = PACKAGE_ROOT)
     A package's lazy attributes (imports inside its `__getattr__`) count for the importer that
     names them (`from threedcal import DepthEstimator`), not for every importer of the package.
     """
-    return set(_imported_modules(path.read_bytes(), str(path), package, root))
-
-
-@cache
-def _imported_modules(
-    source: bytes, filename: str, package: str | None, root: Path
-) -> frozenset[str]:
     found = set()
-    for entry in _summary(source, filename)["imports"]:
+    for entry in _summary(path.read_bytes(), str(path))["imports"]:
         if len(entry) == 1:  # import a, b.c
             found.update(entry[0])
             continue
@@ -154,7 +144,7 @@ def _imported_modules(
         # `from threedcal.sim import optics` imports the submodule too
         found.update(f"{module}.{name}" for name in names)
         found.update(_lazy_targets(module, names, root))
-    return frozenset(m for m in found if m == PACKAGE or m.startswith(PACKAGE + "."))
+    return {m for m in found if m == PACKAGE or m.startswith(PACKAGE + ".")}
 
 
 def _statements(nodes: list) -> Iterator[ast.AST]:
