@@ -6,6 +6,7 @@ from snakemake.utils import min_version, validate
 
 from threedcal.config import (
     FULL_TRAINING_P,
+    compared_with,
     convergence_fractions,
     is_imported,
     model_keys,
@@ -61,7 +62,6 @@ from threedcal.scenes import (
     SUMMARY,
     TRAINSET,
     ablation_scenes,
-    compared_with,
     first_runs,
     full_model_file,
     has_objects,

@@ -296,6 +296,11 @@ def is_quick(scene: Mapping) -> bool:
     return not is_imported(scene) and (scene.get("plan") or {}).get("pattern") == "quick"
 
 
+def compared_with(scene: Mapping) -> str | None:
+    """The scene a quick scene's rounds are scored against (`quick.compare_with`), or None."""
+    return (scene.get("quick") or {}).get("compare_with") if is_quick(scene) else None
+
+
 def quick_run(scene: Mapping) -> int:
     """Which run of its quick calibration a quick scene is (`quick.run`, 1 unless set): run r
     draws its own presses and training seed, as a second calibration of the unit would."""
@@ -326,7 +331,7 @@ def _run_problems_of(config: Mapping) -> list[str]:
     `description` and `quick.run`, whose quick_arms pools them, and no run number twice."""
     problems = []
     for name, scene in config["scenes"].items():
-        if not (scene.get("quick") or {}).get("compare_with") or quick_run(scene) == 1:
+        if not compared_with(scene) or quick_run(scene) == 1:
             continue
         runs = runs_of(config, name)
         numbers = [quick_run(config["scenes"][n]) for n in runs]

@@ -15,6 +15,7 @@ from typing import Any
 
 from threedcal.config import (
     FULL_TRAINING_P,
+    compared_with,
     convergence_fractions,
     is_imported,
     is_quick,
@@ -259,11 +260,6 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
 
 def quick_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if is_quick(scene)]
-
-
-def compared_with(scene: Mapping) -> str | None:
-    """The scene a quick scene's rounds are scored against (`quick.compare_with`), or None."""
-    return (scene.get("quick") or {}).get("compare_with") if is_quick(scene) else None
 
 
 def first_runs(config: Mapping) -> list[str]:

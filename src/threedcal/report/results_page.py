@@ -24,17 +24,18 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.config import convergence_fractions, quick_run, runs_of, training_fractions
+from threedcal.config import (
+    compared_with,
+    convergence_fractions,
+    is_quick,
+    quick_run,
+    runs_of,
+    training_fractions,
+)
 from threedcal.config import is_imported as config_is_imported
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, sim2real_rows
-from threedcal.scenes import (
-    compared_with,
-    has_ablation,
-    has_objects,
-    has_sim2real,
-    is_quick,
-)
+from threedcal.scenes import has_ablation, has_objects, has_sim2real
 
 TITLE = "Results of the default study"
 # The fraction whose test-object figures lead the page (the paper's Table II reports P = 20 %).
