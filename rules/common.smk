@@ -100,7 +100,7 @@ def pretrained_input(wildcards):
 
 def arms_inputs(wildcards):
     """The compared scene's files: its P = 80 models, validation set, registration, object presses;
-    and the rounds of the calibration's other runs (threedcal.scenes.runs_of)."""
+    and the rounds of the calibration's other runs (threedcal.config.runs_of)."""
     full = compared_with(config["scenes"][wildcards.scene])
     others = runs_of(config, wildcards.scene)[1:]
     return {

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from threedcal.dataset.camera_fit import fit_affine
-from threedcal.dataset.contacts import Contact, find_contact, locate_contact
+from threedcal.dataset.contacts import (
+    Contact,
+    _median,
+    difference_magnitude,
+    find_contact,
+    locate_contact,
+)
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import register_camera
@@ -466,3 +472,29 @@ def test_contacts_are_modelled_as_elastic_where_the_gel_is(caplog):
     with caplog.at_level("WARNING"):
         assert contact_material({"port": "/dev/ttyUSB0"}, bare) is None
     assert "gel.poisson_ratio" in caplog.text
+
+
+@pytest.mark.parametrize("size", [1, 2, 7, 240 * 320])
+def test_the_contact_medians_are_numpys_to_the_bit_with_ties_and_nan(size):
+    """find_contact's one-partition median stands in for np.median: the same float every time."""
+    rng = np.random.default_rng(size)
+    values = rng.normal(0, 3, size).astype(np.float32)
+    cases = [values, np.round(values), values.reshape(-1, 1), values.astype(np.float64)]
+    cases.append(np.arange(size))  # integers: np.median itself
+    if size > 1:
+        cases.append(np.where(np.arange(size) == size - 1, np.nan, values).astype(np.float32))
+    for case in cases:
+        expected = float(np.median(case))
+        assert _median(case) == expected or (math.isnan(expected) and math.isnan(_median(case)))
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_the_colour_change_magnitude_is_the_euclidean_norm_over_channels(channels):
+    rng = np.random.default_rng(channels)
+    frame = rng.integers(0, 256, (9, 11, channels), dtype=np.uint8)
+    blank = rng.integers(0, 256, (9, 11, channels), dtype=np.uint8)
+    diff = frame.astype(np.float32) - blank.astype(np.float32)
+    expected = np.sqrt((diff * diff).sum(axis=-1))
+    np.testing.assert_array_equal(difference_magnitude(frame, blank, blur_px=0), expected)
+    gray = difference_magnitude(frame[..., 0], blank[..., 0], blur_px=0)
+    np.testing.assert_array_equal(gray, np.abs(diff[..., 0]))

@@ -5,7 +5,7 @@ seating, seed) as the collected scene S. Its arms of models are scored alike:
 
 quick    the quick flow's model after each round, results/{scene}/quick/rounds/r{k}/model.pt
          (r0: the starting weights, `model.init`'s, before any press), one per run that reached
-         round k (the scene and its runs 2, 3, ...: `quick.run`, threedcal.scenes.runs_of);
+         round k (the scene and its runs 2, 3, ...: `quick.run`, threedcal.config.runs_of);
 stopped  each run's model where its stop rule stopped;
 scratch  for each round k ≥ 1, a model trained from fresh weights (the scene's preset, no init) on
          the same presses as round k, with the quick model's cumulative step budget by then (the
@@ -582,7 +582,7 @@ def arms_stage(
     progress: bool = True,
 ) -> dict:
     """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json. `more_runs`:
-    (scene, rounds.csv, rounds dir) of the calibration's runs 2, 3, ... (threedcal.scenes.runs_of),
+    (scene, rounds.csv, rounds dir) of the calibration's runs 2, 3, ... (threedcal.config.runs_of),
     pooled with this scene's (run 1) in the quick and stopped arms; scratch retrains run 1's."""
     from threedcal.collect.session import prepare
     from threedcal.dataset.trainset import TrainingSet
