@@ -476,19 +476,25 @@ def scene_config(config: Mapping, scene: str) -> dict:
 
 
 def normalise_ablation(ablation: Any) -> dict:
-    """`ablation` in its full form {fractions: [...], replicates: R, convergence: bool}.
+    """`ablation` in its full form {fractions, replicates, steps, convergence, batching}.
 
-    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate.
+    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate; the
+    schema's defaults fill what a mapping leaves out.
     """
+    defaults = load_schema("config")["$defs"]["ablation"]["oneOf"][1]["properties"]
+    full = {key: spec["default"] for key, spec in defaults.items() if "default" in spec}
     if not ablation:
-        return {"fractions": [], "replicates": 1, "convergence": False}
+        return {**full, "fractions": []}
     if isinstance(ablation, Mapping):
+        full.update({k: v for k, v in ablation.items() if v is not None})
         return {
-            "fractions": list(ablation.get("fractions") or []),
-            "replicates": int(ablation.get("replicates", 1)),
-            "convergence": bool(ablation.get("convergence", False)),
+            **full,
+            "fractions": list(full.get("fractions") or []),
+            "replicates": int(full["replicates"]),
+            "steps": int(full["steps"]),
+            "convergence": bool(full["convergence"]),
         }
-    return {"fractions": list(ablation), "replicates": 1, "convergence": False}
+    return {**full, "fractions": list(ablation)}
 
 
 def training_fractions(scene: Mapping) -> list[int]:
@@ -502,13 +508,13 @@ def ablation_replicates(scene: Mapping) -> int:
 
 
 def convergence_fractions(scene: Mapping) -> list[int]:
-    """The fractions trained again at twice the budget (ablation.convergence): P = 80 and the
-    smallest; none without the option or an ablation."""
+    """The fractions whose models train on to twice the budget (ablation.convergence): every
+    fraction of an ablation with the option; none without it or an ablation."""
     ablation = normalise_ablation(scene.get("ablation"))
     fractions = training_fractions(scene)
     if not ablation["convergence"] or len(fractions) < 2 or FULL_TRAINING_P not in fractions:
         return []
-    return sorted({min(fractions), FULL_TRAINING_P})
+    return fractions
 
 
 def model_keys(scene: Mapping) -> list[tuple[int, int]]:

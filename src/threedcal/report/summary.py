@@ -195,20 +195,25 @@ def ablation_section(stats_dir: Path) -> list[str]:
 
 
 def convergence_lines(path: Path) -> list[str]:
-    """The convergence check in one sentence per P (stats/convergence.csv)."""
+    """The convergence check in one sentence per P (stats/convergence.csv), and the ablation read
+    again at twice the budget (stats/twice/recommendation.txt)."""
     if not path.is_file():
         return []
     table = pd.read_csv(path)
     parts = [
-        f"P = {row.P} % {row.study_mse:.5f} after {row.study_steps} steps, "
-        f"{row.twice_mse:.5f} after {row.twice_steps} ({row.change:+.1%})"
+        f"P = {row.P} % {row.budget_mse:.5f} after {row.steps} steps, {row.twice_mse:.5f} after "
+        f"{row.twice_steps} ({row.change:+.1%}, {row.ci_low:+.1%} to {row.ci_high:+.1%})"
         for row in table.itertuples()
     ]
-    return [
+    lines = [
         "",
-        "Convergence (replicate 0 trained again with twice its budget, mean validation MSE; "
+        "Convergence (every model trained on to twice the budget, mean validation MSE; "
         f"stats/convergence.csv): {'; '.join(parts)}.",
     ]
+    twice = path.parent / "twice" / "recommendation.txt"
+    if twice.is_file():
+        lines += ["", f"At twice the budget: {twice.read_text().strip()}"]
+    return lines
 
 
 def _ci(row, metric: str) -> str:
