@@ -25,6 +25,7 @@ from threedcal.config import (
     training_fractions,
 )
 from threedcal.errors import ConfigError
+from threedcal.mount import scene_mount_values
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -174,25 +175,47 @@ RECORDED_PACKAGES = (
 # The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
 # stages that read the changed key (a new model preset never recollects).
 STAGE_KEYS = {
-    "collect": ("sensor", "printer", "port", "camera", "reader", "probe", "plan", "bench", "seed"),
-    "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
+    "collect": (
+        "sensor",
+        "printer",
+        "port",
+        "camera",
+        "reader",
+        "mount",
+        "probe",
+        "plan",
+        "bench",
+        "seed",
+    ),
+    "dataset": ("sensor", "mount", "probe", "import", "dataset", "ablation", "seed"),
     "object_presses": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "bench",
         "objects",
         "pressing",
         "seed",
     ),
-    "objects": ("sensor", "port", "objects", "pressing", "integrators", "seed", "torch_threads"),
+    "objects": (
+        "sensor",
+        "mount",
+        "port",
+        "objects",
+        "pressing",
+        "integrators",
+        "seed",
+        "torch_threads",
+    ),
     "quick": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "plan",
         "bench",
@@ -206,8 +229,12 @@ STAGE_KEYS = {
 
 
 def stage_config(scene: Mapping, stage: str) -> dict:
-    """The part of a scene's config that `stage` reads."""
-    return {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    """The part of a scene's config that `stage` reads. A `mount` file is read into its values:
+    a changed file is a changed config (the stage reruns, and reads what its params say)."""
+    part = {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    if isinstance(part.get("mount"), str):
+        part["mount"] = scene_mount_values(scene)
+    return part
 
 
 def has_sim2real(scene: Mapping) -> bool:
