@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import QUICK_PLAN, call, write_scene
+from conftest import call, write_scene
 
 from threedcal.page.control import RigControl
 from threedcal.page.server import serving
@@ -82,9 +82,7 @@ def test_the_page_in_chromium_jogs_the_simulated_printer(tmp_path, monkeypatch, 
         before = control.rig.bench.firmware.position()
         Select(browser.find_element(By.ID, "step")).select_by_visible_text("1")
         browser.find_element(By.CSS_SELECTOR, '#jog button[data-axis="x"][data-sign="1"]').click()
-        wait_for(
-            lambda: control.rig.bench.firmware.position()[0] > before[0] + 0.5, what="the jog"
-        )
+        wait_for(lambda: control.rig.bench.firmware.position()[0] > before[0] + 0.5, what="the jog")
         after = control.rig.bench.firmware.position()
         assert after[0] == pytest.approx(before[0] + 1.0, abs=1e-3)
         assert after[1:] == pytest.approx(before[1:], abs=1e-3)
@@ -102,8 +100,10 @@ def test_the_page_in_chromium_jogs_the_simulated_printer(tmp_path, monkeypatch, 
         browser.find_element(By.CSS_SELECTOR, '#jog button[data-axis="z"][data-sign="-1"]').click()
         wait_for(
             lambda: "deepest" in browser.find_element(By.ID, "refusal").text,
-            what=lambda: f"the refusal (page: {browser.find_element(By.ID, 'refusal').text!r}, "
-            f"{browser.find_element(By.ID, 'message').text!r}; rig: {control.refusal!r})",
+            what=lambda: (
+                f"the refusal (page: {browser.find_element(By.ID, 'refusal').text!r}, "
+                f"{browser.find_element(By.ID, 'message').text!r}; rig: {control.refusal!r})"
+            ),
         )
         shot = tmp_path / "page.png"
         assert browser.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
