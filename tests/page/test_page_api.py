@@ -119,6 +119,7 @@ def test_bad_host_on_the_command_line(tmp_path, monkeypatch, capsys):
     assert "--host 'no-such-host.invalid'" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a short simulated collection
 def test_a_collection_is_watched_and_owns_the_printer(tmp_path, monkeypatch):
     """While the page's collection runs its status answers at once, a jog is refused naming the
     collection, and the page shows rows done, time left and the last frame."""
