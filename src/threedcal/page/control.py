@@ -343,8 +343,9 @@ class RigControl:
         return col, row, contact
 
     # ---- jobs: find the gel, collect -----------------------------------------------------
-    def _start(self, kind: str, work: Callable[[Any], None]) -> None:
-        """Run `work(rig)` in a thread that holds the printer until it ends or is stopped."""
+    def _start(self, kind: str, work: Callable[[Any], None], wait: bool = False) -> None:
+        """Run `work(rig)` in a thread that holds the printer until it ends or is stopped;
+        `wait`: return when it has ended, raising Refused with its error if it failed."""
         if self.job is not None and self.job.is_alive():
             raise Refused(f"{kind} refused: {self.busy or 'a job'} is running; wait, or stop it")
         context = self._using(kind)
@@ -362,12 +363,16 @@ class RigControl:
 
         self.job = threading.Thread(target=run, name=f"threedcal-rig-{kind}", daemon=True)
         self.job.start()
+        if wait:
+            self.job.join()
+            if self.refusal.startswith(f"{kind}: "):
+                raise Refused(self.refusal)
 
     def _check_stop(self) -> None:
         if self._stop.is_set():
             raise StoppedFromPage("stopped from the page")
 
-    def find_gel(self) -> None:
+    def find_gel(self, wait: bool = False) -> None:
         """Start finding the gel from where the probe is (over the gel, not touching it)."""
         from threedcal.page.gel import Presser, find_gel
 
@@ -425,14 +430,14 @@ class RigControl:
             )
             self._capture(rig)
 
-        self._start("find", work)
+        self._start("find", work, wait)
 
     def _seen_press(self, frame: np.ndarray, xyz) -> None:
         self._see(frame, xyz)
         with self._state:
             self.find_state = {**self.find_state, "presses": self.find_state.get("presses", 0) + 1}
 
-    def collect(self) -> None:
+    def collect(self, wait: bool = False) -> None:
         """Start the scene's collection on this rig (the config as it is on disk now)."""
         from threedcal.collect.session import collect_scene, prepare
 
@@ -493,7 +498,7 @@ class RigControl:
                 self.message = f"collected: {self.store}"
             self.scene, self.sensor = scene, prepared.sensor
 
-        self._start("collect", work)
+        self._start("collect", work, wait)
 
     # ---- stopping ------------------------------------------------------------------------
     def stop(self, reason: str = "the page's stop button") -> None:

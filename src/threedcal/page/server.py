@@ -7,8 +7,9 @@ answers, so the status answers at once whatever the rig is doing. A page holds a
 
 API (JSON in and out; a refusal is 409 and a bad request 400, each with {"error": why}):
 GET /api/status, GET /api/frame.jpg (the live image beside its difference to the blank),
-POST /api/home, /api/blank, /api/jog {"axis": "x|y|z", "step_mm": s}, /api/find, /api/collect,
-/api/stop, /api/mount {"replace": false}.
+POST /api/home, /api/blank, /api/jog {"axis": "x|y|z", "step_mm": s}, /api/find, /api/collect
+(each {"wait": true} to answer when the job has ended, as a script wants), /api/stop,
+/api/mount {"replace": false}.
 """
 
 from __future__ import annotations
@@ -174,8 +175,8 @@ def make_app(control: RigControl) -> web.Application:
         "/api/home": lambda c, b: c.home(),
         "/api/blank": lambda c, b: c.take_blank(),
         "/api/jog": lambda c, b: c.jog(b.get("axis"), b.get("step_mm")),
-        "/api/find": lambda c, b: c.find_gel(),
-        "/api/collect": lambda c, b: c.collect(),
+        "/api/find": lambda c, b: c.find_gel(wait=bool(b.get("wait", False))),
+        "/api/collect": lambda c, b: c.collect(wait=bool(b.get("wait", False))),
         "/api/stop": lambda c, b: c.stop(),
         "/api/mount": lambda c, b: c.save_mount(bool(b.get("replace", False))),
     }
