@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import tempfile
 import time
@@ -56,8 +57,9 @@ def main() -> None:
         "plan": {"spacing_mm": args.spacing_mm, "depth_mm": 1.0, "frames": 1},
     }
     (folder / "rig.yaml").write_text(yaml.safe_dump({"scenes": {"bench": scene}}))
+    os.chdir(folder)  # the collection's store: results/bench/raw.zarr there
     with (
-        RigControl(folder / "rig.yaml", "bench", store=folder / "raw.zarr") as control,
+        RigControl(folder / "rig.yaml", "bench") as control,
         serving(control) as url,
     ):
         idle = [status_ms(url) for _ in range(50)]

@@ -12,23 +12,18 @@ DEFAULT_HTTP_PORT = 8765
 
 
 def _configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, help="study config (e.g. my_rig.yaml)")
+    parser.add_argument("--config", required=True, help="study config")
     parser.add_argument("--scene", required=True, help="scene name in the config")
     parser.add_argument(
         "--host",
         default="127.0.0.1",
-        help="address to listen on: this machine only by default; 0.0.0.0 lets every machine "
-        "that reaches this one move the printer",
+        help="address to listen on",
     )
     parser.add_argument(
         "--http-port",
         type=int,
         default=DEFAULT_HTTP_PORT,
-        help="TCP port of the page (0: any free one)",
-    )
-    parser.add_argument(
-        "--out",
-        help="the collection's store (default results/<scene>/raw.zarr, as `threedcal collect`)",
+        help="TCP port (0: any free)",
     )
 
 
@@ -40,7 +35,7 @@ def _run(args: argparse.Namespace) -> int:
     host = check_host(args.host)
     if not 0 <= args.http_port <= 65535:
         raise ConfigError(f"--http-port {args.http_port}: a TCP port is 0-65535")
-    with RigControl(args.config, args.scene, store=args.out) as control:
+    with RigControl(args.config, args.scene) as control:
 
         def announce(url: str) -> None:
             print(
@@ -62,8 +57,7 @@ def _run(args: argparse.Namespace) -> int:
 COMMANDS = [
     Command(
         ("rig",),
-        "the set-up page in the browser: live camera, jog, find the gel, save the mount, watch a "
-        "collection",
+        "the set-up page in a browser",
         _run,
         _configure,
     )
