@@ -27,6 +27,7 @@ from threedcal.config import (
 )
 from threedcal.errors import ConfigError
 from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
+from threedcal.mount import scene_mount_values
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -184,25 +185,47 @@ RECORDED_PACKAGES = (
 # The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
 # stages that read the changed key (a new model preset never recollects).
 STAGE_KEYS = {
-    "collect": ("sensor", "printer", "port", "camera", "reader", "probe", "plan", "bench", "seed"),
-    "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
+    "collect": (
+        "sensor",
+        "printer",
+        "port",
+        "camera",
+        "reader",
+        "mount",
+        "probe",
+        "plan",
+        "bench",
+        "seed",
+    ),
+    "dataset": ("sensor", "mount", "probe", "import", "dataset", "ablation", "seed"),
     "object_presses": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "bench",
         "objects",
         "pressing",
         "seed",
     ),
-    "objects": ("sensor", "port", "objects", "pressing", "integrators", "seed", "torch_threads"),
+    "objects": (
+        "sensor",
+        "mount",
+        "port",
+        "objects",
+        "pressing",
+        "integrators",
+        "seed",
+        "torch_threads",
+    ),
     "quick": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "plan",
         "bench",
@@ -216,13 +239,16 @@ STAGE_KEYS = {
 
 
 def stage_config(scene: Mapping, stage: str) -> dict:
-    """The part of a scene's config that `stage` reads (of `ablation`, the subsets' fractions and
-    replicates alone: the training budget is not the dataset's)."""
-    chosen = {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
-    if "ablation" in chosen:
-        ablation = normalise_ablation(chosen["ablation"])
-        chosen["ablation"] = {key: ablation[key] for key in ("fractions", "replicates")}
-    return chosen
+    """The part of a scene's config that `stage` reads. Of `ablation`, the subsets' fractions and
+    replicates alone: the training budget is not the dataset's. A `mount` file is read into its
+    values: a changed file is a changed config (the stage reruns, and reads what its params say)."""
+    part = {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    if "ablation" in part:
+        ablation = normalise_ablation(part["ablation"])
+        part["ablation"] = {key: ablation[key] for key in ("fractions", "replicates")}
+    if isinstance(part.get("mount"), str):
+        part["mount"] = scene_mount_values(scene)
+    return part
 
 
 def has_sim2real(scene: Mapping) -> bool:
