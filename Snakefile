@@ -68,7 +68,6 @@ from threedcal.scenes import (
     full_model_file,
     has_objects,
     lockstep_groups,
-    lockstep_outputs,
     model_file,
     quick_scenes,
     realism_files,

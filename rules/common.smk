@@ -55,6 +55,32 @@ def twice_models(wildcards):
     }
 
 
+def lockstep_outputs(replicates: int, steps: int, twice: bool) -> dict[str, list[str]]:
+    """The files one lockstep job writes for fraction {p} of scene {scene}: per replicate its
+    model, loss log and figure, its snapshots at the earlier cycle ends, and with `twice` its
+    model and loss log at twice the budget (threedcal.model.lockstep)."""
+
+    def each(leaf: str) -> list[str]:
+        return [model_file("{scene}", "{p}", r, leaf) for r in range(replicates)]
+
+    ends = cycle_ends(steps, twice)
+    outputs = {
+        "models": each("model.pt"),
+        "losses": each("losses.csv"),
+        "figures": each("losses.png"),
+        "snapshots": [
+            path
+            for end in ends
+            if end < steps
+            for path in each(f"{SNAPSHOT_DIR}/{snapshot_name(end)}")
+        ],
+    }
+    if twice:
+        outputs["twice"] = each(f"{TWICE_DIR}/model.pt")
+        outputs["twice_losses"] = each(f"{TWICE_DIR}/losses.csv")
+    return outputs
+
+
 def ablation_snapshots(wildcards):
     """Every model's snapshots at the cycle ends before the budget."""
     scene = config["scenes"][wildcards.scene]

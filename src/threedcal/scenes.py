@@ -26,7 +26,6 @@ from threedcal.config import (
     training_fractions,
 )
 from threedcal.errors import ConfigError
-from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
 from threedcal.mount import scene_mount_values
 from threedcal.profiles import load_profile
 
@@ -345,32 +344,6 @@ def lockstep_groups(config: Mapping) -> dict[tuple[int, int, bool], list[str]]:
         )
         groups.setdefault(key, []).append(name)
     return groups
-
-
-def lockstep_outputs(replicates: int, steps: int, twice: bool) -> dict[str, list[str]]:
-    """The files one lockstep job writes for fraction {p} of scene {scene}: per replicate its
-    model, loss log and figure, its snapshots at the earlier cycle ends, and with `twice` its
-    model and loss log at twice the budget (threedcal.model.lockstep)."""
-
-    def each(leaf: str) -> list[str]:
-        return [model_file("{scene}", "{p}", r, leaf) for r in range(replicates)]
-
-    ends = cycle_ends(steps, twice)
-    outputs = {
-        "models": each("model.pt"),
-        "losses": each("losses.csv"),
-        "figures": each("losses.png"),
-        "snapshots": [
-            path
-            for end in ends
-            if end < steps
-            for path in each(f"{SNAPSHOT_DIR}/{snapshot_name(end)}")
-        ],
-    }
-    if twice:
-        outputs["twice"] = each(f"{TWICE_DIR}/model.pt")
-        outputs["twice_losses"] = each(f"{TWICE_DIR}/losses.csv")
-    return outputs
 
 
 def model_file(name: str, percent, replicate=0, leaf: str = "model.pt") -> str:

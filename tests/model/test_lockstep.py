@@ -110,7 +110,7 @@ def test_an_interrupted_lockstep_resumes_to_the_same_bytes(tmp_path, monkeypatch
     s, ts = settings(), two_replicate_set()
     keys = MEMBERS[:2]
     train_lockstep(ts, members(tmp_path / "full", keys), s, 8, twice=True, progress=False)
-    real = lockstep._optimizer_step
+    real = lockstep.optimizer_step
     calls = []
 
     def crash(*args, **kwargs):
@@ -119,7 +119,7 @@ def test_an_interrupted_lockstep_resumes_to_the_same_bytes(tmp_path, monkeypatch
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(lockstep, "_optimizer_step", crash)
+    monkeypatch.setattr(lockstep, "optimizer_step", crash)
     monkeypatch.setattr(lockstep, "RESUME_EVERY_S", 0.0)
     resume = tmp_path / "resumed" / "resume.pt"
     with pytest.raises(KeyboardInterrupt):
@@ -127,7 +127,7 @@ def test_an_interrupted_lockstep_resumes_to_the_same_bytes(tmp_path, monkeypatch
             ts, members(tmp_path / "resumed", keys), s, 8, twice=True, resume=resume, progress=False
         )
     assert torch.load(resume, weights_only=True)["step"] == 11
-    monkeypatch.setattr(lockstep, "_optimizer_step", real)
+    monkeypatch.setattr(lockstep, "optimizer_step", real)
     train_lockstep(
         ts, members(tmp_path / "resumed", keys), s, 8, twice=True, resume=resume, progress=False
     )

@@ -10,7 +10,7 @@ import time
 import aiohttp
 import pytest
 import yaml
-from conftest import QUICK_PLAN, call, wait_idle, write_scene
+from simulated_rig import QUICK_PLAN, call, wait_idle, write_scene
 
 from threedcal.collect.plan import clearance_z
 from threedcal.config import load_config
@@ -18,6 +18,15 @@ from threedcal.errors import ConfigError
 from threedcal.page.control import RigControl
 from threedcal.page.server import check_host, serving
 from threedcal.profiles import load_profile
+
+
+@pytest.fixture
+def page(tmp_path, monkeypatch):
+    """(RigControl, URL) of a simulated DIGIT served on a free port, in tmp_path."""
+    monkeypatch.chdir(tmp_path)
+    config, scene = write_scene(tmp_path)
+    with RigControl(config, scene) as control, serving(control) as url:
+        yield control, url
 
 
 def truth_mount(control: RigControl) -> dict:

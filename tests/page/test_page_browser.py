@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import call, write_scene
+from simulated_rig import call, write_scene
 
 from threedcal.page.control import RigControl
 from threedcal.page.server import serving

@@ -52,20 +52,20 @@ from threedcal.model.train import (
     RESUME_EVERY_S,
     TRAINING_SEMANTICS,
     VALIDATION_WINDOWS,
+    ModelInputs,
     TrainSettings,
-    _batches,
-    _checkpoint,
-    _divergence_hint,
-    _initial_model,
-    _Inputs,
-    _mse,
-    _optimizer,
-    _optimizer_step,
-    _row,
-    _val_settings,
+    checkpoint_of,
     configure_torch,
+    divergence_hint,
+    initial_model,
+    input_batches,
+    loss_row,
+    make_optimizer,
+    optimizer_step,
     sample_windows,
     training_autocast,
+    validation_settings,
+    windows_mse,
 )
 
 BATCHINGS = ("auto", "loop", "vmap")
@@ -140,7 +140,7 @@ class _Model:
     fit_idx: np.ndarray
     check_windows: list  # the validation split's windows its loss log reads (chooses nothing)
     stream: WindowStream
-    inputs: _Inputs
+    inputs: ModelInputs
     normalisation: dict
     module: torch.nn.Module
     optimizer: torch.optim.Optimizer | None = None
@@ -160,13 +160,13 @@ def _prepare(ts: TrainingSet, member: Member, settings: TrainSettings, device) -
             "dataset's split"
         )
     check_rng = np.random.default_rng([settings.seed, 1 << 20])
-    windows = sample_windows(ts, ts.indices("val"), _val_settings(settings), check_rng)
+    windows = sample_windows(ts, ts.indices("val"), validation_settings(settings), check_rng)
     if len(windows) > VALIDATION_WINDOWS:
         keep = np.sort(check_rng.choice(len(windows), VALIDATION_WINDOWS, replace=False))
         windows = [windows[k] for k in keep]
-    module, normalisation = _initial_model(settings, ts)
+    module, normalisation = initial_model(settings, ts)
     module.to(device=device, memory_format=preferred_memory_format(module))
-    inputs = _Inputs(ts, normalisation["drift"])
+    inputs = ModelInputs(ts, normalisation["drift"])
     return _Model(
         member,
         settings,
@@ -194,7 +194,7 @@ class _Loop:
     def __init__(self, models: Sequence[_Model], ts, device, precision):
         self.models, self.ts, self.device, self.precision = models, ts, device, precision
         for model in models:
-            model.optimizer = _optimizer(model.module, model.settings)
+            model.optimizer = make_optimizer(model.module, model.settings)
 
     def step(self, batches, lr: float) -> list[float]:
         losses = []
@@ -202,7 +202,7 @@ class _Loop:
             for group in model.optimizer.param_groups:
                 group["lr"] = lr
             try:
-                value = _optimizer_step(
+                value = optimizer_step(
                     model.module,
                     self.ts,
                     model.settings,
@@ -377,7 +377,7 @@ def train_lockstep(
             model.rows = list(rows)
     else:
         for model in models:
-            model.rows = [_row(0, 0, float("nan"), _check(model, ts, device), 0.0, settings.lr)]
+            model.rows = [loss_row(0, 0, float("nan"), _check(model, ts, device), 0.0, settings.lr)]
     bar = tqdm(
         total=ends[-1],
         initial=step,
@@ -396,14 +396,14 @@ def train_lockstep(
             for model in models:
                 model.stream.seek(step)
                 windows = model.stream.take(settings.batch_size)
-                (x, y), *_ = _batches(ts, windows, settings.batch_size, model.inputs)
+                (x, y), *_ = input_batches(ts, windows, settings.batch_size, model.inputs)
                 batches.append((x, y))
             try:
                 values = runner.step(batches, _lr(rule, ends, step))
             except _Diverged as exc:
                 raise TrainingError(
                     f"training {models[exc.index].name} ({settings.preset}), step {step + 1}: "
-                    f"the loss of a batch is {exc.value}; " + _divergence_hint(precision)
+                    f"the loss of a batch is {exc.value}; " + divergence_hint(precision)
                 ) from None
             totals += np.asarray(values) * settings.batch_size
             step += 1
@@ -419,7 +419,7 @@ def train_lockstep(
             check = _check(model, ts, device)
             share = seconds / len(models)
             model.rows.append(
-                _row(model.stream.epochs_done, end, train_loss, check, share, rule.lr_at(0, 1))
+                loss_row(model.stream.epochs_done, end, train_loss, check, share, rule.lr_at(0, 1))
             )
         totals[:] = 0.0
         finals = _write_cycle_end(models, ts, end, budget, precision, batching) or finals
@@ -460,7 +460,7 @@ def _read_final(model: _Model) -> dict:
 def _check(model: _Model, ts: TrainingSet, device) -> float:
     """The validation split's loss on a fixed set of windows: the loss log's, chooses nothing."""
     args = (ts, model.check_windows, model.settings, device, model.normalisation, model.inputs)
-    return _mse(model.module, *args)
+    return windows_mse(model.module, *args)
 
 
 def _write_cycle_end(models, ts, steps, budget, precision, batching) -> list[dict] | None:
@@ -468,7 +468,7 @@ def _write_cycle_end(models, ts, steps, budget, precision, batching) -> list[dic
     finals = []
     for model in models:
         member = model.member
-        checkpoint = _checkpoint(
+        checkpoint = checkpoint_of(
             model.module,
             model.settings,
             ts,

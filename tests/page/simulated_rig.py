@@ -1,4 +1,5 @@
-"""A simulated rig served by `threedcal rig`'s own server, for the page's tests."""
+"""A simulated scene for `threedcal rig`'s tests, and calls to its API (a helper module, not a
+conftest: a second conftest.py would shadow tests/conftest.py for `from conftest import`)."""
 
 from __future__ import annotations
 
@@ -6,11 +7,7 @@ import json
 import urllib.error
 import urllib.request
 
-import pytest
 import yaml
-
-from threedcal.page.control import RigControl
-from threedcal.page.server import serving
 
 # A plan coarse enough to collect in seconds (a touch search at one place, a few registration
 # presses, a coarse grid).
@@ -72,12 +69,3 @@ def wait_idle(url: str, timeout_s: float = 120.0) -> dict:
             return status
         time.sleep(0.1)
     raise AssertionError(f"the rig stayed busy for {timeout_s} s: {status}")
-
-
-@pytest.fixture
-def page(tmp_path, monkeypatch):
-    """(RigControl, URL) of a simulated DIGIT served on a free port, in tmp_path."""
-    monkeypatch.chdir(tmp_path)
-    config, scene = write_scene(tmp_path)
-    with RigControl(config, scene) as control, serving(control) as url:
-        yield control, url
