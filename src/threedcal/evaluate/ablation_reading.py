@@ -1,16 +1,36 @@
 """What the ablation's tests say, in words: the recommendation (`recommend`: the smallest P
-equivalent to P = 80 %, or why none is), the families side by side (`family_comparison`) and the
-placebo's line (`placebo_summary`)."""
+equivalent to P = 80 %, or why none is), the families side by side (`family_comparison`), the
+placebo's line (`placebo_summary`), the learning curve's answer (`curve_sentence`) and where it
+and the TOST differ, why (`readings_compared`); `read_ablation` composes them all."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from threedcal.errors import ConfigError
-from threedcal.evaluate.ablation import EQUIVALENCE_ALPHA, MARGIN, PAPER_TESTS, REFERENCE_P
+from threedcal.evaluate.ablation import (
+    ALPHA,
+    EQUIVALENCE_ALPHA,
+    MARGIN,
+    PAPER_TESTS,
+    REFERENCE_P,
+    ablation_tests,
+)
+from threedcal.evaluate.learning_curve import (
+    BOOTSTRAP,
+    EXPONENTS,
+    FLAT,
+    LACK_OF_FIT_P,
+    NOT_FITTED,
+    OFF_CURVE,
+    LearningCurve,
+    learning_curve,
+)
 
 
 def _pct(value: float) -> str:
@@ -157,4 +177,250 @@ def placebo_summary(tests: pd.DataFrame, short: bool = False) -> str | None:
         f"the paper's tests between two trainings of P = {reference} % (the same fraction: no "
         f"effect of P): t significant in {t} of {pairs} pairs, U in {u} of {pairs}; their mean "
         f"MSE differ by {low if low == high else f'{low} to {high}'} %"
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# The learning curve in words, and the two readings side by side
+
+
+def _points(value: float) -> str:
+    return f"{int(value):,}"
+
+
+def _fractions_listed(fractions) -> str:
+    return ", ".join(str(int(p)) for p in fractions)
+
+
+def _neighbours(curve: LearningCurve, points: float) -> str:
+    """'between P = 20 % (244) and P = 40 % (488)': the measured fractions around `points`."""
+    frame = curve.fractions.sort_values("points")
+    below = frame[frame["points"] < points]
+    above = frame[frame["points"] >= points]
+    if below.empty or above.empty:
+        return ""
+    low, high = below.iloc[-1], above.iloc[0]
+    if high["points"] == points:
+        return f"P = {int(high['P'])} % has {_points(points)}"
+    return (
+        f"between P = {int(low['P'])} % ({_points(low['points'])}) and "
+        f"P = {int(high['P'])} % ({_points(high['points'])})"
+    )
+
+
+def _curve_interval(curve: LearningCurve) -> str:
+    low = (
+        f"at or below {_points(curve.smallest_points)}"
+        if curve.low_censored
+        else _points(curve.answer_low)
+    )
+    return f"{curve.level * 100:g} % interval {low} to {_points(curve.answer_high)}"
+
+
+def _relative_to_reference(curve: LearningCurve, points: float) -> float:
+    return float(curve.predict(points) / curve.predict(curve.reference_points) - 1.0)
+
+
+def curve_sentence(curve: LearningCurve) -> str:
+    """The learning curve's answer in one line: the fewest points within the margin, with its
+    interval, how it was fitted, and what limits it (a flat curve, interpolation between the two
+    largest fractions, a fraction off the curve, a poor fit, one replicate)."""
+    if curve.status == NOT_FITTED:
+        return f"learning curve not fitted: {curve.reason}"
+    frame = curve.fractions
+    a, b, c = (curve.parameters[key] for key in "abc")
+    smallest = frame.loc[frame["points"].idxmin()]
+    margin = f"{curve.margin * 100:g} %"
+    how = (
+        f"MSE(n) = a + b·(n / {_points(curve.reference_points)})^-c fitted on P = "
+        f"{_fractions_listed(frame['P'])} % (c = {c[0]:.2f}, interval {c[1]:.2f} to {c[2]:.2f}), "
+        f"each fraction weighted by its own spread, Huber loss; {curve.bootstrap} bootstrap draws "
+        f"of {curve.replicates} replicate(s) and {curve.blocks} spatial blocks"
+    )
+    if curve.status == FLAT:
+        text = (
+            f"learning curve: at or below {_points(curve.answer)} points (P = {int(smallest['P'])} "
+            f"%, the smallest fraction measured; the curve is not extrapolated below it): it "
+            f"predicts every fraction measured within {margin} of P = {curve.reference} %'s mean "
+            f"validation MSE ({_curve_interval(curve)} points); {how}"
+        )
+    else:
+        where = _neighbours(curve, curve.answer)
+        text = (
+            f"learning curve: {_points(curve.answer)} points ({_curve_interval(curve)}) bring the "
+            f"predicted mean validation MSE within {margin} of P = {curve.reference} %'s "
+            f"({_points(curve.reference_points)} points)"
+            + (f", {where}" if where else "")
+            + f"; {how}"
+        )
+        below = frame[frame["P"] != curve.reference]
+        if len(below) and curve.answer > below["points"].max():
+            largest = below.loc[below["points"].idxmax()]
+            text += (
+                f"; no fraction measured below P = {curve.reference} % is within the margin: the "
+                f"number rests on the curve between P = {int(largest['P'])} % and "
+                f"P = {curve.reference} %"
+            )
+    for row in frame.itertuples():
+        if row.huber < OFF_CURVE:
+            observed = row.mean_mse / frame.set_index("P").loc[curve.reference, "mean_mse"] - 1
+            text += (
+                f"; P = {row.P} % lies off the curve (observed {_pct(observed)}, curve "
+                f"{_pct(_relative_to_reference(curve, row.points))} of P = {curve.reference} %) "
+                "and weighs less in the fit"
+            )
+    if curve.lack_of_fit_p < LACK_OF_FIT_P:
+        text += (
+            f"; the curve misses the fractions' means by more than their spread (chi-squared "
+            f"{curve.chi2:.1f} on {curve.dof} degrees of freedom, p = {curve.lack_of_fit_p:.2g}): "
+            "read the number with care"
+        )
+    if c[0] >= EXPONENTS[-1] * 0.999:
+        text += "; the exponent sits at its search limit: the curve is a step, flat past it"
+    if curve.replicates == 1:
+        text += (
+            "; one replicate: the interval holds the spatial sampling only, not the training's "
+            "own randomness"
+        )
+    return text
+
+
+def _tost_reason(row, curve: LearningCurve, p: int) -> str:
+    """Why the TOST of P is not equivalent, in words with its numbers."""
+    conclusion = str(row["conclusion"]).removeprefix("not equivalent: ")
+    numbers = f"change {_pct(row['relative_change'])}, interval {_interval(row)}"
+    if "power" in conclusion:
+        spread = curve.fractions.set_index("P").loc[p]
+        width = (spread["replicate_high"] - spread["replicate_low"]) / spread["mean_mse"]
+        return (
+            f"the TOST of P = {p} % is too wide to show equivalence ({numbers}): its "
+            f"{curve.replicates} replicates' mean MSE spread from {spread['replicate_low']:.3g} to "
+            f"{spread['replicate_high']:.3g} ({width * 100:.0f} % of their mean)"
+        )
+    return f"the TOST of P = {p} % is not equivalent: {conclusion} ({numbers})"
+
+
+def readings_compared(
+    tests: pd.DataFrame, curve: LearningCurve, points_by_p: Mapping[int, int]
+) -> str | None:
+    """Whether the TOST's fixed sequence and the learning curve name the same number of points,
+    and where they do not, why; None where the curve was not fitted."""
+    if curve.status == NOT_FITTED:
+        return None
+    rows = tests[tests["family"] == "equivalence"].set_index("P").sort_index()
+    equivalent = rows[rows["significant"].astype(bool)]
+    reference = curve.reference
+    tost_p = int(equivalent.index.min()) if not equivalent.empty else reference
+    tost_n = points_by_p[tost_p]
+    measured = curve.fractions.sort_values("points")
+    curve_p = int(measured.loc[measured["points"] >= curve.answer, "P"].iloc[0])
+    says = (
+        f"the TOST says {_points(tost_n)} points (P = {tost_p} %), the curve "
+        f"{_points(curve.answer)} ({_curve_interval(curve)})"
+    )
+    low = -math.inf if curve.low_censored else curve.answer_low
+    if curve_p == tost_p or low <= tost_n <= curve.answer_high:
+        return f"the two readings agree: {says}"
+    if tost_n > curve.answer_high:
+        stop = int(rows.index[rows.index < tost_p].max())
+        parts = [_tost_reason(rows.loc[stop], curve, stop)]
+        own = [
+            int(p)
+            for p, row in rows.iterrows()
+            if p < stop
+            and str(row["conclusion"]) == "not equivalent: a larger P is not"
+            and -curve.margin < row["ci_low"]
+            and row["ci_high"] < curve.margin
+        ]
+        if own:
+            shown = [f"P = {p} % ({_interval(rows.loc[p])})" for p in own]
+            listed = shown[0] if len(shown) == 1 else ", ".join(shown[:-1]) + " and " + shown[-1]
+            parts.append(
+                "the fixed sequence stops there, so no smaller fraction is called equivalent, "
+                + (
+                    f"though the interval of {listed} lies inside the margin"
+                    if len(own) == 1
+                    else f"though the intervals of {listed} lie inside the margin"
+                )
+            )
+        means = curve.fractions.set_index("P")["mean_mse"]
+        observed = means[stop] / means[reference] - 1
+        share = curve.fractions.set_index("P").loc[stop, "weight"]
+        parts.append(
+            f"the curve, fitted on every fraction, each weighted by its spread (P = {stop} % "
+            f"{share * 100:.0f} % of the fit), puts P = {stop} % at "
+            f"{_pct(_relative_to_reference(curve, points_by_p[stop]))} of P = {reference} % "
+            f"(observed {_pct(observed)}) and reaches the margin at {_points(curve.answer)} points"
+        )
+        return f"the readings differ: {says}: " + "; ".join(parts)
+    row = rows.loc[tost_p]
+    return (
+        f"the readings differ: {says}: the TOST shows P = {tost_p} % equivalent on its own data "
+        f"(change {_pct(row['relative_change'])}, interval {_interval(row)}), while the curve, "
+        f"fitted on every fraction, puts it at "
+        f"{_pct(_relative_to_reference(curve, tost_n))} of P = {reference} %, past the margin: "
+        "its neighbours pull the curve above P = "
+        f"{tost_p} %'s own mean (observed and fitted means in stats/learning_curve.csv)"
+    )
+
+
+@dataclass(frozen=True)
+class AblationReading:
+    """tests.csv, the learning curve, and recommendation.txt's lines: the TOST's answer, the
+    curve's, and whether they agree (absent where the curve was not fitted)."""
+
+    tests: pd.DataFrame
+    curve: LearningCurve
+    recommendation: str
+    curve_line: str
+    comparison: str | None
+
+    @property
+    def text(self) -> str:
+        """recommendation.txt: one reading a line."""
+        lines = [self.recommendation, self.curve_line]
+        return "\n".join(lines + ([self.comparison] if self.comparison else [])) + "\n"
+
+
+def read_ablation(
+    table: pd.DataFrame,
+    blocks: pd.Series,
+    points_by_p: Mapping[int, int],
+    *,
+    alpha: float = ALPHA,
+    margin: float = MARGIN,
+    equivalence_alpha: float = EQUIVALENCE_ALPHA,
+    bootstrap: int = BOOTSTRAP,
+    seed: int = 0,
+    reference: int = REFERENCE_P,
+) -> AblationReading:
+    """Every reading of one ablation's validation errors (validation_mse.csv's table, its spatial
+    blocks, the points each P probed): the test families, the TOST's recommendation, the learning
+    curve at the TOST's interval level (1 - 2 equivalence_alpha), and the two compared. Call it
+    once per training budget."""
+    curve = learning_curve(
+        table,
+        blocks,
+        points_by_p,
+        margin=margin,
+        level=1 - 2 * equivalence_alpha,
+        bootstrap=bootstrap,
+        seed=seed,
+        reference=reference,
+    )
+    tests = ablation_tests(
+        table,
+        blocks,
+        alpha=alpha,
+        margin=margin,
+        equivalence_alpha=equivalence_alpha,
+        reference=reference,
+    )
+    line = recommend(tests, points_by_p, margin, equivalence_alpha, reference)
+    return AblationReading(
+        tests=tests,
+        curve=curve,
+        recommendation=line,
+        curve_line=curve_sentence(curve),
+        comparison=readings_compared(tests, curve, points_by_p),
     )
