@@ -208,13 +208,14 @@ def _neighbours(curve: LearningCurve, points: float) -> str:
     )
 
 
+def _answer_interval(low: float, high: float, smallest: int, level: float) -> str:
+    """'90 % interval 86 to 141'; a low end at the smallest fraction measured is 'at or below' it."""
+    start = f"at or below {_points(smallest)}" if low <= smallest else _points(low)
+    return f"{level * 100:g} % interval {start} to {_points(high)}"
+
+
 def _curve_interval(curve: LearningCurve) -> str:
-    low = (
-        f"at or below {_points(curve.smallest_points)}"
-        if curve.low_censored
-        else _points(curve.answer_low)
-    )
-    return f"{curve.level * 100:g} % interval {low} to {_points(curve.answer_high)}"
+    return _answer_interval(curve.answer_low, curve.answer_high, curve.smallest_points, curve.level)
 
 
 def _relative_to_reference(curve: LearningCurve, points: float) -> float:
@@ -424,3 +425,24 @@ def read_ablation(
         curve_line=curve_sentence(curve),
         comparison=readings_compared(tests, curve, points_by_p),
     )
+
+
+def curve_summary(table: pd.DataFrame) -> str:
+    """stats/learning_curve.csv's answer in short: '111 points (90 % interval 86 to 141)', 'at or
+    below 12 points (...)', or 'not fitted (why)'."""
+    rows = table.set_index("quantity")
+    for quantity in ("points_within_margin", "level"):
+        if quantity not in rows.index:
+            raise ConfigError(f"learning_curve.csv lacks its {quantity!r} row")
+    answer, level = rows.loc["points_within_margin"], float(rows.loc["level", "value"])
+    status = str(answer["note"])
+    if status.startswith(NOT_FITTED):
+        return f"not fitted ({status.removeprefix(NOT_FITTED).removeprefix(': ')})"
+    smallest = int(table.loc[table["quantity"] == "observed_mse", "points"].min())
+    low = (
+        f"at or below {_points(smallest)}" if answer["low"] <= smallest else _points(answer["low"])
+    )
+    value = (
+        f"at or below {_points(answer['value'])}" if status == FLAT else _points(answer["value"])
+    )
+    return f"{value} points ({level * 100:g} % interval {low} to {_points(answer['high'])})"

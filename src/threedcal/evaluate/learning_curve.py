@@ -489,16 +489,26 @@ def curve_table(curve: LearningCurve) -> pd.DataFrame:
     """stats/learning_curve.csv: the answer and the fit's parameters with their intervals, the
     fit's quality and design, then per P the observed and fitted mean validation MSE."""
     interval = f"{curve.level * 100:g} % bootstrap"
-    note = curve.status if curve.status != NOT_FITTED else f"{NOT_FITTED}: {curve.reason}"
     rows = [
         {
             "quantity": "points_within_margin",
             "value": curve.answer,
             "low": curve.answer_low,
             "high": curve.answer_high,
-            "note": f"{note}; {interval}; margin {curve.margin:g} of P = {curve.reference} %"
-            + ("; low end at or below the smallest fraction" if curve.low_censored else ""),
-        }
+            "note": curve.status if curve.status != NOT_FITTED else f"{NOT_FITTED}: {curve.reason}",
+        },
+        {
+            "quantity": "level",
+            "value": curve.level,
+            "note": "of the bootstrap percentile intervals",
+        },
+        {
+            "quantity": "margin",
+            "P": curve.reference,
+            "points": curve.reference_points,
+            "value": curve.margin,
+            "note": "relative to the curve at the reference fraction (P, points)",
+        },
     ]
     meaning = {
         "a": "asymptote: MSE no number of points removes",

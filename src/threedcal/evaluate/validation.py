@@ -331,13 +331,16 @@ def stats_stage(
     seed: int,
     out: Mapping[str, str | Path],
 ) -> str:
-    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the power
-    table (+ figure), costs and the Fig. 3B/4 figures. `settings` is the config's `stats` section."""
+    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the learning
+    curve (+ figure), the power table (+ figure), costs and the Fig. 3B/4 figures. `settings` is
+    the config's `stats` section."""
     import json
 
-    from threedcal.evaluate.ablation import ablation_tests, spatial_blocks
+    from threedcal.evaluate.ablation import spatial_blocks
     from threedcal.evaluate.ablation_figure import tests_figure
-    from threedcal.evaluate.ablation_reading import recommend
+    from threedcal.evaluate.ablation_reading import read_ablation
+    from threedcal.evaluate.learning_curve import curve_table
+    from threedcal.evaluate.learning_curve_figure import learning_curve_figure
     from threedcal.evaluate.power import power_figure, power_table
 
     trainset = TrainingSet.load(trainset_dir)
@@ -346,23 +349,25 @@ def stats_stage(
     table.to_csv(out["validation_mse"], index=False)
     block_mm = scoring_disc_mm(trainset)
     blocks = spatial_blocks(table, block_mm)
-    tests = ablation_tests(
+    n_points = len(splits)
+    points_by_p = {p: subset_size(n_points, p) for p, _ in models}
+    reading = read_ablation(
         table,
         blocks,
+        points_by_p,
         alpha=settings["alpha"],
         margin=settings["equivalence_margin"],
         equivalence_alpha=settings["equivalence_alpha"],
+        bootstrap=settings["curve_bootstrap"],
+        seed=seed,
     )
+    tests = reading.tests
     tests.to_csv(out["tests"], index=False, float_format="%.6g")
-    n_points = len(splits)
-    points_by_p = {p: subset_size(n_points, p) for p, _ in models}
-    line = recommend(
-        tests,
-        points_by_p,
-        margin=settings["equivalence_margin"],
-        equivalence_alpha=settings["equivalence_alpha"],
+    Path(out["recommendation"]).write_text(reading.text)
+    curve_table(reading.curve).to_csv(out["learning_curve"], index=False, float_format="%.6g")
+    learning_curve_figure(
+        reading.curve, out["learning_curve_figure"], f"{scene_name}: error against points probed"
     )
-    Path(out["recommendation"]).write_text(line + "\n")
     tests_figure(
         tests,
         out["tests_figure"],
@@ -391,4 +396,4 @@ def stats_stage(
     mse_map_figure(table, splits, out["map_figure"], f"{scene_name}: validation MSE over the gel")
     kde_figure(table, out["kde_figure"], f"{scene_name}: validation MSE distributions")
     cost_figure(costs, out["cost_figure"], f"{scene_name}: error against cost")
-    return line
+    return reading.text

@@ -12,6 +12,7 @@ from typing import Any
 import pandas as pd
 
 from threedcal.config import is_imported
+from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times
 from threedcal.scenes import has_sim2real
 
@@ -83,9 +84,7 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
                 "; ".join(target["line"] for target in arms["targets"].values()),
             )
         )
-    recommendation = root / "stats" / "recommendation.txt"
-    if recommendation.is_file():
-        facts.append(("recommendation", recommendation.read_text().strip()))
+    facts += recommendation_facts(root / "stats")
     fps = read_json(root / "models" / "inference.json")
     if fps:
         facts.append(("depth inference (P=80 model, CPU)", f"{fps['frames_per_s']:.1f} frames/s"))
@@ -122,6 +121,24 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
     if errors.is_file():
         lines += object_table(pd.read_csv(errors))
     return lines
+
+
+def recommendation_facts(stats_dir: Path) -> list[tuple[str, str]]:
+    """The recommendation's rows: the TOST's answer, the learning curve's (with its interval) and
+    where the two differ, why (stats/recommendation.txt, one reading a line)."""
+    path = stats_dir / "recommendation.txt"
+    if not path.is_file():
+        return []
+    lines = path.read_text().strip().splitlines()
+    facts = [("recommendation (equivalence test)", lines[0])]
+    curve = stats_dir / "learning_curve.csv"
+    if curve.is_file():
+        facts.append(
+            ("learning curve (stats/learning_curve.csv)", curve_summary(pd.read_csv(curve)))
+        )
+    compared = [line for line in lines[1:] if "readings" in line.split(":", 1)[0]]
+    facts += [("equivalence test against the curve", line) for line in compared]
+    return facts
 
 
 def sim2real_section(errors: pd.DataFrame) -> list[str]:
