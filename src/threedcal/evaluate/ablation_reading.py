@@ -208,14 +208,17 @@ def _neighbours(curve: LearningCurve, points: float) -> str:
     )
 
 
-def _answer_interval(low: float, high: float, smallest: int, level: float) -> str:
-    """'90 % interval 86 to 141'; a low end at the smallest fraction measured is 'at or below' it."""
+def answer_interval(low: float, high: float, smallest: int, level: float) -> str:
+    """'90 % interval 86 to 141'; a low end at the smallest fraction fitted is 'at or below' it,
+    and so is a whole interval there ('90 % interval at or below 122')."""
+    if high <= smallest:
+        return f"{level * 100:g} % interval at or below {_points(smallest)}"
     start = f"at or below {_points(smallest)}" if low <= smallest else _points(low)
     return f"{level * 100:g} % interval {start} to {_points(high)}"
 
 
 def _curve_interval(curve: LearningCurve) -> str:
-    return _answer_interval(curve.answer_low, curve.answer_high, curve.smallest_points, curve.level)
+    return answer_interval(curve.answer_low, curve.answer_high, curve.smallest_points, curve.level)
 
 
 def _relative_to_reference(curve: LearningCurve, points: float) -> float:
@@ -224,26 +227,42 @@ def _relative_to_reference(curve: LearningCurve, points: float) -> float:
 
 def curve_sentence(curve: LearningCurve) -> str:
     """The learning curve's answer in one line: the fewest points within the margin, with its
-    interval, how it was fitted, and what limits it (a flat curve, interpolation between the two
-    largest fractions, a fraction off the curve, a poor fit, one replicate)."""
+    interval, how it was fitted, and what limits it (a flat curve, fractions before the power law
+    holds, interpolation between the two largest fractions, a fraction off the curve, a poor fit,
+    one replicate)."""
     if curve.status == NOT_FITTED:
         return f"learning curve not fitted: {curve.reason}"
     frame = curve.fractions
-    a, b, c = (curve.parameters[key] for key in "abc")
-    smallest = frame.loc[frame["points"].idxmin()]
+    fitted = frame[frame["in_fit"].astype(bool)]
+    c = curve.parameters["c"]
+    smallest = fitted.iloc[0]
     margin = f"{curve.margin * 100:g} %"
+    left_out = curve.left_out
+    shape = (
+        "flat: b = 0"
+        if curve.parameters["b"][0] == 0
+        else f"c = {c[0]:.2f}, interval {c[1]:.2f} to {c[2]:.2f}"
+    )
     how = (
         f"MSE(n) = a + b·(n / {_points(curve.reference_points)})^-c fitted on P = "
-        f"{_fractions_listed(frame['P'])} % (c = {c[0]:.2f}, interval {c[1]:.2f} to {c[2]:.2f}), "
-        f"each fraction weighted by its own spread, Huber loss; {curve.bootstrap} bootstrap draws "
-        f"of {curve.replicates} replicate(s) and {curve.blocks} spatial blocks"
+        f"{_fractions_listed(fitted['P'])} % ({shape}), each fraction weighted by its own "
+        f"spread, Huber loss; {curve.bootstrap} bootstrap draws of {curve.replicates} "
+        f"replicate(s) and {curve.blocks} spatial blocks"
     )
+    if left_out:
+        how += (
+            f"; P = {_fractions_listed(left_out)} % left out: a power law through "
+            f"{'it' if len(left_out) == 1 else 'them'} misses the larger fractions' means (a "
+            "learning curve follows one only past its small-data region; so in "
+            f"{curve.start_share * 100:.0f} % of the bootstrap draws)"
+        )
+    measured = "the smallest fraction the curve describes" if left_out else "the smallest measured"
     if curve.status == FLAT:
         text = (
             f"learning curve: at or below {_points(curve.answer)} points (P = {int(smallest['P'])} "
-            f"%, the smallest fraction measured; the curve is not extrapolated below it): it "
-            f"predicts every fraction measured within {margin} of P = {curve.reference} %'s mean "
-            f"validation MSE ({_curve_interval(curve)} points); {how}"
+            f"%, {measured}; the curve is not extrapolated below it): it predicts every fraction "
+            f"it describes within {margin} of P = {curve.reference} %'s mean validation MSE "
+            f"({_curve_interval(curve)} points); {how}"
         )
     else:
         where = _neighbours(curve, curve.answer)
@@ -262,9 +281,10 @@ def curve_sentence(curve: LearningCurve) -> str:
                 f"number rests on the curve between P = {int(largest['P'])} % and "
                 f"P = {curve.reference} %"
             )
-    for row in frame.itertuples():
-        if row.huber < OFF_CURVE:
-            observed = row.mean_mse / frame.set_index("P").loc[curve.reference, "mean_mse"] - 1
+    reference_mse = frame.set_index("P").loc[curve.reference, "mean_mse"]
+    for row in fitted.itertuples():
+        if row.huber < OFF_CURVE and row.P != curve.reference:
+            observed = row.mean_mse / reference_mse - 1
             text += (
                 f"; P = {row.P} % lies off the curve (observed {_pct(observed)}, curve "
                 f"{_pct(_relative_to_reference(curve, row.points))} of P = {curve.reference} %) "
@@ -273,7 +293,7 @@ def curve_sentence(curve: LearningCurve) -> str:
     if curve.lack_of_fit_p < LACK_OF_FIT_P:
         text += (
             f"; the curve misses the fractions' means by more than their spread (chi-squared "
-            f"{curve.chi2:.1f} on {curve.dof} degrees of freedom, p = {curve.lack_of_fit_p:.2g}): "
+            f"{curve.chi2:.1f} on {curve.dof} degrees of freedom, {_p_text(curve.lack_of_fit_p)}): "
             "read the number with care"
         )
     if c[0] >= EXPONENTS[-1] * 0.999:
@@ -287,25 +307,56 @@ def curve_sentence(curve: LearningCurve) -> str:
 
 
 def _tost_reason(row, curve: LearningCurve, p: int) -> str:
-    """Why the TOST of P is not equivalent, in words with its numbers."""
+    """Why the TOST of P is not equivalent, in words with its numbers and its replicates' spread."""
     conclusion = str(row["conclusion"]).removeprefix("not equivalent: ")
     numbers = f"change {_pct(row['relative_change'])}, interval {_interval(row)}"
-    if "power" in conclusion:
+    if "wider than the margin" in conclusion:
+        text = f"the TOST of P = {p} % is too wide to show equivalence ({numbers})"
+    else:
+        text = f"the TOST of P = {p} % is not equivalent: {conclusion} ({numbers})"
+    if curve.replicates > 1:
         spread = curve.fractions.set_index("P").loc[p]
         width = (spread["replicate_high"] - spread["replicate_low"]) / spread["mean_mse"]
-        return (
-            f"the TOST of P = {p} % is too wide to show equivalence ({numbers}): its "
-            f"{curve.replicates} replicates' mean MSE spread from {spread['replicate_low']:.3g} to "
-            f"{spread['replicate_high']:.3g} ({width * 100:.0f} % of their mean)"
+        text += (
+            f": its {curve.replicates} replicates' mean MSE spread from "
+            f"{spread['replicate_low']:.3g} to {spread['replicate_high']:.3g} "
+            f"({width * 100:.0f} % of their mean)"
         )
-    return f"the TOST of P = {p} % is not equivalent: {conclusion} ({numbers})"
+    return text
+
+
+def _p_text(p: float) -> str:
+    return f"p = {p:.2g}" if p >= 1e-4 else "p < 0.0001"
+
+
+def _misfit(curve: LearningCurve) -> str:
+    """'' where the power law describes the fractions fitted, else the words that say it does not."""
+    if not curve.lack_of_fit_p < LACK_OF_FIT_P:
+        return ""
+    return (
+        "; but a power law does not describe these fractions (chi-squared "
+        f"{_p_text(curve.lack_of_fit_p)})"
+    )
+
+
+def _fitted_on(curve: LearningCurve) -> str:
+    """'fitted on every fraction' or 'fitted on P = 10-80 %'."""
+    if not curve.left_out:
+        return "fitted on every fraction"
+    fitted = curve.fractions.loc[curve.fractions["in_fit"].astype(bool), "P"]
+    return f"fitted on P = {_fractions_listed(fitted)} %"
 
 
 def readings_compared(
     tests: pd.DataFrame, curve: LearningCurve, points_by_p: Mapping[int, int]
 ) -> str | None:
-    """Whether the TOST's fixed sequence and the learning curve name the same number of points,
-    and where they do not, why; None where the curve was not fitted."""
+    """Whether the TOST's fixed sequence and the learning curve agree on the points to probe,
+    and where they do not, why; None where the curve was not fitted.
+
+    They agree where the TOST's fraction lies inside the curve's interval, or where the curve's
+    interval lies between that fraction and the next smaller one (the TOST can only name the
+    fractions measured). They differ where the curve says a smaller measured fraction may suffice
+    (its points reach the curve's interval), or where the TOST's fraction lies below it."""
     if curve.status == NOT_FITTED:
         return None
     rows = tests[tests["family"] == "equivalence"].set_index("P").sort_index()
@@ -313,17 +364,25 @@ def readings_compared(
     reference = curve.reference
     tost_p = int(equivalent.index.min()) if not equivalent.empty else reference
     tost_n = points_by_p[tost_p]
-    measured = curve.fractions.sort_values("points")
-    curve_p = int(measured.loc[measured["points"] >= curve.answer, "P"].iloc[0])
     says = (
         f"the TOST says {_points(tost_n)} points (P = {tost_p} %), the curve "
         f"{_points(curve.answer)} ({_curve_interval(curve)})"
     )
     low = -math.inf if curve.low_censored else curve.answer_low
-    if curve_p == tost_p or low <= tost_n <= curve.answer_high:
+    smaller = rows.index[rows.index < tost_p]
+    stop = int(smaller.max()) if len(smaller) else None
+    if low <= tost_n <= curve.answer_high:
         return f"the two readings agree: {says}"
+    if tost_n > curve.answer_high and (stop is None or points_by_p[stop] < low):
+        return (
+            f"the two readings agree: {says}, which lies between P = {stop} % "
+            f"({_points(points_by_p[stop])}) and P = {tost_p} %: the TOST names measured "
+            "fractions only"
+            if stop is not None
+            else f"the two readings agree: {says}"
+        )
+    fitted_on = _fitted_on(curve)
     if tost_n > curve.answer_high:
-        stop = int(rows.index[rows.index < tost_p].max())
         parts = [_tost_reason(rows.loc[stop], curve, stop)]
         own = [
             int(p)
@@ -348,20 +407,29 @@ def readings_compared(
         observed = means[stop] / means[reference] - 1
         share = curve.fractions.set_index("P").loc[stop, "weight"]
         parts.append(
-            f"the curve, fitted on every fraction, each weighted by its spread (P = {stop} % "
+            f"the curve, {fitted_on}, each weighted by its spread (P = {stop} % "
             f"{share * 100:.0f} % of the fit), puts P = {stop} % at "
             f"{_pct(_relative_to_reference(curve, points_by_p[stop]))} of P = {reference} % "
             f"(observed {_pct(observed)}) and reaches the margin at {_points(curve.answer)} points"
         )
-        return f"the readings differ: {says}: " + "; ".join(parts)
+        misfit = _misfit(curve)
+        return (
+            f"the readings differ: {says}: "
+            + "; ".join(parts)
+            + (f"{misfit}: read the curve's number with care" if misfit else "")
+        )
     row = rows.loc[tost_p]
     return (
         f"the readings differ: {says}: the TOST shows P = {tost_p} % equivalent on its own data "
         f"(change {_pct(row['relative_change'])}, interval {_interval(row)}), while the curve, "
-        f"fitted on every fraction, puts it at "
-        f"{_pct(_relative_to_reference(curve, tost_n))} of P = {reference} %, past the margin: "
-        "its neighbours pull the curve above P = "
+        f"{fitted_on}, puts it at {_pct(_relative_to_reference(curve, tost_n))} of "
+        f"P = {reference} %, past the margin: its neighbours pull the curve above P = "
         f"{tost_p} %'s own mean (observed and fitted means in stats/learning_curve.csv)"
+        + (
+            f"{_misfit(curve)}, so P = {tost_p} %'s own test is the better guide"
+            if _misfit(curve)
+            else ""
+        )
     )
 
 

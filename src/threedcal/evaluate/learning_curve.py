@@ -45,15 +45,17 @@ from scipy import stats
 from threedcal.errors import ConfigError
 from threedcal.evaluate.ablation import MARGIN, REFERENCE_P, block_means, contrast
 
-EXPONENTS = np.geomspace(0.02, 4.0, 96)  # the grid c is searched on, then refined between nodes
-REFINE_STEPS = 30
+EXPONENTS = np.geomspace(0.02, 8.0, 110)  # the grid c is searched on, then refined between nodes
+REFINE_STEPS = 24
 HUBER_K = 1.345  # Huber's tuning constant: 95 % efficiency when the residuals are Gaussian
 OFF_CURVE = 0.5  # a fraction whose Huber weight fell below this lies off the curve (|z| > 2.7)
 IRLS_STEPS = 25
+HUBER_TOL = 1e-4  # IRLS stops when no Huber weight moves more than this
 WEIGHT_CEILING = 4.0  # no fraction weighs more than this many times the median fraction
 BOOTSTRAP = 2000
 LEVEL = 0.90
 MIN_FRACTIONS = 3
+MIN_CHECKED = 4  # a fit left with fewer fractions has no residual to judge it by
 LACK_OF_FIT_P = 0.01
 
 FITTED = "fitted"
@@ -68,7 +70,10 @@ class CurveFits:
     a: np.ndarray
     b: np.ndarray
     c: np.ndarray
-    huber: np.ndarray  # (..., fractions) the Huber weight each fraction ended with
+    huber: np.ndarray  # (..., fractions) the Huber weight each fraction ended with (NaN: unused)
+    start: np.ndarray | None = None  # index of the smallest fraction fitted (fit_from_where)
+    chi2: np.ndarray | None = None  # sum of squared residuals in units of se, fitted fractions
+    dof: np.ndarray | None = None  # fitted fractions (distinct points) - 3
 
     def predict(self, x) -> np.ndarray:
         """MSE at x = n / n_ref: (fits, len(x))."""
@@ -90,8 +95,9 @@ class LearningCurve:
     blocks: int
     bootstrap: int
     seed: int
-    # per P: P, points, mean_mse, replicate_low, replicate_high, se, huber (the Huber weight it
-    # ended with), weight (its share of the fit), fitted, fitted_low, fitted_high
+    # per P (ascending): P, points, mean_mse, replicate_low, replicate_high, in_fit (False: before
+    # the power law holds, fit_from_where), se, huber (the Huber weight it ended with), weight (its
+    # share of the fit), fitted, fitted_low, fitted_high
     fractions: pd.DataFrame
     replicate_means: dict[int, np.ndarray]
     parameters: dict[str, tuple[float, float, float]]  # a, b, c: (estimate, low, high)
@@ -101,14 +107,28 @@ class LearningCurve:
     chi2: float
     dof: int
     draws: CurveFits | None  # the bootstrap's fits (the figure's band); None when not fitted
+    df: float  # degrees of freedom of the fractions' spread (median over fractions)
+    tail: float  # each tail of the bootstrap distribution the intervals cut (expanded_tail)
+    start_share: float  # share of the bootstrap draws whose fit starts at the same fraction
 
     @property
     def smallest_points(self) -> int:
-        return int(self.fractions["points"].min())
+        """The points of the smallest fraction the curve describes (of all, where not fitted):
+        the answer is never extrapolated below it."""
+        frame = self.fractions
+        fitted = frame[frame["in_fit"].astype(bool)]
+        return int((fitted if len(fitted) else frame)["points"].min())
+
+    @property
+    def left_out(self) -> list[int]:
+        """The fractions before the power law holds (fit_from_where), smallest first."""
+        if self.status == NOT_FITTED:
+            return []
+        return [int(p) for p in self.fractions.loc[~self.fractions["in_fit"].astype(bool), "P"]]
 
     @property
     def low_censored(self) -> bool:
-        """The interval's low end sits at the smallest fraction: 'at or below' it."""
+        """The interval's low end sits at the smallest fraction fitted: 'at or below' it."""
         return self.answer_low <= self.smallest_points
 
     def predict(self, points) -> np.ndarray:
@@ -122,8 +142,7 @@ class LearningCurve:
             nan = np.full(np.shape(points), np.nan)
             return nan, nan
         curves = self.draws.predict(np.asarray(points, float) / self.reference_points)
-        tail = (1 - self.level) / 2
-        low, high = np.quantile(curves, [tail, 1 - tail], axis=0)
+        low, high = np.quantile(curves, [self.tail, 1 - self.tail], axis=0)
         return low, high
 
     @property
@@ -139,10 +158,10 @@ class LearningCurve:
 
 
 def _solve(sw, su, suu, sy, suy):
-    """(a, b) of the weighted least squares of y on a + b·u under a, b >= 0, from its sums
-    (Σw, Σwu, Σwu², Σwy, Σwuy). The constrained optimum of a convex quadratic in two variables
-    is the best feasible one of the unconstrained solution and the two edges (a = 0, b = 0);
-    the loss of each, up to the constant Σwy², is a² Σw + 2ab Σwu + b² Σwu² - 2a Σwy - 2b Σwuy."""
+    """(a, b, loss - Σwy²) of the weighted least squares of y on a + b·u under a, b >= 0, from
+    its sums (Σw, Σwu, Σwu², Σwy, Σwuy). The constrained optimum of a convex quadratic in two
+    variables is the best feasible one of the unconstrained solution and the two edges (a = 0,
+    b = 0); the loss of each, up to Σwy², is a² Σw + 2ab Σwu + b² Σwu² - 2a Σwy - 2b Σwuy."""
     det = sw * suu - su * su
     with np.errstate(divide="ignore", invalid="ignore"):
         b_free = (sw * suy - su * sy) / det
@@ -152,17 +171,18 @@ def _solve(sw, su, suu, sy, suy):
     free = (det > 1e-12 * sw * suu) & (a_free >= 0) & (b_free >= 0)
     zero = np.zeros_like(det)
     best_a, best_b, best_loss = zero, zero, zero  # a = b = 0: loss 0 up to the constant
-    for a, b, ok in (
+    candidates = (
         (np.where(free, a_free, 0.0), np.where(free, b_free, 0.0), free),
         (zero, b_edge, True),
         (a_edge, zero, True),
-    ):
+    )
+    for a, b, ok in candidates:
         loss = a * a * sw + 2 * a * b * su + b * b * suu - 2 * a * sy - 2 * b * suy
         better = ok & (loss < best_loss)
         best_a = np.where(better, a, best_a)
         best_b = np.where(better, b, best_b)
         best_loss = np.where(better, loss, best_loss)
-    return best_a, best_b
+    return best_a, best_b, best_loss
 
 
 def _profile(x: np.ndarray, y: np.ndarray, w: np.ndarray, c: np.ndarray):
@@ -170,23 +190,30 @@ def _profile(x: np.ndarray, y: np.ndarray, w: np.ndarray, c: np.ndarray):
     (the sums' form cancels where the fit is near exact)."""
     u = x ** -c[..., None]
     wu = w * u
-    a, b = _solve(w.sum(-1), wu.sum(-1), (wu * u).sum(-1), (w * y).sum(-1), (wu * y).sum(-1))
+    a, b, _ = _solve(w.sum(-1), wu.sum(-1), (wu * u).sum(-1), (w * y).sum(-1), (wu * y).sum(-1))
     loss = (w * (y - a[..., None] - b[..., None] * u) ** 2).sum(-1)
     return a, b, loss
 
 
-def _exponent(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """The c minimising the profiled loss, for each row of y (S, P): the best grid node (every
-    node at once, from the weighted sums), then golden section between its neighbours."""
-    u = x[None, :] ** -EXPONENTS[:, None]  # (G, P)
-    wy = w * y
-    sums = (w.sum(-1)[:, None], w @ u.T, w @ (u * u).T, wy.sum(-1)[:, None], wy @ u.T)
-    a, b = _solve(*sums)
-    fitted = a[..., None] + b[..., None] * u  # (S, G, P)
-    loss = (w[:, None, :] * (y[:, None, :] - fitted) ** 2).sum(-1)
-    best = np.argmin(loss, axis=-1)
-    low = EXPONENTS[np.maximum(best - 1, 0)]
-    high = EXPONENTS[np.minimum(best + 1, len(EXPONENTS) - 1)]
+GRID_STEP = float(EXPONENTS[1] / EXPONENTS[0])
+
+
+def _exponent(x: np.ndarray, y: np.ndarray, w: np.ndarray, start=None) -> np.ndarray:
+    """The c minimising the profiled loss, for each row of y (S, P): golden section between the
+    neighbours of the best grid node (every node at once, from the weighted sums), or within two
+    grid steps of `start` (a previous fit's c) where given."""
+    if start is None:
+        u = x[None, :] ** -EXPONENTS[:, None]  # (G, P)
+        wy = w * y
+        sums = (w.sum(-1)[:, None], w @ u.T, w @ (u * u).T, wy.sum(-1)[:, None], wy @ u.T)
+        best = np.argmin(_solve(*sums)[2], axis=-1)
+        low = EXPONENTS[np.maximum(best - 1, 0)]
+        high = EXPONENTS[np.minimum(best + 1, len(EXPONENTS) - 1)]
+        centre = EXPONENTS[best]
+    else:
+        low = np.maximum(start / GRID_STEP**2, EXPONENTS[0])
+        high = np.minimum(start * GRID_STEP**2, EXPONENTS[-1])
+        centre = start
     ratio = (math.sqrt(5) - 1) / 2
     inner_low, inner_high = high - ratio * (high - low), low + ratio * (high - low)
     loss_low, loss_high = _profile(x, y, w, inner_low)[2], _profile(x, y, w, inner_high)[2]
@@ -201,10 +228,9 @@ def _exponent(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
             np.where(left, loss_low, fresh_loss),
         )
     refined = (low + high) / 2
-    grid_best = EXPONENTS[best]
-    # keep the grid node where the refinement did not beat it (a kink of the constrained profile)
-    keep = _profile(x, y, w, grid_best)[2] <= _profile(x, y, w, refined)[2]
-    return np.where(keep, grid_best, refined)
+    # keep the centre where the refinement did not beat it (a kink of the constrained profile)
+    keep = _profile(x, y, w, centre)[2] <= _profile(x, y, w, refined)[2]
+    return np.where(keep, centre, refined)
 
 
 def fit_curves(x, y, se, huber: float = HUBER_K) -> CurveFits:
@@ -220,16 +246,17 @@ def fit_curves(x, y, se, huber: float = HUBER_K) -> CurveFits:
     rows = y.shape[0]
     a, b, c = np.zeros(rows), np.zeros(rows), np.zeros(rows)
     h = np.ones_like(y)
-    active = np.arange(rows)
+    active, first = np.arange(rows), True
     for _ in range(IRLS_STEPS):
         ya, sa, pa = y[active], se[active], precision[active]
         w = h[active] * pa
-        ca = _exponent(x, ya, w)
+        ca = _exponent(x, ya, w, None if first else c[active])
+        first = False
         aa, ba, _ = _profile(x, ya, w, ca)
         a[active], b[active], c[active] = aa, ba, ca
         z = np.abs(ya - aa[:, None] - ba[:, None] * x ** -ca[:, None]) / sa
         fresh = np.minimum(1.0, huber / np.maximum(z, 1e-12))
-        moved = np.abs(fresh - h[active]).max(axis=-1) > 1e-6
+        moved = np.abs(fresh - h[active]).max(axis=-1) > HUBER_TOL
         h[active] = fresh
         active = active[moved]
         if active.size == 0:
@@ -245,6 +272,44 @@ def crossing(fits: CurveFits, margin: float) -> np.ndarray:
     return np.where(fits.b > 0, x, 0.0)
 
 
+def fit_from_where(x, y, se, huber: float = HUBER_K) -> CurveFits:
+    """`fit_curves` on every fraction, and where the curve misses them (chi-squared p below
+    LACK_OF_FIT_P), again without the smallest, then the two smallest, ... while MIN_CHECKED
+    fractions remain: each row keeps the first fit that passes, or the fit on every fraction
+    where none does (a misfit that leaving out small fractions does not mend is no small-data
+    region). A learning curve follows a power law only past its small-data region; fractions
+    before it are left out, never those near the answer. `start` gives each row's first
+    fraction fitted; x (P,) ascending."""
+    x = np.asarray(x, float)
+    y = np.atleast_2d(np.asarray(y, float))
+    se = np.broadcast_to(np.asarray(se, float), y.shape)
+    if np.any(np.diff(x) < 0):
+        raise ValueError("fit_from_where needs the fractions in ascending order of points")
+    rows, count = y.shape
+    starts = [k for k in range(count) if k == 0 or len(np.unique(x[k:])) >= MIN_CHECKED]
+    fits, p_values = [], []
+    for k in starts:
+        fit = fit_curves(x[k:], y[:, k:], se[:, k:], huber)
+        chi2 = (((y[:, k:] - fit.predict(x[k:])) / se[:, k:]) ** 2).sum(-1)
+        dof = np.full(rows, len(np.unique(x[k:])) - 3)
+        p = stats.chi2.sf(chi2, np.maximum(dof, 1)) if dof[0] > 0 else np.ones(rows)
+        huber_weights = np.full((rows, count), np.nan)
+        huber_weights[:, k:] = fit.huber
+        fits.append(CurveFits(fit.a, fit.b, fit.c, huber_weights, np.full(rows, k), chi2, dof))
+        p_values.append(p)
+    p_values = np.array(p_values)  # (starts, rows)
+    passing = p_values >= LACK_OF_FIT_P
+    choice = np.where(passing.any(axis=0), passing.argmax(axis=0), 0)
+    pick = np.arange(rows)
+    return CurveFits(
+        *(np.array([getattr(f, key) for f in fits])[choice, pick] for key in ("a", "b", "c")),
+        huber=np.array([f.huber for f in fits])[choice, pick],
+        start=np.array([f.start for f in fits])[choice, pick],
+        chi2=np.array([f.chi2 for f in fits])[choice, pick],
+        dof=np.array([f.dof for f in fits])[choice, pick],
+    )
+
+
 # ---------------------------------------------------------------------------------------------
 # The data
 
@@ -258,11 +323,12 @@ def _check(table: pd.DataFrame, points_by_p: Mapping[int, int], reference: int) 
     mse = pd.to_numeric(table["mse"], errors="coerce").to_numpy(float)
     bad = ~np.isfinite(mse) | (mse < 0)
     if bad.any():
-        row = table[bad].iloc[0]
-        replicate = f", replicate {row['replicate']}" if "replicate" in table else ""
+        first = table.index[bad][0]
+        replicate = f", replicate {table.at[first, 'replicate']}" if "replicate" in table else ""
         raise ConfigError(
-            f"P={row['P']}{replicate}, point {row['point']}: validation MSE {row['mse']!r} is not "
-            f"a finite number >= 0 ({int(bad.sum())} such value(s) in the table)"
+            f"P={table.at[first, 'P']}{replicate}, point {table.at[first, 'point']}: validation "
+            f"MSE {float(mse[bad][0])} is not a finite number >= 0 ({int(bad.sum())} such "
+            "value(s) in the table)"
         )
     fractions = sorted(int(p) for p in table["P"].unique())
     unknown = [p for p in fractions if p not in points_by_p]
@@ -270,18 +336,20 @@ def _check(table: pd.DataFrame, points_by_p: Mapping[int, int], reference: int) 
         raise ConfigError(f"points probed unknown for P = {unknown} (points_by_p)")
 
 
-def _relative_variances(means: np.ndarray) -> np.ndarray:
+def _relative_variances(means: np.ndarray) -> tuple[np.ndarray, float]:
     """(P,) variance of each fraction's mean relative to itself, after dividing each replicate and
-    block by what every fraction shares there (their mean); `means` (P, R, K) block means."""
+    block by what every fraction shares there (their mean), and the median of their
+    Satterthwaite degrees of freedom; `means` (P, R, K) block means."""
     shared = means.mean(axis=0, keepdims=True)
     ratio = means / np.where(shared > 0, shared, 1.0)
-    _, se, _ = contrast(ratio, np.zeros_like(ratio), 0.0)
+    _, se, df = contrast(ratio, np.zeros_like(ratio), 0.0)
     variance = (se / ratio.mean(axis=(-2, -1))) ** 2
+    df = float(np.median(np.where(np.isfinite(df), df, means.shape[-1] - 1.0)))
     positive = variance[variance > 0]
     if positive.size == 0:
-        return np.ones_like(variance)
+        return np.ones_like(variance), df
     floor = max(float(np.median(variance)), float(positive.min())) / WEIGHT_CEILING
-    return np.maximum(variance, floor)
+    return np.maximum(variance, floor), df
 
 
 def resample_means(means: np.ndarray, pick_r: np.ndarray, pick_k: np.ndarray) -> np.ndarray:
@@ -319,8 +387,18 @@ def resample_means(means: np.ndarray, pick_r: np.ndarray, pick_k: np.ndarray) ->
     return out.T
 
 
-def _percentiles(values: np.ndarray, level: float) -> tuple[float, float]:
+def expanded_tail(level: float, df: float) -> float:
+    """The tail of the bootstrap distribution a `level` interval takes, expanded for few degrees
+    of freedom: the normal tail beyond Student's t quantile on `df` (Hesterberg's expanded
+    percentile interval), so that a spread estimated from a handful of blocks or replicates
+    widens the interval as a t interval would."""
     tail = (1 - level) / 2
+    if not np.isfinite(df) or df <= 0:
+        return tail
+    return float(stats.norm.sf(stats.t.isf(tail, max(df, 1.0))))
+
+
+def _percentiles(values: np.ndarray, tail: float) -> tuple[float, float]:
     low, high = np.quantile(values, [tail, 1 - tail])
     return float(low), float(high)
 
@@ -349,7 +427,7 @@ def _not_fitted(frame: pd.DataFrame, reason: str, common: dict) -> LearningCurve
         status=NOT_FITTED,
         reason=reason,
         fractions=frame.assign(
-            se=nan, huber=nan, weight=nan, fitted=nan, fitted_low=nan, fitted_high=nan
+            in_fit=False, se=nan, huber=nan, weight=nan, fitted=nan, fitted_low=nan, fitted_high=nan
         ),
         parameters=dict.fromkeys("abc", (nan, nan, nan)),
         answer=nan,
@@ -358,6 +436,9 @@ def _not_fitted(frame: pd.DataFrame, reason: str, common: dict) -> LearningCurve
         chi2=nan,
         dof=0,
         draws=None,
+        df=nan,
+        tail=nan,
+        start_share=nan,
         **common,
     )
 
@@ -385,7 +466,7 @@ def fit_learning_curve(
         raise ConfigError(f"the learning curve's interval level must be in (0, 1), got {level}")
     if bootstrap < 1:
         raise ConfigError(f"the learning curve needs at least one bootstrap draw, got {bootstrap}")
-    fractions = sorted(int(p) for p in means_by_p)
+    fractions = sorted((int(p) for p in means_by_p), key=lambda p: (points_by_p.get(p, 0), p))
     if reference not in fractions:
         raise ConfigError(
             f"the learning curve needs the reference fraction P={reference}; have {fractions}"
@@ -441,43 +522,49 @@ def fit_learning_curve(
         zero = [p for p, m in zip(fractions, observed, strict=True) if m <= 0]
         reason = f"the mean validation MSE of P = {zero} % is zero"
         return _not_fitted(frame, reason, common)
-    relative = _relative_variances(means)
+    relative, df = _relative_variances(means)
+    tail = expanded_tail(level, df)
     se = observed * np.sqrt(relative)
-    fit = fit_curves(x, observed[None], se[None])
+    fit = fit_from_where(x, observed[None], se[None])
+    start = int(fit.start[0])
     rng = np.random.default_rng([int(seed), 0xC0B7E])
     pick_r = rng.integers(replicates, size=(bootstrap, replicates))
     pick_k = rng.integers(blocks, size=(bootstrap, blocks))
-    draws = fit_curves(x, resample_means(means, pick_r, pick_k), se[None])
-    smallest = float(n.min())
-    answer = max(float(crossing(fit, margin)[0]) * n_ref, smallest)
-    low, high = _percentiles(np.maximum(crossing(draws, margin) * n_ref, smallest), level)
+    draws = fit_from_where(x, resample_means(means, pick_r, pick_k), se[None])
+    floor = float(n[start])
+    answer = max(float(crossing(fit, margin)[0]) * n_ref, floor)
+    answers = np.maximum(crossing(draws, margin) * n_ref, n[draws.start])
+    low, high = _percentiles(answers, tail)
     parameters = {
-        key: (float(getattr(fit, key)[0]), *_percentiles(getattr(draws, key), level))
+        key: (float(getattr(fit, key)[0]), *_percentiles(getattr(draws, key), tail))
         for key in "abc"
     }
     fitted = fit.predict(x)[0]
-    tail = (1 - level) / 2
     band = np.quantile(draws.predict(x), [tail, 1 - tail], axis=0)
     weight = fit.huber[0] / relative
     frame = frame.assign(
+        in_fit=np.arange(len(fractions)) >= start,
         se=se,
         huber=fit.huber[0],
-        weight=weight / weight.sum(),
+        weight=weight / np.nansum(weight),
         fitted=fitted,
         fitted_low=band[0],
         fitted_high=band[1],
     )
     return LearningCurve(
-        status=FLAT if answer <= smallest else FITTED,
+        status=FLAT if answer <= floor else FITTED,
         reason="",
         fractions=frame,
         parameters=parameters,
         answer=_points_up(answer),
         answer_low=_points_up(low),
         answer_high=_points_up(high),
-        chi2=float(np.sum(((observed - fitted) / se) ** 2)),
-        dof=int(len(np.unique(n)) - 3),
+        chi2=float(fit.chi2[0]),
+        dof=int(fit.dof[0]),
         draws=draws,
+        df=df,
+        tail=tail,
+        start_share=float(np.mean(draws.start == start)),
         **common,
     )
 
@@ -534,9 +621,23 @@ def curve_table(curve: LearningCurve) -> pd.DataFrame:
             "high": float(curve.blocks),
             "note": f"value: bootstrap draws (seed {curve.seed}); low: replicates; high: blocks",
         },
+        {
+            "quantity": "fitted_from",
+            "P": None
+            if curve.status == NOT_FITTED
+            else min(
+                curve.fractions.loc[curve.fractions["in_fit"].astype(bool), "P"], default=None
+            ),
+            "points": None if curve.status == NOT_FITTED else curve.smallest_points,
+            "value": curve.start_share,
+            "note": "the smallest fraction fitted; value: share of the bootstrap draws fitted "
+            "from it too",
+        },
     ]
     for row in curve.fractions.itertuples():
         common = {"P": int(row.P), "points": int(row.points)}
+        left_out = curve.status != NOT_FITTED and not row.in_fit
+        where = "; left out of the fit: before the power law holds" if left_out else ""
         rows += [
             {
                 **common,
@@ -552,7 +653,7 @@ def curve_table(curve: LearningCurve) -> pd.DataFrame:
                 "value": row.fitted,
                 "low": row.fitted_low,
                 "high": row.fitted_high,
-                "note": f"{interval} band",
+                "note": f"{interval} band{where}",
             },
             {
                 **common,
@@ -560,7 +661,8 @@ def curve_table(curve: LearningCurve) -> pd.DataFrame:
                 "value": row.weight,
                 "low": row.se,
                 "high": row.huber,
-                "note": "share of the fit; low: standard error; high: Huber weight (1: on the curve)",
+                "note": "share of the fit; low: standard error; high: Huber weight (1: on the curve)"
+                + where,
             },
         ]
     frame = pd.DataFrame(rows, columns=CURVE_COLUMNS)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from threedcal.evaluate.ablation_reading import answer_interval
 from threedcal.evaluate.learning_curve import FLAT, NOT_FITTED, LearningCurve
 from threedcal.plotting import pyplot
 
@@ -24,20 +25,32 @@ def learning_curve_figure(curve: LearningCurve, path: str | Path, title: str) ->
     for row in frame.itertuples():
         replicates = curve.replicate_means[int(row.P)]
         ax.plot(np.full(replicates.shape, row.points), replicates, ".", c="0.55", ms=4, zorder=2)
-    ax.errorbar(
-        frame["points"],
-        frame["mean_mse"],
-        yerr=[
-            frame["mean_mse"] - frame["replicate_low"],
-            frame["replicate_high"] - frame["mean_mse"],
-        ],
-        fmt="o",
-        c="k",
-        ms=5,
-        capsize=3,
-        zorder=3,
-        label=f"mean of {curve.replicates} replicate(s) (bar: their range; dots: each)",
-    )
+    used = frame["in_fit"].astype(bool) | (curve.status == NOT_FITTED)
+    for part, face, label in (
+        (
+            frame[used],
+            "k",
+            f"mean of {curve.replicates} replicate(s) (bar: their range; dots: each)",
+        ),
+        (frame[~used], "white", "left out of the fit: before the power law holds"),
+    ):
+        if part.empty:
+            continue
+        ax.errorbar(
+            part["points"],
+            part["mean_mse"],
+            yerr=[
+                part["mean_mse"] - part["replicate_low"],
+                part["replicate_high"] - part["mean_mse"],
+            ],
+            fmt="o",
+            c="k",
+            mfc=face,
+            ms=5,
+            capsize=3,
+            zorder=3,
+            label=label,
+        )
     for row in frame.itertuples():
         ax.annotate(
             f"P = {int(row.P)} %",
@@ -99,16 +112,16 @@ def _curve(ax, curve: LearningCurve) -> None:
     ax.axvspan(low_end, curve.answer_high, color=ANSWER_COLOUR, alpha=0.15, lw=0)
     ax.axvline(curve.answer, c=ANSWER_COLOUR, lw=1.8)
     below = "≤ " if curve.status == FLAT else ""
-    interval = (
-        f"≤ {curve.smallest_points}" if curve.low_censored else f"{int(curve.answer_low)}"
-    ) + f" to {int(curve.answer_high)}"
+    interval = answer_interval(
+        curve.answer_low, curve.answer_high, curve.smallest_points, curve.level
+    ).replace("at or below", "≤")
     ax.plot(
         [],
         [],
         c=ANSWER_COLOUR,
         lw=6,
         alpha=0.5,
-        label=f"answer {below}{int(curve.answer)} points ({level} interval {interval})",
+        label=f"answer {below}{int(curve.answer)} points ({interval})",
     )
     ax.annotate(
         f"{below}{int(curve.answer)} points",
