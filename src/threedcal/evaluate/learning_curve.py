@@ -403,6 +403,59 @@ def _percentiles(values: np.ndarray, tail: float) -> tuple[float, float]:
     return float(low), float(high)
 
 
+@dataclass(frozen=True)
+class Crossings:
+    """The learning curves of N studies (`crossings`), each with its bootstrap: arrays over studies,
+    the draws study after study."""
+
+    fit: CurveFits  # N rows
+    draws: CurveFits  # N x bootstrap rows
+    relative: np.ndarray  # (N, P) relative variance of each fraction's mean
+    se: np.ndarray  # (N, P) standard error of each fraction's mean
+    df: np.ndarray  # (N,) degrees of freedom of the spread (median over fractions)
+    tail: np.ndarray  # (N,) each tail the interval cuts from the bootstrap distribution
+    answer: np.ndarray  # (N,) points within the margin, at least the smallest fraction fitted
+    low: np.ndarray
+    high: np.ndarray
+
+
+def crossings(
+    means: np.ndarray,
+    points: np.ndarray,
+    reference_points: float,
+    margin: float,
+    level: float,
+    bootstrap: int,
+    rng: np.random.Generator,
+) -> Crossings:
+    """The fewest points within `margin` of the reference and their `level` intervals for N
+    studies at once: `means` (N, P, R, K) block means, fractions in ascending `points` (P,); all
+    fits of every study and bootstrap draw in one vectorised call."""
+    means = np.asarray(means, float)
+    studies, _, replicates, blocks = means.shape
+    x = np.asarray(points, float) / reference_points
+    observed = means.mean(axis=(-2, -1))  # (N, P)
+    variances = [_relative_variances(study) for study in means]
+    relative = np.array([v for v, _ in variances])
+    df = np.array([d for _, d in variances])
+    tail = np.array([expanded_tail(level, d) for d in df])
+    se = observed * np.sqrt(relative)
+    fit = fit_from_where(x, observed, se)
+    resampled = []
+    for study in means:
+        pick_r = rng.integers(replicates, size=(bootstrap, replicates))
+        pick_k = rng.integers(blocks, size=(bootstrap, blocks))
+        resampled.append(resample_means(study, pick_r, pick_k))
+    draws = fit_from_where(x, np.concatenate(resampled), np.repeat(se, bootstrap, axis=0))
+    floor = np.asarray(points, float)
+    answer = np.maximum(crossing(fit, margin) * reference_points, floor[fit.start])
+    drawn = np.maximum(crossing(draws, margin) * reference_points, floor[draws.start])
+    drawn = drawn.reshape(studies, bootstrap)
+    low = np.array([np.quantile(d, t) for d, t in zip(drawn, tail, strict=True)])
+    high = np.array([np.quantile(d, 1 - t) for d, t in zip(drawn, tail, strict=True)])
+    return Crossings(fit, draws, relative, se, df, tail, answer, low, high)
+
+
 def learning_curve(
     table: pd.DataFrame,
     blocks: pd.Series,
@@ -522,19 +575,12 @@ def fit_learning_curve(
         zero = [p for p, m in zip(fractions, observed, strict=True) if m <= 0]
         reason = f"the mean validation MSE of P = {zero} % is zero"
         return _not_fitted(frame, reason, common)
-    relative, df = _relative_variances(means)
-    tail = expanded_tail(level, df)
-    se = observed * np.sqrt(relative)
-    fit = fit_from_where(x, observed[None], se[None])
-    start = int(fit.start[0])
     rng = np.random.default_rng([int(seed), 0xC0B7E])
-    pick_r = rng.integers(replicates, size=(bootstrap, replicates))
-    pick_k = rng.integers(blocks, size=(bootstrap, blocks))
-    draws = fit_from_where(x, resample_means(means, pick_r, pick_k), se[None])
+    found = crossings(means[None], n, n_ref, margin, level, bootstrap, rng)
+    fit, draws, tail, relative = found.fit, found.draws, float(found.tail[0]), found.relative[0]
+    se, start = found.se[0], int(fit.start[0])
     floor = float(n[start])
-    answer = max(float(crossing(fit, margin)[0]) * n_ref, floor)
-    answers = np.maximum(crossing(draws, margin) * n_ref, n[draws.start])
-    low, high = _percentiles(answers, tail)
+    answer, low, high = (float(getattr(found, key)[0]) for key in ("answer", "low", "high"))
     parameters = {
         key: (float(getattr(fit, key)[0]), *_percentiles(getattr(draws, key), tail))
         for key in "abc"
@@ -562,7 +608,7 @@ def fit_learning_curve(
         chi2=float(fit.chi2[0]),
         dof=int(fit.dof[0]),
         draws=draws,
-        df=df,
+        df=float(found.df[0]),
         tail=tail,
         start_share=float(np.mean(draws.start == start)),
         **common,
