@@ -128,6 +128,8 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         "stats/tests.png",
         "stats/power.csv",
         "stats/recommendation.txt",
+        "stats/learning_curve.csv",
+        "stats/learning_curve.png",
         "objects/errors.csv",
         "objects/figures/pill_by_P.png",
         "models/inference.json",
@@ -177,7 +179,13 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert validation.groupby(["P", "replicate"])["point"].apply(frozenset).nunique() == 1
     tests = pd.read_csv(stats_dir / "tests.csv")
     assert set(tests["family"]) == {"paper", "paired", "equivalence", "placebo"}
-    assert "margin of mean validation MSE" in (stats_dir / "recommendation.txt").read_text()
+    recommendation = (stats_dir / "recommendation.txt").read_text().splitlines()
+    assert "margin of mean validation MSE" in recommendation[0]
+    # two fractions: no curve of three parameters, and the line says so
+    assert recommendation[1].startswith("learning curve not fitted: a curve of three parameters")
+    curve = pd.read_csv(stats_dir / "learning_curve.csv").set_index("quantity")
+    assert curve.loc["points_within_margin", "note"].startswith("not fitted")
+    assert (stats_dir / "learning_curve.png").stat().st_size > 0
     # `make cluster-test` compares this study's outputs with a Slurm run's byte for byte, timing
     # columns excepted: every table that times something must be named there.
     assert cluster_check().uncovered_timing_tables(tmp_path / "results") == []
