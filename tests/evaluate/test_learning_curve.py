@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from threedcal.errors import ConfigError
-from threedcal.evaluate.ablation import spatial_blocks
+from threedcal.evaluate.ablation import contrast, spatial_blocks
 from threedcal.evaluate.ablation_reading import (
     curve_sentence,
     curve_summary,
@@ -27,6 +27,7 @@ from threedcal.evaluate.learning_curve import (
     fit_curves,
     fit_learning_curve,
     learning_curve,
+    resample_means,
 )
 from threedcal.evaluate.learning_curve_figure import learning_curve_figure
 
@@ -132,6 +133,27 @@ def test_the_bootstrap_interval_covers_the_truth_at_about_its_nominal_rate():
     covered = (found.low <= true_answer()) & (true_answer() <= found.high)
     assert 0.82 <= covered.mean() <= 0.98
     assert np.median(found.answer) == pytest.approx(true_answer(), rel=0.02)
+
+
+@pytest.mark.parametrize("replicates, blocks", [(3, 4), (8, 6), (1, 6)])
+def test_the_bootstrap_spread_of_a_mean_is_its_variance_components(replicates, blocks):
+    """The rescaled draws of one fraction's block means vary as the two-way random-effects model
+    says its grand mean does, (MS_R + MS_K - MS_E) / (R K) (contrast's), not three times its
+    interaction as plain resampling of rows and columns would; their mean is the table's."""
+    rng = np.random.default_rng(replicates)
+    means = (
+        1
+        + 0.5 * rng.standard_normal((replicates, 1))
+        + 0.3 * rng.standard_normal((1, blocks))
+        + 0.2 * rng.standard_normal((replicates, blocks))
+    )
+    draws = 40_000
+    pick_r = rng.integers(replicates, size=(draws, replicates))
+    pick_k = rng.integers(blocks, size=(draws, blocks))
+    drawn = resample_means(means[None], pick_r, pick_k)[:, 0]
+    _, se, _ = contrast(means, np.zeros_like(means), 0.0)
+    assert drawn.var() == pytest.approx(float(se) ** 2, rel=0.03)
+    assert drawn.mean() == pytest.approx(means.mean(), abs=3 * float(se) / math.sqrt(draws))
 
 
 def test_the_interval_widens_for_few_degrees_of_freedom():

@@ -10,8 +10,10 @@ rest falls. The answer is the n whose predicted MSE is (1 + margin) times the pr
 
     n* = n_ref · (1 + margin · (a + b) / b)^(-1 / c)
 
-never extrapolated below the smallest fraction measured (a curve flat over the measured range
-answers "at or below" it).
+never extrapolated below the smallest fraction fitted (a curve flat over the fitted range answers
+"at or below" it). Learning curves follow the power law past a small-data region: where the fit
+through every fraction misses their means, the smallest are left out one by one while that mends
+it (`fit_from_where`).
 
 Each fraction's mean is the mean of its block means (replicates x spatial blocks), the quantity
 the TOST compares. The fit is weighted by each fraction's own noise: the variance of its mean
@@ -29,7 +31,9 @@ coordinates and the nested subsets of a replicate across fractions. Resampling r
 a two-way table together counts their interaction three times over; so each fraction's block means
 are split into replicate, block and residual effects, resampled by those indices, and each rescaled
 so that its spread is its variance component (the moment estimates of `contrast`), as in the
-residual bootstrap of multilevel models (Carpenter, Goldstein and Rasbash 2003).
+residual bootstrap of multilevel models (Carpenter, Goldstein and Rasbash 2003). Each draw is
+fitted afresh, small-data check included, and the percentile interval is widened for the few
+degrees of freedom a handful of replicates and blocks give (`expanded_tail`).
 """
 
 from __future__ import annotations
