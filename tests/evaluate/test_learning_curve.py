@@ -225,8 +225,9 @@ def test_two_fractions_are_not_fitted_and_say_why():
     written = curve_table(curve)
     assert written.loc[0, "note"].startswith("not fitted: a curve of three parameters")
     assert curve_summary(written).startswith("not fitted (a curve of three parameters")
-    tests = read_ablation(table, blocks, POINTS, bootstrap=200)
-    assert tests.comparison is None and len(tests.text.splitlines()) == 2
+    reading = read_ablation(table, blocks, POINTS, bootstrap=200)
+    assert reading.comparison is None and len(reading.text.splitlines()) == 2
+    assert readings_compared(reading.tests, curve, POINTS) is None
 
 
 def test_three_fractions_fit_exactly_with_no_degrees_of_freedom_left():
