@@ -125,9 +125,7 @@ def test_the_bootstrap_interval_covers_the_truth_at_about_its_nominal_rate():
     true crossing in about 90 % of them (120 studies: 3 standard errors is +-8 %)."""
     means = {p: power_law(n) for p, n in POINTS.items()}
     rng = np.random.default_rng(0)
-    studies = np.stack(
-        [np.stack(list(block_means(rng, 8, 6, means).values())) for _ in range(120)]
-    )
+    studies = np.stack([np.stack(list(block_means(rng, 8, 6, means).values())) for _ in range(120)])
     points = np.array(list(POINTS.values()), float)
     found = crossings(studies, points, POINTS[80], MARGIN, 0.90, 150, rng)
     covered = (found.low <= true_answer()) & (true_answer() <= found.high)
