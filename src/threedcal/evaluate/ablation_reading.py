@@ -253,8 +253,7 @@ def curve_sentence(curve: LearningCurve) -> str:
         how += (
             f"; P = {_fractions_listed(left_out)} % left out: a power law through "
             f"{'it' if len(left_out) == 1 else 'them'} misses the larger fractions' means (a "
-            "learning curve follows one only past its small-data region; so in "
-            f"{curve.start_share * 100:.0f} % of the bootstrap draws)"
+            "learning curve follows one only past its small-data region)"
         )
     measured = "the smallest fraction the curve describes" if left_out else "the smallest measured"
     if curve.status == FLAT:

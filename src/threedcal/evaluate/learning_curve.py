@@ -13,7 +13,7 @@ rest falls. The answer is the n whose predicted MSE is (1 + margin) times the pr
 never extrapolated below the smallest fraction fitted (a curve flat over the fitted range answers
 "at or below" it). Learning curves follow the power law past a small-data region: where the fit
 through every fraction misses their means, the smallest are left out one by one while that mends
-it (`fit_from_where`).
+it (`fit_from_where`), a choice made once, on the data.
 
 Each fraction's mean is the mean of its block means (replicates x spatial blocks), the quantity
 the TOST compares. The fit is weighted by each fraction's own noise: the variance of its mean
@@ -32,7 +32,7 @@ a two-way table together counts their interaction three times over; so each frac
 are split into replicate, block and residual effects, resampled by those indices, and each rescaled
 so that its spread is its variance component (the moment estimates of `contrast`), as in the
 residual bootstrap of multilevel models (Carpenter, Goldstein and Rasbash 2003). Each draw is
-fitted afresh, small-data check included, and the percentile interval is widened for the few
+fitted afresh, from the same fraction, and the percentile interval is widened for the few
 degrees of freedom a handful of replicates and blocks give (`expanded_tail`).
 """
 
@@ -113,7 +113,6 @@ class LearningCurve:
     draws: CurveFits | None  # the bootstrap's fits (the figure's band); None when not fitted
     df: float  # degrees of freedom of the fractions' spread (median over fractions)
     tail: float  # each tail of the bootstrap distribution the intervals cut (expanded_tail)
-    start_share: float  # share of the bootstrap draws whose fit starts at the same fraction
 
     @property
     def smallest_points(self) -> int:
@@ -314,6 +313,28 @@ def fit_from_where(x, y, se, huber: float = HUBER_K) -> CurveFits:
     )
 
 
+def fit_from(x, y, se, start_of_study: np.ndarray) -> CurveFits:
+    """`fit_curves` of each row of y from its study's first fraction fitted: rows come study after
+    study, as many to a study, and `start_of_study` (N,) gives each study's first fraction."""
+    x = np.asarray(x, float)
+    y = np.atleast_2d(np.asarray(y, float))
+    se = np.broadcast_to(np.asarray(se, float), y.shape)
+    rows, count = y.shape
+    start = np.repeat(np.asarray(start_of_study, int), rows // len(start_of_study))
+    out = {key: np.zeros(rows) for key in ("a", "b", "c", "chi2", "dof")}
+    huber = np.full((rows, count), np.nan)
+    for k in np.unique(start):
+        chosen = start == k
+        fit = fit_curves(x[k:], y[chosen, k:], se[chosen, k:])
+        residual = (y[chosen, k:] - fit.predict(x[k:])) / se[chosen, k:]
+        for key, value in (("a", fit.a), ("b", fit.b), ("c", fit.c)):
+            out[key][chosen] = value
+        out["chi2"][chosen] = (residual**2).sum(-1)
+        out["dof"][chosen] = len(np.unique(x[k:])) - 3
+        huber[chosen, k:] = fit.huber
+    return CurveFits(huber=huber, start=start, **out)
+
+
 # ---------------------------------------------------------------------------------------------
 # The data
 
@@ -434,7 +455,9 @@ def crossings(
 ) -> Crossings:
     """The fewest points within `margin` of the reference and their `level` intervals for N
     studies at once: `means` (N, P, R, K) block means, fractions in ascending `points` (P,); all
-    fits of every study and bootstrap draw in one vectorised call."""
+    fits of every study and bootstrap draw in one vectorised call. The fractions a study's fit
+    leaves out (fit_from_where) are chosen once, on its data; its draws keep that choice (a draw's
+    lack-of-fit test would read the draw's own noise on top of the data's)."""
     means = np.asarray(means, float)
     studies, _, replicates, blocks = means.shape
     x = np.asarray(points, float) / reference_points
@@ -450,7 +473,7 @@ def crossings(
         pick_r = rng.integers(replicates, size=(bootstrap, replicates))
         pick_k = rng.integers(blocks, size=(bootstrap, blocks))
         resampled.append(resample_means(study, pick_r, pick_k))
-    draws = fit_from_where(x, np.concatenate(resampled), np.repeat(se, bootstrap, axis=0))
+    draws = fit_from(x, np.concatenate(resampled), np.repeat(se, bootstrap, axis=0), fit.start)
     floor = np.asarray(points, float)
     answer = np.maximum(crossing(fit, margin) * reference_points, floor[fit.start])
     drawn = np.maximum(crossing(draws, margin) * reference_points, floor[draws.start])
@@ -495,7 +518,6 @@ def _not_fitted(frame: pd.DataFrame, reason: str, common: dict) -> LearningCurve
         draws=None,
         df=nan,
         tail=nan,
-        start_share=nan,
         **common,
     )
 
@@ -614,7 +636,6 @@ def fit_learning_curve(
         draws=draws,
         df=float(found.df[0]),
         tail=tail,
-        start_share=float(np.mean(draws.start == start)),
         **common,
     )
 
@@ -661,8 +682,8 @@ def curve_table(curve: LearningCurve) -> pd.DataFrame:
             "quantity": "chi2",
             "value": curve.chi2,
             "low": float(curve.dof),
-            "note": f"weighted residuals squared; low: degrees of freedom; p = "
-            f"{curve.lack_of_fit_p:.3g}",
+            "note": "weighted residuals squared; low: degrees of freedom"
+            + (f"; p = {curve.lack_of_fit_p:.3g}" if np.isfinite(curve.lack_of_fit_p) else ""),
         },
         {
             "quantity": "design",
@@ -679,9 +700,7 @@ def curve_table(curve: LearningCurve) -> pd.DataFrame:
                 curve.fractions.loc[curve.fractions["in_fit"].astype(bool), "P"], default=None
             ),
             "points": None if curve.status == NOT_FITTED else curve.smallest_points,
-            "value": curve.start_share,
-            "note": "the smallest fraction fitted; value: share of the bootstrap draws fitted "
-            "from it too",
+            "note": "the smallest fraction fitted (smaller ones: before the power law holds)",
         },
     ]
     for row in curve.fractions.itertuples():

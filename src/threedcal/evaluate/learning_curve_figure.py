@@ -3,9 +3,11 @@ fitted curve with its bootstrap band, the margin, and the answer with its interv
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
+from matplotlib import ticker
 
 from threedcal.evaluate.ablation_reading import answer_interval
 from threedcal.evaluate.learning_curve import FLAT, NOT_FITTED, LearningCurve
@@ -16,7 +18,8 @@ CURVE_COLOUR = "tab:blue"
 
 
 def learning_curve_figure(curve: LearningCurve, path: str | Path, title: str) -> None:
-    """Mean validation MSE against points probed (log x and y): each replicate's mean (dots), each
+    """Mean validation MSE against points probed (log x; log y unless the errors lie within a
+    factor 3): each replicate's mean (dots), each
     fraction's mean with the replicates' range, the fitted curve and its pointwise bootstrap band,
     P = 80 %'s predicted MSE and the margin above it, the answer and its interval."""
     plt = pyplot()
@@ -63,23 +66,30 @@ def learning_curve_figure(curve: LearningCurve, path: str | Path, title: str) ->
     if curve.status == NOT_FITTED:
         ax.text(
             0.5,
-            0.95,
-            f"curve not fitted: {curve.reason}",
+            0.03,
+            textwrap.fill(f"curve not fitted: {curve.reason}", 70),
             transform=ax.transAxes,
             ha="center",
-            va="top",
+            va="bottom",
             fontsize=7,
-            wrap=True,
+            bbox={"facecolor": "white", "edgecolor": "0.7", "alpha": 0.9},
         )
     else:
         _curve(ax, curve)
-    ax.set(
-        xscale="log",
-        yscale="log",
-        xlabel="points probed (log)",
-        ylabel="mean validation gradient MSE (log)",
-        title=title,
-    )
+    ax.set(xscale="log", yscale="log", xlabel="points probed (log)", title=title)
+    ax.margins(x=0.08, y=0.12)
+    low, high = ax.get_ylim()
+    narrow = high / low < 3  # close fractions' errors read better on a linear axis
+    if narrow:
+        ax.set_yscale("linear")
+    ax.set_ylabel("mean validation gradient MSE" + ("" if narrow else " (log)"))
+    ax.xaxis.set_major_locator(ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+    if not narrow:
+        ax.yaxis.set_major_locator(ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:.3g}"))
+        ax.yaxis.set_minor_formatter(ticker.NullFormatter())
     ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     fig.savefig(path)
