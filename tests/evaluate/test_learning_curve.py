@@ -111,7 +111,7 @@ def test_exact_curves_across_the_parameter_range(a, b, c):
 def test_noisy_power_law_study_recovers_its_crossing_within_its_interval():
     means = {p: power_law(n) for p, n in POINTS.items()}
     table, blocks = study(means, replicates=4, seed=3)
-    curve = learning_curve(table, blocks, POINTS, bootstrap=400, seed=1)
+    curve = learning_curve(table, blocks, POINTS, bootstrap=200, seed=1)
     assert curve.status == FITTED
     assert curve.answer == pytest.approx(true_answer(), rel=0.08)
     assert curve.answer_low <= true_answer() <= curve.answer_high
@@ -252,7 +252,7 @@ def test_one_noisy_fraction_does_not_erase_the_answer():
     the recommendation says why the two differ, with P = 40 %'s replicate spread."""
     means = {p: power_law(n) for p, n in POINTS.items()}
     table, blocks = study(means, seed=6, factors={(40, 2): 1.4})
-    reading = read_ablation(table, blocks, POINTS, bootstrap=400, seed=2)
+    reading = read_ablation(table, blocks, POINTS, bootstrap=200, seed=2)
     equivalence = reading.tests[reading.tests["family"] == "equivalence"].set_index("P")
     assert not equivalence.loc[40, "significant"]
     assert reading.recommendation.startswith("probe at least 976 points (P = 80 %)")
@@ -278,7 +278,7 @@ def test_one_noisy_fraction_does_not_erase_the_answer():
 def test_readings_agree_when_the_tost_names_the_curves_fraction():
     means = {1: 3e-3, 5: 1.6e-3, 10: 1.25e-3, 20: 1.03e-3, 40: 1.01e-3, 80: 1e-3}
     table, blocks = study(means, seed=7, noise=0.05)
-    reading = read_ablation(table, blocks, POINTS, bootstrap=400)
+    reading = read_ablation(table, blocks, POINTS, bootstrap=200)
     assert reading.recommendation.startswith("probe at least 244 points: P = 20 %")
     assert reading.comparison.startswith(
         "the two readings agree: the TOST says 244 points (P = 20 %)"
@@ -291,7 +291,7 @@ def test_when_the_curve_asks_for_more_than_the_tost_it_says_why():
     margin, and the line says so, and that P = 20 %'s own test is then the better guide."""
     means = {1: 1.0e-2, 5: 4.0e-3, 10: 2.6e-3, 20: 1.04e-3, 40: 1.05e-3, 80: 1e-3}
     table, blocks = study(means, seed=8, noise=0.03)
-    reading = read_ablation(table, blocks, POINTS, bootstrap=300)
+    reading = read_ablation(table, blocks, POINTS, bootstrap=200)
     assert reading.recommendation.startswith("probe at least 244 points: P = 20 %")
     assert reading.curve.answer_low > POINTS[20]
     assert reading.comparison.startswith("the readings differ: the TOST says 244 points")
@@ -312,7 +312,7 @@ def test_fractions_before_the_power_law_holds_are_left_out():
     means = {p: power_law(n) for p, n in POINTS.items()}
     means[1] = 2.0e-3
     table, blocks = study(means, seed=11, noise=0.05)
-    curve = learning_curve(table, blocks, POINTS, bootstrap=300)
+    curve = learning_curve(table, blocks, POINTS, bootstrap=200)
     assert curve.left_out == [1] and curve.smallest_points == 61
     assert curve.answer == pytest.approx(true_answer(), rel=0.1)
     line = curve_sentence(curve)
@@ -331,7 +331,7 @@ def test_a_single_outlying_fraction_is_not_cut_away_with_the_small_ones():
     means = {p: power_law(n, b=0.3e-3, c=0.5) for p, n in POINTS.items()}
     means[20] = 1.04 * means[80]
     table, blocks = study(means, seed=8, noise=0.05)
-    curve = learning_curve(table, blocks, POINTS, bootstrap=300)
+    curve = learning_curve(table, blocks, POINTS, bootstrap=200)
     assert curve.left_out == []
     assert curve.answer == pytest.approx(true_answer(b=0.3e-3, c=0.5), rel=0.1)
     assert "misses the fractions' means by more than their spread" in curve_sentence(curve)
@@ -413,6 +413,6 @@ def test_the_figure_draws_each_kind_of_curve(tmp_path):
         "not_fitted": study({20: 1.1e-3, 80: 1e-3}, seed=10),
     }
     for name, (table, blocks) in cases.items():
-        curve = learning_curve(table, blocks, POINTS, bootstrap=100)
+        curve = learning_curve(table, blocks, POINTS, bootstrap=50)
         learning_curve_figure(curve, tmp_path / f"{name}.png", name)
         assert (tmp_path / f"{name}.png").stat().st_size > 10_000
