@@ -17,6 +17,7 @@ from threedcal.evaluate.objects import check_object_files
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
 from threedcal.model.crossval import CV_METHODS, method_settings
+from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
 from threedcal.model.sim2real import (
     SIM2REAL_CONDITIONS,
     sensor_profile,
@@ -29,12 +30,12 @@ from threedcal.scenes import (
     BENCH_TRUTH,
     COLLECT,
     CONVERGENCE,
-    CONVERGENCE_RUN,
     CV_FOLDS,
     CV_MODEL_DIR,
     ENVIRONMENT,
     INFERENCE_SPEED,
     INTEGRATION_STUDY,
+    LOCKSTEP_RESUME,
     OBJECTS,
     PRESETS,
     PRESSING,
@@ -61,10 +62,13 @@ from threedcal.scenes import (
     STORE,
     SUMMARY,
     TRAINSET,
+    TWICE_STATS,
     ablation_scenes,
     first_runs,
     full_model_file,
     has_objects,
+    lockstep_groups,
+    lockstep_outputs,
     model_file,
     quick_scenes,
     realism_files,
@@ -113,6 +117,10 @@ COLLECTED_SCENES = [
     name for name in SCENES if name not in IMPORTED_SCENES and name not in QUICK_SCENES
 ]
 ABLATION_SCENES = ablation_scenes(config)
+# an ablation's models train a fraction at a time (rule train_ablation); every other scene's one
+# model in rule train
+LOCKSTEP_GROUPS = lockstep_groups(config)
+SINGLE_MODEL_SCENES = [name for name in SCENES if name not in ABLATION_SCENES]
 OBJECT_SCENES = [name for name in SCENES if has_objects(config["scenes"][name])]
 RESKIN_SCENES = reskin_scenes(config)
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).

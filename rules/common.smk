@@ -37,6 +37,36 @@ def scene_models(wildcards):
     }
 
 
+def twice_files(wildcards, leaf):
+    """Every model's file `leaf` at twice the budget (twice/), by fraction and replicate."""
+    scene = config["scenes"][wildcards.scene]
+    return [
+        model_file(wildcards.scene, p, r, f"{TWICE_DIR}/{leaf}")
+        for p, r in model_keys(scene)
+    ]
+
+
+def twice_models(wildcards):
+    """{"P5_r0": ".../models/P5/r0/twice/model.pt", ...}: the ablation at twice the budget."""
+    keys = model_keys(config["scenes"][wildcards.scene])
+    return {
+        f"P{p}_r{r}": path
+        for (p, r), path in zip(keys, twice_files(wildcards, "model.pt"))
+    }
+
+
+def ablation_snapshots(wildcards):
+    """Every model's snapshots at the cycle ends before the budget."""
+    scene = config["scenes"][wildcards.scene]
+    steps = scene["ablation"]["steps"]
+    return [
+        model_file(wildcards.scene, p, r, f"{SNAPSHOT_DIR}/{snapshot_name(end)}")
+        for p, r in model_keys(scene)
+        for end in cycle_ends(steps)
+        if end < steps
+    ]
+
+
 def ablation_losses(wildcards):
     scene = config["scenes"][wildcards.scene]
     return [

@@ -110,28 +110,39 @@ rule stats_overview:
         "../scripts/stats_overview.py"
 
 
+# The ablation read again on the same models trained on to twice the budget (ablation.convergence).
+rule stats_twice:
+    input:
+        unpack(twice_models),
+        trainset=TRAINSET,
+        splits=SPLITS,
+    output:
+        **TWICE_STATS,
+    log:
+        "results/{scene}/logs/stats_twice.log",
+    benchmark:
+        "results/{scene}/benchmarks/stats_twice.tsv"
+    wildcard_constraints:
+        scene=one_of(ABLATION_SCENES),
+    conda:
+        CONDA_ENV
+    params:
+        models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
+        settings=config["stats"],
+        seed=scene_seed,
+        code=code_digest("stats_twice.py"),
+    script:
+        "../scripts/stats_twice.py"
+
+
+# Every fraction's error against training time: the snapshots at the earlier cycle ends scored,
+# with the validation errors at the budget and at twice it; per P, the change from one to the other.
 rule convergence:
     input:
-        study=lambda wildcards: [
-            model_file(wildcards.scene, p, 0)
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
-        study_losses=lambda wildcards: [
-            model_file(wildcards.scene, p, 0, "losses.csv")
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
-        twice=lambda wildcards: [
-            target(f"{CONVERGENCE_RUN}/snapshots", wildcards.scene).replace(
-                "{p}", str(p)
-            )
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
-        twice_losses=lambda wildcards: [
-            target(f"{CONVERGENCE_RUN}/losses.csv", wildcards.scene).replace(
-                "{p}", str(p)
-            )
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
+        snapshots=ablation_snapshots,
+        twice_losses=lambda wildcards: twice_files(wildcards, "losses.csv"),
+        budget_mse=STATS["validation_mse"],
+        twice_mse=TWICE_STATS["validation_mse"],
         trainset=TRAINSET,
     output:
         convergence=CONVERGENCE["convergence"],
@@ -151,9 +162,8 @@ rule convergence:
     conda:
         CONDA_ENV
     params:
-        fractions=lambda wildcards: convergence_fractions(
-            config["scenes"][wildcards.scene]
-        ),
+        models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
+        steps=lambda wildcards: config["scenes"][wildcards.scene]["ablation"]["steps"],
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
         code=code_digest("convergence.py"),
     script:

@@ -249,7 +249,14 @@ def test_resources_names_every_wildcard_job_by_its_rule():
     }
     checked = {}
     for smk in (REPO / "rules").glob("*.smk"):
-        blocks = re.split(r"^(?:local)?rule (\w+):", smk.read_text(), flags=re.MULTILINE)
+        # `rule x:`, or a rule defined in a loop (`rule:` then `name:`, its first name the base)
+        text = re.sub(
+            r"^(\s*)rule:\s*\n\s*name:\s*\n?\s*\"(\w+)\".*$",
+            r"rule \2:",
+            smk.read_text(),
+            flags=re.MULTILINE,
+        )
+        blocks = re.split(r"^\s*(?:local)?rule (\w+):", text, flags=re.MULTILINE)
         for rule, body in zip(blocks[1::2], blocks[2::2], strict=True):
             found = re.search(r"benchmark:\s*\n\s*\"([^\"]+)\"", body)
             if not found:
@@ -260,5 +267,5 @@ def test_resources_names_every_wildcard_job_by_its_rule():
                 )
                 checked[Path(name).stem] = (resources.rule_of(Path(name)), rule)
     assert {"train_P1_r0", "cv_lookup_fold5", "sim2real_real_only_kall_fold5"} <= set(checked)
-    assert {"train_twice_P20", "pretrain_digit_fots"} <= set(checked)
+    assert {"train_ablation_P20", "pretrain_digit_fots"} <= set(checked)
     assert all(got == rule for got, rule in checked.values()), checked

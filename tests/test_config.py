@@ -110,12 +110,9 @@ def test_training_fractions_default_to_one_full_model():
 def test_ablation_takes_a_list_or_fractions_with_replicates():
     plain = validate_config(config_with(ablation=[80, 5]))["scenes"]["s"]
     full = validate_config(config_with(ablation={"fractions": [5, 80], "replicates": 3}))
-    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1, "convergence": False}
-    assert full["scenes"]["s"]["ablation"] == {
-        "fractions": [5, 80],
-        "replicates": 3,
-        "convergence": False,
-    }
+    defaults = {"steps": 2000, "convergence": False, "batching": "auto"}
+    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1, **defaults}
+    assert full["scenes"]["s"]["ablation"] == {"fractions": [5, 80], "replicates": 3, **defaults}
     assert model_keys(full["scenes"]["s"]) == [(5, 0), (5, 1), (5, 2), (80, 0), (80, 1), (80, 2)]
     assert ablation_replicates(validate_config(config_with())["scenes"]["s"]) == 1
     assert "scenes.s.ablation.replicates: 0 is less than the minimum of 1" in error_of(

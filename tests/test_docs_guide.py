@@ -9,7 +9,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 DOCS = sorted((REPO / "docs").rglob("*.md"))
 PAGES = [REPO / "README.md", *DOCS]
-WORD_BUDGET = 20_500
+WORD_BUDGET = 20_000
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 COMMIT = re.compile(r"(?<![\w/.-])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}(?![\w-])")
 CITED_PAGE = re.compile(r"(?<![\w.])(?:docs|diagnostics)/[\w/.-]+?\.(?:md|png|py)")

@@ -14,6 +14,7 @@ from typing import Any
 from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.dataset.importers import check_import
 from threedcal.errors import ConfigError
+from threedcal.mount import scene_mount_values, with_mount
 from threedcal.profiles import ProfileNotFound, load_profile, resolve_profile
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
@@ -21,17 +22,30 @@ from threedcal.sim.marlin import parse_faults
 # The one fraction trained when a scene asks for no ablation: all training coordinates (80 % of all).
 FULL_TRAINING_P = 80
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
-IMPORT_IRRELEVANT = ("printer", "port", "camera", "reader", "probe", "plan", "bench", "pressing")
+IMPORT_IRRELEVANT = (
+    "printer",
+    "port",
+    "camera",
+    "reader",
+    "mount",
+    "probe",
+    "plan",
+    "bench",
+    "pressing",
+)
 # The built-in test objects (threedcal.evaluate.objects builds them); any other is an STL path.
 BUILTIN_OBJECTS = ("hemispheres", "pill", "pawn")
 
 
-def validate_config(config: Mapping, source: str = "config", *, check_files: bool = False) -> dict:
+def validate_config(
+    config: Mapping, source: str = "config", *, check_files: bool = False, new_mount: bool = False
+) -> dict:
     """Return a validated copy of `config` with defaults filled; raise ConfigError naming every bad key.
 
     Beyond the schema this finds what a run would refuse: unknown serial fault names, plans over the
     size limit, deeper than the sensor allows or outside the gel or the printer's travel.
     `check_files` (``threedcal config check``) also reads every imported dataset as its stage would.
+    `new_mount` (``threedcal rig``, which writes it): a scene's mount file may be missing.
     """
     if not isinstance(config, Mapping):
         raise ConfigError(
@@ -63,7 +77,7 @@ def validate_config(config: Mapping, source: str = "config", *, check_files: boo
     problems = [
         f"scenes.{name}.{msg}"
         for name, scene in config["scenes"].items()
-        for msg in _run_problems(scene, check_files)
+        for msg in _run_problems(scene, check_files, new_mount)
     ] + _realism_problems(config)
     problems += compare_problems(config)
     if problems:
@@ -99,13 +113,17 @@ def _realism_problems(config: Mapping) -> list[str]:
     return problems
 
 
-def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
+def _run_problems(scene: Mapping, check_files: bool, new_mount: bool = False) -> list[str]:
     """What the scene's stages would refuse at run time, found before anything runs."""
     try:
         sensor = load_profile("sensor", scene["sensor"])
         printer = load_profile("printer", scene["printer"]) if scene.get("printer") else None
     except ConfigError as exc:
         return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
+    try:
+        sensor = with_mount(sensor, scene_mount_values(scene, None, missing_ok=new_mount))
+    except ConfigError as exc:
+        return [str(exc)]
     if check_files and (scene.get("model") or {}).get("init") == "pretrained":
         # (the workflow finds them when it plans a training: `make pretrained` builds them)
         from threedcal.pretrained import shipped_weights
@@ -463,8 +481,10 @@ def _magnetic_problems(scene: Mapping) -> list[str]:
     return problems
 
 
-def load_config(path: str | Path, *, check_files: bool = False) -> dict:
-    return validate_config(load_yaml(path) or {}, source=str(path), check_files=check_files)
+def load_config(path: str | Path, *, check_files: bool = False, new_mount: bool = False) -> dict:
+    return validate_config(
+        load_yaml(path) or {}, source=str(path), check_files=check_files, new_mount=new_mount
+    )
 
 
 def scene_config(config: Mapping, scene: str) -> dict:
@@ -476,19 +496,25 @@ def scene_config(config: Mapping, scene: str) -> dict:
 
 
 def normalise_ablation(ablation: Any) -> dict:
-    """`ablation` in its full form {fractions: [...], replicates: R, convergence: bool}.
+    """`ablation` in its full form {fractions, replicates, steps, convergence, batching}.
 
-    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate.
+    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate; the
+    schema's defaults fill what a mapping leaves out.
     """
+    defaults = load_schema("config")["$defs"]["ablation"]["oneOf"][1]["properties"]
+    full = {key: spec["default"] for key, spec in defaults.items() if "default" in spec}
     if not ablation:
-        return {"fractions": [], "replicates": 1, "convergence": False}
+        return {**full, "fractions": []}
     if isinstance(ablation, Mapping):
+        full.update({k: v for k, v in ablation.items() if v is not None})
         return {
-            "fractions": list(ablation.get("fractions") or []),
-            "replicates": int(ablation.get("replicates", 1)),
-            "convergence": bool(ablation.get("convergence", False)),
+            **full,
+            "fractions": list(full.get("fractions") or []),
+            "replicates": int(full["replicates"]),
+            "steps": int(full["steps"]),
+            "convergence": bool(full["convergence"]),
         }
-    return {"fractions": list(ablation), "replicates": 1, "convergence": False}
+    return {**full, "fractions": list(ablation)}
 
 
 def training_fractions(scene: Mapping) -> list[int]:
@@ -502,13 +528,13 @@ def ablation_replicates(scene: Mapping) -> int:
 
 
 def convergence_fractions(scene: Mapping) -> list[int]:
-    """The fractions trained again at twice the budget (ablation.convergence): P = 80 and the
-    smallest; none without the option or an ablation."""
+    """The fractions whose models train on to twice the budget (ablation.convergence): every
+    fraction of an ablation with the option; none without it or an ablation."""
     ablation = normalise_ablation(scene.get("ablation"))
     fractions = training_fractions(scene)
     if not ablation["convergence"] or len(fractions) < 2 or FULL_TRAINING_P not in fractions:
         return []
-    return sorted({min(fractions), FULL_TRAINING_P})
+    return fractions
 
 
 def model_keys(scene: Mapping) -> list[tuple[int, int]]:

@@ -20,11 +20,14 @@ from threedcal.config import (
     is_imported,
     is_quick,
     model_keys,
+    normalise_ablation,
     quick_run,
     realism_sets,
     training_fractions,
 )
 from threedcal.errors import ConfigError
+from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
+from threedcal.mount import scene_mount_values
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -56,11 +59,12 @@ TRAINSET = f"{SCENE}/dataset/trainset"
 SPLITS = f"{SCENE}/dataset/splits.csv"
 REGISTRATION = f"{SCENE}/dataset/registration.json"
 REGISTRATION_FIGURE = f"{SCENE}/dataset/registration.png"
-# One training job per (P, replicate) (rules/train.smk), and the speed of the largest P's model.
+# One model per (P, replicate) (rules/train.smk), and the speed of the largest P's model. An
+# ablation trains a fraction's replicates in one job (threedcal.model.lockstep), which keeps its
+# state in LOCKSTEP_RESUME until it ends.
 MODEL_DIR = f"{SCENE}/models/P{{p}}/r{{r}}"
+LOCKSTEP_RESUME = f"{SCENE}/models/P{{p}}/resume.pt"
 INFERENCE_SPEED = f"{SCENE}/models/inference.json"
-# The convergence check's second training of a fraction P (rules/train.smk, train_twice).
-CONVERGENCE_RUN = f"{SCENE}/convergence/P{{p}}"
 # The weights shipped for `model.init: pretrained`, one network per sensor (rules/pretrained.smk).
 PRETRAINED_DIR = f"{RESULTS}/pretrained/{{sensor}}"
 # The quick calibration (rules/quick.smk), for scenes whose plan is `pattern: quick`: rounds of
@@ -88,7 +92,16 @@ STATS = _files(
     kde_figure="mse_kde.png",
     cost_figure="error_vs_cost.png",
 )
-# The convergence check (rules/stats.smk, ablation.convergence).
+# The ablation read again on the models trained on to twice the budget (ablation.convergence), and
+# every fraction's error against training time (rules/stats.smk).
+TWICE_STATS = _files(
+    f"{SCENE}/stats/twice",
+    validation_mse="validation_mse.csv",
+    tests="tests.csv",
+    recommendation="recommendation.txt",
+    learning_curve="learning_curve.csv",
+    learning_curve_figure="learning_curve.png",
+)
 CONVERGENCE = _files(
     f"{SCENE}/stats",
     convergence="convergence.csv",
@@ -176,25 +189,47 @@ RECORDED_PACKAGES = (
 # The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
 # stages that read the changed key (a new model preset never recollects).
 STAGE_KEYS = {
-    "collect": ("sensor", "printer", "port", "camera", "reader", "probe", "plan", "bench", "seed"),
-    "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
+    "collect": (
+        "sensor",
+        "printer",
+        "port",
+        "camera",
+        "reader",
+        "mount",
+        "probe",
+        "plan",
+        "bench",
+        "seed",
+    ),
+    "dataset": ("sensor", "mount", "probe", "import", "dataset", "ablation", "seed"),
     "object_presses": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "bench",
         "objects",
         "pressing",
         "seed",
     ),
-    "objects": ("sensor", "port", "objects", "pressing", "integrators", "seed", "torch_threads"),
+    "objects": (
+        "sensor",
+        "mount",
+        "port",
+        "objects",
+        "pressing",
+        "integrators",
+        "seed",
+        "torch_threads",
+    ),
     "quick": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "plan",
         "bench",
@@ -208,8 +243,16 @@ STAGE_KEYS = {
 
 
 def stage_config(scene: Mapping, stage: str) -> dict:
-    """The part of a scene's config that `stage` reads."""
-    return {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    """The part of a scene's config that `stage` reads. Of `ablation`, the subsets' fractions and
+    replicates alone: the training budget is not the dataset's. A `mount` file is read into its
+    values: a changed file is a changed config (the stage reruns, and reads what its params say)."""
+    part = {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    if "ablation" in part:
+        ablation = normalise_ablation(part["ablation"])
+        part["ablation"] = {key: ablation[key] for key in ("fractions", "replicates")}
+    if isinstance(part.get("mount"), str):
+        part["mount"] = scene_mount_values(scene)
+    return part
 
 
 def has_sim2real(scene: Mapping) -> bool:
@@ -256,7 +299,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if has_ablation(scene):
         targets += of(*STATS.values())
     if convergence_fractions(scene):
-        targets += of(*CONVERGENCE.values())
+        targets += of(*TWICE_STATS.values(), *CONVERGENCE.values())
     return targets
 
 
@@ -291,6 +334,47 @@ def has_ablation(scene: Mapping) -> bool:
 
 def ablation_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if has_ablation(scene)]
+
+
+def lockstep_groups(config: Mapping) -> dict[tuple[int, int, bool], list[str]]:
+    """Ablation scenes by (replicates, steps, convergence): one lockstep training rule each, whose
+    outputs (every replicate's model, snapshots and twice-the-budget model) these fix."""
+    groups: dict[tuple[int, int, bool], list[str]] = {}
+    for name in ablation_scenes(config):
+        ablation = normalise_ablation(config["scenes"][name].get("ablation"))
+        key = (
+            ablation["replicates"],
+            ablation["steps"],
+            bool(convergence_fractions(config["scenes"][name])),
+        )
+        groups.setdefault(key, []).append(name)
+    return groups
+
+
+def lockstep_outputs(replicates: int, steps: int, twice: bool) -> dict[str, list[str]]:
+    """The files one lockstep job writes for fraction {p} of scene {scene}: per replicate its
+    model, loss log and figure, its snapshots at the earlier cycle ends, and with `twice` its
+    model and loss log at twice the budget (threedcal.model.lockstep)."""
+
+    def each(leaf: str) -> list[str]:
+        return [model_file("{scene}", "{p}", r, leaf) for r in range(replicates)]
+
+    ends = cycle_ends(steps, twice)
+    outputs = {
+        "models": each("model.pt"),
+        "losses": each("losses.csv"),
+        "figures": each("losses.png"),
+        "snapshots": [
+            path
+            for end in ends
+            if end < steps
+            for path in each(f"{SNAPSHOT_DIR}/{snapshot_name(end)}")
+        ],
+    }
+    if twice:
+        outputs["twice"] = each(f"{TWICE_DIR}/model.pt")
+        outputs["twice_losses"] = each(f"{TWICE_DIR}/losses.csv")
+    return outputs
 
 
 def model_file(name: str, percent, replicate=0, leaf: str = "model.pt") -> str:

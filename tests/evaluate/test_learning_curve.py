@@ -13,7 +13,7 @@ from threedcal.evaluate.ablation import contrast, spatial_blocks
 from threedcal.evaluate.ablation_reading import (
     curve_sentence,
     curve_summary,
-    read_ablation,
+    read_validation_errors,
     readings_compared,
 )
 from threedcal.evaluate.learning_curve import (
@@ -223,7 +223,7 @@ def test_two_fractions_are_not_fitted_and_say_why():
     written = curve_table(curve)
     assert written.loc[0, "note"].startswith("not fitted: a curve of three parameters")
     assert curve_summary(written).startswith("not fitted (a curve of three parameters")
-    reading = read_ablation(table, blocks, POINTS, bootstrap=200)
+    reading = read_validation_errors(table, blocks, POINTS, bootstrap=200)
     assert reading.comparison is None and len(reading.text.splitlines()) == 2
     assert readings_compared(reading.tests, curve, POINTS) is None
 
@@ -252,7 +252,7 @@ def test_one_noisy_fraction_does_not_erase_the_answer():
     the recommendation says why the two differ, with P = 40 %'s replicate spread."""
     means = {p: power_law(n) for p, n in POINTS.items()}
     table, blocks = study(means, seed=6, factors={(40, 2): 1.4})
-    reading = read_ablation(table, blocks, POINTS, bootstrap=200, seed=2)
+    reading = read_validation_errors(table, blocks, POINTS, bootstrap=200, seed=2)
     equivalence = reading.tests[reading.tests["family"] == "equivalence"].set_index("P")
     assert not equivalence.loc[40, "significant"]
     assert reading.recommendation.startswith("probe at least 976 points (P = 80 %)")
@@ -278,7 +278,7 @@ def test_one_noisy_fraction_does_not_erase_the_answer():
 def test_readings_agree_when_the_tost_names_the_curves_fraction():
     means = {1: 3e-3, 5: 1.6e-3, 10: 1.25e-3, 20: 1.03e-3, 40: 1.01e-3, 80: 1e-3}
     table, blocks = study(means, seed=7, noise=0.05)
-    reading = read_ablation(table, blocks, POINTS, bootstrap=200)
+    reading = read_validation_errors(table, blocks, POINTS, bootstrap=200)
     assert reading.recommendation.startswith("probe at least 244 points: P = 20 %")
     assert reading.comparison.startswith(
         "the two readings agree: the TOST says 244 points (P = 20 %)"
@@ -291,7 +291,7 @@ def test_when_the_curve_asks_for_more_than_the_tost_it_says_why():
     margin, and the line says so, and that P = 20 %'s own test is then the better guide."""
     means = {1: 1.0e-2, 5: 4.0e-3, 10: 2.6e-3, 20: 1.04e-3, 40: 1.05e-3, 80: 1e-3}
     table, blocks = study(means, seed=8, noise=0.03)
-    reading = read_ablation(table, blocks, POINTS, bootstrap=200)
+    reading = read_validation_errors(table, blocks, POINTS, bootstrap=200)
     assert reading.recommendation.startswith("probe at least 244 points: P = 20 %")
     assert reading.curve.answer_low > POINTS[20]
     assert reading.comparison.startswith("the readings differ: the TOST says 244 points")
@@ -358,7 +358,7 @@ def test_an_mse_that_is_not_a_finite_number_at_or_above_zero_is_named(value):
     assert f"P=40, replicate 2, point {table.loc[row, 'point']}" in str(error.value)
     assert "not a finite number >= 0 (1 such value(s) in the table)" in str(error.value)
     with pytest.raises(ConfigError, match="P=40, replicate 2"):
-        read_ablation(table, blocks, POINTS)
+        read_validation_errors(table, blocks, POINTS)
 
 
 def test_a_fraction_without_its_points_or_the_reference_is_named():

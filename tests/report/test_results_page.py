@@ -135,15 +135,18 @@ def write_stats(root: Path, scene: Mapping) -> None:
         pd.DataFrame(
             {
                 "P": [fractions[0], 80],
-                "study_steps": [1280, 1068],
-                "study_seconds": [110.2, 91.7],
-                "study_mse": [0.0126, 0.0070],
-                "twice_steps": [2560, 2136],
-                "twice_seconds": [184.6, 198.5],
-                "twice_mse": [0.0098, 0.0040],
-                "change": [-0.2205, -0.4256],
+                "replicates": [3, 3],
+                "steps": [2000, 2000],
+                "budget_mse": [0.0126, 0.0070],
+                "twice_steps": [4000, 4000],
+                "twice_mse": [0.0098, 0.0068],
+                "change": [-0.2205, -0.0286],
+                "ci_low": [-0.25, -0.04],
+                "ci_high": [-0.19, -0.017],
             }
         ).to_csv(stats / "convergence.csv", index=False)
+        (stats / "twice").mkdir()
+        (stats / "twice/recommendation.txt").write_text("probe at least 150 points: P = 10 %\n")
 
 
 def write_real(root: Path, scene: Mapping) -> None:
@@ -402,7 +405,8 @@ def test_the_page_reads_each_figure_from_the_results(small):
         "0/1, U 1/1, means 12.0 %"
     ) in ablation
     # convergence
-    assert "| 80 | 1068 | 0.00700 | 0.00400 | -42.6 % |" in text
+    assert "| 80 | 2000 / 4000 | 0.00700 | 0.00680 | -2.9 % [-4.0 %, -1.7 %] | 3 |" in text
+    assert "- `sim` at twice: probe at least 150 points: P = 10 %" in text
     # real frames and sim-to-real: no simulator, or a simulator that pretrained only
     real = section(text, "## Real frames: cross-validated accuracy")
     assert f"*{SIM_COLUMN}* no (real images); *protocol* 6-fold grouped cross-validation." in real

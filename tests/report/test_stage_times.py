@@ -20,6 +20,7 @@ def bench(path, wall, rss, cpu, rerun=None):
     ("name", "stage"),
     [
         ("train_P20_r0.tsv", "train"),
+        ("train_ablation_P20.tsv", "train_ablation"),
         ("cv_model_fold3.tsv", "cv_model"),
         ("sim2real_real_only_kall_fold0.tsv", "sim2real_real_only"),
         ("sim2real_sim_real_k8_fold2.tsv", "sim2real_sim_real"),

@@ -237,18 +237,22 @@ def test_summary_states_the_convergence_check_per_fraction(tmp_path):
     pd.DataFrame(
         {
             "P": [1, 80],
-            "study_steps": [400, 2000],
-            "study_seconds": [5.0, 30.0],
-            "study_mse": [0.004, 0.002],
-            "twice_steps": [800, 4000],
-            "twice_seconds": [10.0, 60.0],
+            "replicates": [8, 8],
+            "steps": [2000, 2000],
+            "budget_mse": [0.004, 0.002],
+            "twice_steps": [4000, 4000],
             "twice_mse": [0.0041, 0.0019],
             "change": [0.025, -0.05],
+            "ci_low": [0.01, -0.07],
+            "ci_high": [0.04, -0.03],
         }
     ).to_csv(path, index=False)
     (line,) = [text for text in convergence_lines(path) if text]
-    assert "P = 1 % 0.00400 after 400 steps, 0.00410 after 800 (+2.5%)" in line
-    assert "P = 80 % 0.00200 after 2000 steps, 0.00190 after 4000 (-5.0%)" in line
+    assert "P = 1 % 0.00400 after 2000 steps, 0.00410 after 4000 (+2.5%, +1.0% to +4.0%)" in line
+    assert "P = 80 % 0.00200 after 2000 steps, 0.00190 after 4000 (-5.0%, -7.0% to -3.0%)" in line
+    (path.parent / "twice").mkdir()
+    (path.parent / "twice/recommendation.txt").write_text("probe at least 150 points: ...\n")
+    assert convergence_lines(path)[-1] == "At twice the budget: probe at least 150 points: ..."
 
 
 def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):

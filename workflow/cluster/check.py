@@ -80,9 +80,7 @@ TIMING_COLUMNS = {
     "*/models/P*/losses.csv": (["seconds"], "training time per epoch"),
     "*/cv/*/fold*/losses.csv": (["seconds"], "training time per epoch"),
     "*/sim2real/*losses.csv": (["seconds"], "training time per epoch"),
-    "*/convergence/P*/losses.csv": (["seconds"], "training time per check"),
     "*/stats/error_vs_time.csv": (["seconds"], "training time of each snapshot"),
-    "*/stats/convergence.csv": (["study_seconds", "twice_seconds"], "training times"),
     # Estimated probing time comes from the collection runs that finished, so after a killed run
     # it leaves out the killed run's share (a gap of the collection summary, docs/how-to/slurm.md).
     f"{KILLED_SCENE}/stats/error_vs_cost.csv": (

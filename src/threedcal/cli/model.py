@@ -425,8 +425,7 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
         "--drift-warn-dn",
         type=float,
         default=BACKGROUND_DRIFT_WARN_DN,
-        help="warn when the no-contact region drifts this far from the blank (grey levels RMS, "
-        "beyond a uniform shift)",
+        help="warn when the no-contact region drifts this far from the blank (RMS grey levels)",
     )
 
 

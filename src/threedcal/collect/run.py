@@ -184,8 +184,14 @@ def collect(
     replay: bool = False,
     boundaries: Sequence[int] = (),
     at_boundary: Callable[[int], bool] | None = None,
+    on_row: Callable[[int, np.ndarray | None, tuple], None] | None = None,
 ) -> RunResult:
     """Probe every point the store has not captured.
+
+    `on_row(rows, samples, xyz)` is called once each plan row's samples are taken (rows: how many
+    rows are done; samples: None for a row passed over on a replay; xyz: where the printer
+    reported the head), the lift already queued: a watcher's progress (`threedcal rig`). What it
+    raises stops the run as Ctrl-C does.
 
     `at_boundary(n)` is called once the first n plan rows are stored, for every n in `boundaries`
     (a quick calibration's rounds), the probe held lifted over the gel: it returns whether to go
@@ -200,6 +206,7 @@ def collect(
     clock = clock or WallClock()
     run = _Run(store, sensor, printer, camera, settings, clock, hardware_clock or clock.now, replay)
     run.boundaries, run.at_boundary = set(int(b) for b in boundaries), at_boundary
+    run.on_row = on_row or (lambda rows, samples, xyz: None)
     if run.start is None:
         return RunResult(0, 0, 0.0, 0.0, len(store.plan))
     run.record(new=True)
@@ -262,6 +269,7 @@ class _Run:
         self.flushed_at = time.monotonic()
         self.boundaries: set[int] = set()
         self.at_boundary: Callable[[int], bool] | None = None
+        self.on_row: Callable[[int, np.ndarray | None, tuple], None] = lambda *row: None
         self.stopped_at: int | None = None
 
     def record(self, new: bool = False, **extra: Any) -> None:
@@ -351,6 +359,7 @@ class _Run:
                         "give the samples stored for it (was the simulator changed since?); move "
                         "the store away to collect it anew"
                     )
+                self.on_row(point + 1, None, reported)
                 if not self.round_done(point + 1, bar):
                     return
                 continue
@@ -370,6 +379,7 @@ class _Run:
                 or time.monotonic() - self.flushed_at >= FLUSH_EVERY_S
             ):
                 self.flush(bar)
+            self.on_row(point + 1, frames, reported)
             if not self.round_done(point + 1, bar):
                 return
         self.flush(bar)

@@ -151,9 +151,9 @@ def register_store(
     changes, rather than located and fitted again (most of a round's labelling time)."""
     from threedcal.collect.plan import WHOLE_CONTACT_MARGIN_PX, dome_sag_at_px, plan_phases
     from threedcal.collect.store import open_checked
-    from threedcal.profiles import load_profile
+    from threedcal.mount import scene_sensor
 
-    sensor = load_profile("sensor", scene["sensor"])
+    sensor = scene_sensor(scene)
     raw = open_checked(store_path, expect_digest, rows=rows)
     height, width = raw["frames"].shape[1:3]
     point_of_frame = raw["point"].values
@@ -340,9 +340,9 @@ def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Lab
         # domed gel's edge is commanded deeper, not pressed deeper); measured sags would split
         # presses that sit at the limit
         from threedcal.collect.plan import dome_sag_mm
-        from threedcal.profiles import load_profile
+        from threedcal.mount import scene_sensor
 
-        sensor = load_profile("sensor", scene["sensor"])
+        sensor = scene_sensor(scene)
         as_written = raw["depth_mm"].values - dome_sag_mm(
             sensor, raw["x_mm"].values, raw["y_mm"].values
         )

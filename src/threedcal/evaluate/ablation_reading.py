@@ -1,7 +1,7 @@
 """What the ablation's tests say, in words: the recommendation (`recommend`: the smallest P
 equivalent to P = 80 %, or why none is), the families side by side (`family_comparison`), the
 placebo's line (`placebo_summary`), the learning curve's answer (`curve_sentence`) and where it
-and the TOST differ, why (`readings_compared`); `read_ablation` composes them all."""
+and the TOST differ, why (`readings_compared`); `read_validation_errors` composes them all."""
 
 from __future__ import annotations
 
@@ -433,7 +433,7 @@ def readings_compared(
 
 
 @dataclass(frozen=True)
-class AblationReading:
+class Readings:
     """tests.csv, the learning curve, and recommendation.txt's lines: the TOST's answer, the
     curve's, and whether they agree (absent where the curve was not fitted)."""
 
@@ -450,7 +450,7 @@ class AblationReading:
         return "\n".join(lines + ([self.comparison] if self.comparison else [])) + "\n"
 
 
-def read_ablation(
+def read_validation_errors(
     table: pd.DataFrame,
     blocks: pd.Series,
     points_by_p: Mapping[int, int],
@@ -461,7 +461,7 @@ def read_ablation(
     bootstrap: int = BOOTSTRAP,
     seed: int = 0,
     reference: int = REFERENCE_P,
-) -> AblationReading:
+) -> Readings:
     """Every reading of one ablation's validation errors (validation_mse.csv's table, its spatial
     blocks, the points each P probed): the test families, the TOST's recommendation, the learning
     curve at the TOST's interval level (1 - 2 equivalence_alpha), and the two compared. Call it
@@ -485,7 +485,7 @@ def read_ablation(
         reference=reference,
     )
     line = recommend(tests, points_by_p, margin, equivalence_alpha, reference)
-    return AblationReading(
+    return Readings(
         tests=tests,
         curve=curve,
         recommendation=line,

@@ -48,7 +48,13 @@ from threedcal.model.presets import (
     preferred_memory_format,
     preset_args,
 )
-from threedcal.model.stopping import Doubling, check_rule, holdout_split
+from threedcal.model.stopping import (
+    SNAPSHOT_DIR,
+    Doubling,
+    check_rule,
+    holdout_split,
+    snapshot_name,
+)
 from threedcal.schema import load_schema, section
 
 RESUME_NAME = "checkpoint.pt"
@@ -641,7 +647,7 @@ def _snapshot(out_dir: Path, job: _Job, model, weights: dict, position) -> None:
     )
     snapshot["state_dict"] = weights
     snapshot["training"]["steps"] = int(steps)
-    save_checkpoint(out_dir / "snapshots" / f"step{steps:07d}.pt", snapshot)
+    save_checkpoint(out_dir / SNAPSHOT_DIR / snapshot_name(steps), snapshot)
 
 
 # Validation runs on at most this many patches and at most this many epochs (spread evenly, the
