@@ -1,7 +1,7 @@
 # Stage `stats`: per-coordinate validation error of every model (P, replicate) of a scene's ablation,
-# the tests against P = 80 (the paper's, paired, equivalence), the recommendation, the power of the
-# design and the paper's Fig. 3B / 4 figures; the cross-scene spread figure (Fig. 4C). See
-# docs/explanation/statistics.md.
+# the tests against P = 80 (the paper's, paired, equivalence), the learning curve over every
+# fraction, the recommendation, the power of the design and the paper's Fig. 3B / 4 figures; the
+# cross-scene spread figure (Fig. 4C). See docs/explanation/statistics.md.
 
 
 rule stats:
@@ -26,6 +26,18 @@ rule stats:
             subcategory="4 ablation",
         ),
         recommendation=STATS["recommendation"],
+        learning_curve=report(
+            STATS["learning_curve"],
+            caption="../workflow/report/stats_learning_curve.rst",
+            category="{scene}",
+            subcategory="4 ablation",
+        ),
+        learning_curve_figure=report(
+            STATS["learning_curve_figure"],
+            caption="../workflow/report/stats_learning_curve_figure.rst",
+            category="{scene}",
+            subcategory="4 ablation",
+        ),
         power=STATS["power"],
         power_figure=report(
             STATS["power_figure"],
@@ -117,6 +129,7 @@ rule stats_twice:
     params:
         models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
         settings=config["stats"],
+        seed=scene_seed,
         code=code_digest("stats_twice.py"),
     script:
         "../scripts/stats_twice.py"

@@ -135,6 +135,7 @@ def test_stats_settings_default_to_the_papers_alpha_and_a_ten_percent_margin():
         "equivalence_margin": 0.10,
         "equivalence_alpha": 0.05,
         "power_simulations": 1000,
+        "curve_bootstrap": 2000,
     }
     assert "stats.equivalence_margin: 1.5 is greater than or equal to the maximum of 1" in error_of(
         {**config_with(), "stats": {"equivalence_margin": 1.5}}

@@ -128,6 +128,8 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         "stats/tests.png",
         "stats/power.csv",
         "stats/recommendation.txt",
+        "stats/learning_curve.csv",
+        "stats/learning_curve.png",
         "objects/errors.csv",
         "objects/figures/pill_by_P.png",
         "models/inference.json",
@@ -178,7 +180,13 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert validation.groupby(["P", "replicate"])["point"].apply(frozenset).nunique() == 1
     tests = pd.read_csv(stats_dir / "tests.csv")
     assert set(tests["family"]) == {"paper", "paired", "equivalence", "placebo"}
-    assert "margin of mean validation MSE" in (stats_dir / "recommendation.txt").read_text()
+    recommendation = (stats_dir / "recommendation.txt").read_text().splitlines()
+    assert "margin of mean validation MSE" in recommendation[0]
+    # two fractions: no curve of three parameters, and the line says so
+    assert recommendation[1].startswith("learning curve not fitted: a curve of three parameters")
+    curve = pd.read_csv(stats_dir / "learning_curve.csv").set_index("quantity")
+    assert curve.loc["points_within_margin", "note"].startswith("not fitted")
+    assert (stats_dir / "learning_curve.png").stat().st_size > 0
     # every model trained the same steps, and on to twice them: the ablation read again there,
     # and every fraction's error at every cycle end (2, 4, 8 and 16 steps)
     steps = config["scenes"][collected]["ablation"]["steps"]
@@ -191,6 +199,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         validation.groupby(["P", "replicate"]).groups
     )
     assert "margin of mean validation MSE" in (stats_dir / "twice/recommendation.txt").read_text()
+    assert (stats_dir / "twice/learning_curve.csv").is_file()
     curve = pd.read_csv(stats_dir / "error_vs_time.csv")
     assert sorted(curve["steps"].unique()) == [steps // 4, steps // 2, steps, 2 * steps]
     assert len(curve) == 4 * 4 and curve["mse"].gt(0).all()

@@ -81,6 +81,8 @@ STATS = _files(
     tests="tests.csv",
     tests_figure="tests.png",
     recommendation="recommendation.txt",
+    learning_curve="learning_curve.csv",
+    learning_curve_figure="learning_curve.png",
     power="power.csv",
     power_figure="power.png",
     costs="error_vs_cost.csv",
@@ -96,6 +98,8 @@ TWICE_STATS = _files(
     validation_mse="validation_mse.csv",
     tests="tests.csv",
     recommendation="recommendation.txt",
+    learning_curve="learning_curve.csv",
+    learning_curve_figure="learning_curve.png",
 )
 CONVERGENCE = _files(
     f"{SCENE}/stats",

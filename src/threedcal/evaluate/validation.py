@@ -21,9 +21,11 @@ import pandas as pd
 from threedcal.dataset.splits import subset_size
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
-from threedcal.evaluate.ablation import ablation_tests, spatial_blocks
+from threedcal.evaluate.ablation import spatial_blocks
 from threedcal.evaluate.ablation_figure import tests_figure
-from threedcal.evaluate.ablation_reading import recommend
+from threedcal.evaluate.ablation_reading import read_validation_errors
+from threedcal.evaluate.learning_curve import LearningCurve, curve_table
+from threedcal.evaluate.learning_curve_figure import learning_curve_figure
 from threedcal.evaluate.power import power_figure, power_table
 from threedcal.model.inference import DepthEstimator
 from threedcal.plotting import pyplot
@@ -328,13 +330,14 @@ def cost_figure(costs: pd.DataFrame, path: str | Path, title: str) -> None:
 @dataclass(frozen=True)
 class AblationReading:
     """What one set of an ablation's models says: their validation errors, the spatial blocks
-    the paired tests use, the tests and the recommendation."""
+    the paired tests use, the tests, the learning curve and the recommendation."""
 
     table: pd.DataFrame  # validation_mse.csv
     blocks: pd.Series
     block_mm: float
     tests: pd.DataFrame  # tests.csv
-    recommendation: str
+    recommendation: str  # recommendation.txt: the TOST's line, the curve's, how the two compare
+    curve: LearningCurve  # learning_curve.csv and .png
 
 
 def read_ablation(
@@ -342,49 +345,54 @@ def read_ablation(
     trainset: TrainingSet,
     splits: pd.DataFrame,
     settings: Mapping,
+    seed: int,
 ) -> AblationReading:
-    """Score every model (P, replicate) on the validation coordinates, test each P against P = 80
-    and say how many points to probe. `settings` is the config's `stats` section."""
+    """Score every model (P, replicate) on the validation coordinates, test each P against P = 80,
+    fit the learning curve and say how many points to probe. `settings` is the config's `stats`
+    section; `seed` the learning curve's bootstrap's."""
     table = ablation_table(models, trainset, splits)
     block_mm = scoring_disc_mm(trainset)
     blocks = spatial_blocks(table, block_mm)
-    tests = ablation_tests(
+    points_by_p = {p: subset_size(len(splits), p) for p, _ in models}
+    readings = read_validation_errors(
         table,
         blocks,
+        points_by_p,
         alpha=settings["alpha"],
         margin=settings["equivalence_margin"],
         equivalence_alpha=settings["equivalence_alpha"],
+        bootstrap=settings["curve_bootstrap"],
+        seed=seed,
     )
-    points_by_p = {p: subset_size(len(splits), p) for p, _ in models}
-    line = recommend(
-        tests,
-        points_by_p,
-        margin=settings["equivalence_margin"],
-        equivalence_alpha=settings["equivalence_alpha"],
+    return AblationReading(
+        table, blocks, block_mm, readings.tests, readings.text.rstrip("\n"), readings.curve
     )
-    return AblationReading(table, blocks, block_mm, tests, line)
 
 
-def write_reading(reading: AblationReading, out: Mapping[str, str | Path]) -> None:
-    """validation_mse.csv, tests.csv and recommendation.txt of a reading."""
+def write_reading(reading: AblationReading, out: Mapping[str, str | Path], title: str) -> None:
+    """validation_mse.csv, tests.csv, recommendation.txt and the learning curve of a reading."""
     reading.table.to_csv(out["validation_mse"], index=False)
     reading.tests.to_csv(out["tests"], index=False, float_format="%.6g")
     Path(out["recommendation"]).write_text(reading.recommendation + "\n")
+    curve_table(reading.curve).to_csv(out["learning_curve"], index=False, float_format="%.6g")
+    learning_curve_figure(reading.curve, out["learning_curve_figure"], title)
 
 
 def twice_stage(
+    scene_name: str,
     models: Mapping[tuple[int, int], str | Path],
     trainset_dir: str | Path,
     splits_path: str | Path,
     settings: Mapping,
+    seed: int,
     out: Mapping[str, str | Path],
 ) -> str:
     """The `stats_twice` rule: the ablation read again on the models trained on to twice the
     budget (stats/twice/)."""
     reading = read_ablation(
-        models, TrainingSet.load(trainset_dir), pd.read_csv(splits_path), settings
+        models, TrainingSet.load(trainset_dir), pd.read_csv(splits_path), settings, seed
     )
-    write_reading(reading, out)
+    write_reading(reading, out, f"{scene_name}, twice the budget: error against points probed")
     return reading.recommendation
 
 
@@ -399,12 +407,13 @@ def stats_stage(
     seed: int,
     out: Mapping[str, str | Path],
 ) -> str:
-    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the power
-    table (+ figure), costs and the Fig. 3B/4 figures. `settings` is the config's `stats` section."""
+    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the learning
+    curve (+ figure), the power table (+ figure), costs and the Fig. 3B/4 figures. `settings` is
+    the config's `stats` section."""
     trainset = TrainingSet.load(trainset_dir)
     splits = pd.read_csv(splits_path)
-    reading = read_ablation(models, trainset, splits, settings)
-    write_reading(reading, out)
+    reading = read_ablation(models, trainset, splits, settings, seed)
+    write_reading(reading, out, f"{scene_name}: error against points probed")
     table, tests = reading.table, reading.tests
     tests_figure(
         tests,

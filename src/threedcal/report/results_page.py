@@ -33,8 +33,9 @@ from threedcal.config import (
     training_fractions,
 )
 from threedcal.config import is_imported as config_is_imported
+from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
-from threedcal.report.summary import read_json, sim2real_rows
+from threedcal.report.summary import read_json, reading_line, sim2real_rows
 from threedcal.scenes import has_ablation, has_objects, has_sim2real
 
 TITLE = "Results of the default study"
@@ -501,6 +502,11 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             advice = text.split(":", 1)[0]
         else:
             advice = _missing(recommendation, results)
+        curve_path = stats / "learning_curve.csv"
+        if curve_path.is_file():
+            advice += f"; learning curve: {curve_summary(pd.read_csv(curve_path))}"
+            differ = recommendation.is_file() and "the readings differ" in text
+            advice += " (the two differ: why in `stats/recommendation.txt`)" if differ else ""
         placebo = _placebo(tests)
         notes.append(f"- `{name}`: {advice}" + (f"; placebo {placebo}." if placebo else "."))
     level = _recorded(r"(\d+(?:\.\d+)?) % interval, TOST", recommendations)
@@ -538,8 +544,10 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             rows,
         ),
         "",
-        "Recommendation (reasons: `stats/recommendation.txt`) and placebo (the paper's tests "
-        "between two P = 80 % trainings):",
+        "Recommendation: the equivalence test's (reasons: `stats/recommendation.txt`) and the "
+        "learning curve's, fitted on every fraction: the fewest points whose predicted MSE is "
+        "within the margin of P = 80 %'s (`stats/learning_curve.csv`, `.png`); placebo (the "
+        "paper's tests between two P = 80 % trainings):",
         "",
         *notes,
         "",
@@ -574,9 +582,9 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             ("the budget", "recommendation.txt"),
             ("twice", "twice/recommendation.txt"),
         ):
-            text = results / name / "stats" / leaf
-            if text.is_file():
-                readings.append(f"- `{name}` at {label}: {text.read_text().strip()}")
+            line = reading_line((results / name / "stats" / leaf).parent)
+            if line:
+                readings.append(f"- `{name}` at {label}: {line}")
     return [
         "## Has the training converged? Twice the budget",
         "",
