@@ -19,6 +19,7 @@ from threedcal.schema import canonical_json, load_yaml
 from threedcal.model.crossval import CV_METHODS, method_settings
 from threedcal.model.sim2real import (
     SIM2REAL_CONDITIONS,
+    group_of,
     sensor_profile,
     sim2real_inputs,
     sim2real_keys,
@@ -51,7 +52,7 @@ from threedcal.scenes import (
     RESKIN_MODEL,
     SCENE_JSON,
     SIM2REAL,
-    SIM2REAL_MODEL_DIR,
+    SIM2REAL_FOLD_DIR,
     SIM2REAL_PRETRAINED_DIR,
     SIM2REAL_SIMSET,
     SPLITS,

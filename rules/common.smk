@@ -59,14 +59,15 @@ def cv_models(wildcards):
 
 
 def sim2real_init(wildcards):
-    """{"pretrained": the fold's sim-pretrained model} for sim+real, {"shipped": the package's
-    weights for the sensor} for shipped+real (found by the training itself; an input so that
-    rebuilt weights retrain), {} for real-only."""
+    """{"pretrained": the sim-pretrained model of the fold's group} for sim+real, {"shipped": the
+    package's weights for the sensor} for shipped+real (found by the training itself; an input so
+    that rebuilt weights retrain), {} for real-only."""
     if wildcards.condition == "sim_real":
+        scene = config["scenes"][wildcards.scene]
         return {
             "pretrained": target(
                 f"{SIM2REAL_PRETRAINED_DIR}/model.pt", wildcards.scene
-            ).replace("{fold}", wildcards.fold)
+            ).replace("{folds}", group_of(scene, int(wildcards.fold)))
         }
     if wildcards.condition == "shipped_real":
         from threedcal.pretrained import shipped_weights
@@ -81,7 +82,7 @@ def sim2real_init(wildcards):
 
 
 def sim2real_models(wildcards):
-    """{"sim_real_k4": [fold models ...], ..., "scene": [cv/model fold models]}: what sim2real_eval scores."""
+    """{"sim_real": [fold folders ...], ..., "scene": [cv/model fold models]}: what sim2real_eval scores."""
     return sim2real_inputs(wildcards.scene, config["scenes"][wildcards.scene])
 
 

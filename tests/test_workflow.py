@@ -220,8 +220,9 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
     trains = sorted((wc["p"], wc["r"]) for rule, wc in jobs if rule == "train")
     assert trains == [("20", "0"), ("80", "0")]  # the plain list form: one replicate
     assert ("ball_eval", {"scene": "balls"}) in jobs
-    folds = sorted((wc["method"], wc["fold"]) for rule, wc in jobs if rule == "cv_train")
-    assert folds == [(m, str(f)) for m in ("lookup", "model") for f in range(6)]
+    # one job per fold trains the fold's model of every method
+    folds = sorted(int(wc["fold"]) for rule, wc in jobs if rule == "cv_train")
+    assert folds == list(range(6))
     # sim_to_real off (the default): no sim-to-real job
     assert not [rule for rule, _ in jobs if rule.startswith("sim2real")]
     # Asking for one P schedules that training alone (plus the dataset it reads).
@@ -231,7 +232,7 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
     assert sorted(rule for rule, _ in one) == ["dataset_import", "train"]
 
 
-def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path):
+def test_sim_to_real_schedules_one_job_per_condition_and_chosen_fold(tmp_path):
     balls = {
         "sensor": "gelsight_mini",
         "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
@@ -239,18 +240,13 @@ def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path)
         "sim_to_real": {"enabled": True, "k": [4, "all"], "folds": [1, 3], "shipped": True},
     }
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
-    trains = sorted(
-        (wc["condition"], wc["k"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train"
-    )
-    assert trains == [
-        (c, k, f)
-        for c in ("real_only", "shipped_real", "sim_real")
-        for k in ("4", "all")
-        for f in ("1", "3")
-    ]
-    # One simulated set and one pretraining per chosen fold (the optics fitted to its training images).
+    # every k of a (condition, fold) in one job
+    trains = sorted((wc["condition"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train")
+    assert trains == [(c, f) for c in ("real_only", "shipped_real", "sim_real") for f in ("1", "3")]
+    # One simulated set and one pretraining for both folds: the optics fitted to the images of the
+    # folds not evaluated, on which each of them trains.
     for rule in ("sim2real_simulate", "sim2real_pretrain"):
-        assert sorted(wc["fold"] for r, wc in jobs if r == rule) == ["1", "3"]
+        assert [wc["folds"] for r, wc in jobs if r == rule] == ["1-3"]
     assert ("sim2real_eval", {"scene": "balls"}) in jobs
     # Off (the default): no sim-to-real job (the same imported scene without sim_to_real is
     # test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes's dry run).
