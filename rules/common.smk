@@ -86,6 +86,14 @@ def sim2real_models(wildcards):
     return sim2real_inputs(wildcards.scene, config["scenes"][wildcards.scene])
 
 
+def presets_scene_model(wildcards):
+    """{"scene_model": models/P80/r0/model.pt} where the scene trains it: the presets stage's row
+    of the scene's own preset, not trained twice; {} otherwise."""
+    if (FULL_TRAINING_P, 0) not in model_keys(config["scenes"][wildcards.scene]):
+        return {}
+    return {"scene_model": model_file(wildcards.scene, FULL_TRAINING_P, 0)}
+
+
 def pretrained_input(wildcards):
     """The shipped weights a scene's training starts from (model.init: pretrained): rebuilt
     weights retrain the scene's models."""
