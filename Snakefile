@@ -97,8 +97,8 @@ config.update(validate_config(config, source=CONFIG_SOURCE))
 check_object_files(config, source=CONFIG_SOURCE)
 validate(config, "workflow/schemas/config.schema.yaml")
 
-# One printer: jobs that drive it hold `resources: printer=1`, so two never run at once, with or without
-# a profile. `--resources printer=N` (command line or profile) still decides where it is given.
+# One printer: jobs that drive a real one hold `resources: printer=1` (printer_held), so two never run at
+# once, with or without a profile; simulated scenes hold none. `--resources printer=N` still decides.
 if "printer" not in workflow.global_resources:
     workflow.global_resources["printer"] = 1
 

@@ -17,6 +17,12 @@ def scene_seed(wildcards):
     return config["scenes"][wildcards.scene]["seed"]
 
 
+def printer_held(wildcards):
+    """1 for a job that drives a scene's real printer (`resources: printer`, one at a time), 0 on
+    the simulated bench: every simulated scene has its own printer and camera."""
+    return int(config["scenes"][wildcards.scene].get("port", "sim") != "sim")
+
+
 def scene_threads(wildcards):
     """The scene's torch threads: the job's `threads` and what its script sets torch to."""
     return config["scenes"][wildcards.scene]["torch_threads"]

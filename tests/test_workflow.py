@@ -323,3 +323,21 @@ def test_realism_sets_carry_each_pairs_gel_mechanics():
     bad = {"real": "data/gelsight_ball_fots", "gel_mechanics": "soft"}
     with pytest.raises(ConfigError, match="gel_mechanics"):
         validate_config({"realism": bad, "scenes": {"s": {"sensor": "digit", "printer": "ender3"}}})
+
+
+def test_only_a_real_printer_is_held_one_job_at_a_time(tmp_path):
+    """`resources: printer` serialises the jobs that drive a real printer; every simulated scene
+    has its own bench, so its collection runs beside another's."""
+    config = {
+        "scenes": {
+            "real": {"sensor": "digit", "printer": "ender3", "port": "/dev/ttyUSB0", "camera": 0},
+            "sim": {"sensor": "digit", "printer": "ender3"},
+        }
+    }
+    result = snakemake(tmp_path, write_config(tmp_path, config), "--dry-run")
+    held = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", result.stdout + result.stderr):
+        if re.match(r"(?:local)?rule collect:", block.strip()):
+            scene = re.search(r"wildcards: scene=(\w+)", block).group(1)
+            held[scene] = re.search(r"resources: .*printer=(\d)", block).group(1)
+    assert held == {"real": "1", "sim": "0"}
