@@ -20,6 +20,7 @@ from threedcal.model.crossval import CV_METHODS, method_settings
 from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
 from threedcal.model.sim2real import (
     SIM2REAL_CONDITIONS,
+    group_of,
     sensor_profile,
     sim2real_inputs,
     sim2real_keys,
@@ -52,7 +53,7 @@ from threedcal.scenes import (
     RESKIN_MODEL,
     SCENE_JSON,
     SIM2REAL,
-    SIM2REAL_MODEL_DIR,
+    SIM2REAL_FOLD_DIR,
     SIM2REAL_PRETRAINED_DIR,
     SIM2REAL_SIMSET,
     SPLITS,
@@ -99,8 +100,8 @@ config.update(validate_config(config, source=CONFIG_SOURCE))
 check_object_files(config, source=CONFIG_SOURCE)
 validate(config, "workflow/schemas/config.schema.yaml")
 
-# One printer: jobs that drive it hold `resources: printer=1`, so two never run at once, with or without
-# a profile. `--resources printer=N` (command line or profile) still decides where it is given.
+# One printer: jobs that drive a real one hold `resources: printer=1` (printer_held), so two never run at
+# once, with or without a profile; simulated scenes hold none. `--resources printer=N` still decides.
 if "printer" not in workflow.global_resources:
     workflow.global_resources["printer"] = 1
 

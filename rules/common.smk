@@ -17,6 +17,12 @@ def scene_seed(wildcards):
     return config["scenes"][wildcards.scene]["seed"]
 
 
+def printer_held(wildcards):
+    """1 for a job that drives a scene's real printer (`resources: printer`, one at a time), 0 on
+    the simulated bench: every simulated scene has its own printer and camera."""
+    return int(config["scenes"][wildcards.scene].get("port", "sim") != "sim")
+
+
 def scene_threads(wildcards):
     """The scene's torch threads: the job's `threads` and what its script sets torch to."""
     return config["scenes"][wildcards.scene]["torch_threads"]
@@ -115,14 +121,15 @@ def cv_models(wildcards):
 
 
 def sim2real_init(wildcards):
-    """{"pretrained": the fold's sim-pretrained model} for sim+real, {"shipped": the package's
-    weights for the sensor} for shipped+real (found by the training itself; an input so that
-    rebuilt weights retrain), {} for real-only."""
+    """{"pretrained": the sim-pretrained model of the fold's group} for sim+real, {"shipped": the
+    package's weights for the sensor} for shipped+real (found by the training itself; an input so
+    that rebuilt weights retrain), {} for real-only."""
     if wildcards.condition == "sim_real":
+        scene = config["scenes"][wildcards.scene]
         return {
             "pretrained": target(
                 f"{SIM2REAL_PRETRAINED_DIR}/model.pt", wildcards.scene
-            ).replace("{fold}", wildcards.fold)
+            ).replace("{folds}", group_of(scene, int(wildcards.fold)))
         }
     if wildcards.condition == "shipped_real":
         from threedcal.pretrained import shipped_weights
@@ -137,8 +144,16 @@ def sim2real_init(wildcards):
 
 
 def sim2real_models(wildcards):
-    """{"sim_real_k4": [fold models ...], ..., "scene": [cv/model fold models]}: what sim2real_eval scores."""
+    """{"sim_real": [fold folders ...], ..., "scene": [cv/model fold models]}: what sim2real_eval scores."""
     return sim2real_inputs(wildcards.scene, config["scenes"][wildcards.scene])
+
+
+def presets_scene_model(wildcards):
+    """{"scene_model": models/P80/r0/model.pt} where the scene trains it: the presets stage's row
+    of the scene's own preset, not trained twice; {} otherwise."""
+    if (FULL_TRAINING_P, 0) not in model_keys(config["scenes"][wildcards.scene]):
+        return {}
+    return {"scene_model": model_file(wildcards.scene, FULL_TRAINING_P, 0)}
 
 
 def pretrained_input(wildcards):

@@ -243,6 +243,7 @@ def test_resources_names_every_wildcard_job_by_its_rule():
         "r": ["0", "2"],
         "method": ["model", "lookup"],
         "fold": ["0", "5"],
+        "folds": ["0", "0-1-2"],
         "k": ["8", "all"],
         "condition": ["sim_real", "real_only"],
         "sensor": ["digit_fots", "gelsight_mini"],
@@ -266,6 +267,7 @@ def test_resources_names_every_wildcard_job_by_its_rule():
                     r"\{(\w+)\}", lambda m, pick=pick: values[m.group(1)][pick], found.group(1)
                 )
                 checked[Path(name).stem] = (resources.rule_of(Path(name)), rule)
-    assert {"train_P1_r0", "cv_lookup_fold5", "sim2real_real_only_kall_fold5"} <= set(checked)
+    assert {"train_P1_r0", "cv_train_fold5", "sim2real_real_only_fold5"} <= set(checked)
+    assert {"sim2real_pretrain_folds0-1-2", "sim2real_simulate_folds0"} <= set(checked)
     assert {"train_ablation_P20", "pretrain_digit_fots"} <= set(checked)
     assert all(got == rule for got, rule in checked.values()), checked

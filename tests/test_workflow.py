@@ -247,8 +247,9 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
     trains = sorted(wc["p"] for rule, wc in jobs if rule == "train_ablation")
     assert trains == ["20", "80"]  # one job per fraction (the plain list form: one replicate)
     assert ("ball_eval", {"scene": "balls"}) in jobs
-    folds = sorted((wc["method"], wc["fold"]) for rule, wc in jobs if rule == "cv_train")
-    assert folds == [(m, str(f)) for m in ("lookup", "model") for f in range(6)]
+    # one job per fold trains the fold's model of every method
+    folds = sorted(int(wc["fold"]) for rule, wc in jobs if rule == "cv_train")
+    assert folds == list(range(6))
     # sim_to_real off (the default): no sim-to-real job
     assert not [rule for rule, _ in jobs if rule.startswith("sim2real")]
     # Asking for one P schedules that training alone (plus the dataset it reads).
@@ -258,7 +259,7 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
     assert sorted(rule for rule, _ in one) == ["dataset_import", "train_ablation"]
 
 
-def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path):
+def test_sim_to_real_schedules_one_job_per_condition_and_chosen_fold(tmp_path):
     balls = {
         "sensor": "gelsight_mini",
         "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
@@ -266,18 +267,13 @@ def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path)
         "sim_to_real": {"enabled": True, "k": [4, "all"], "folds": [1, 3], "shipped": True},
     }
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
-    trains = sorted(
-        (wc["condition"], wc["k"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train"
-    )
-    assert trains == [
-        (c, k, f)
-        for c in ("real_only", "shipped_real", "sim_real")
-        for k in ("4", "all")
-        for f in ("1", "3")
-    ]
-    # One simulated set and one pretraining per chosen fold (the optics fitted to its training images).
+    # every k of a (condition, fold) in one job
+    trains = sorted((wc["condition"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train")
+    assert trains == [(c, f) for c in ("real_only", "shipped_real", "sim_real") for f in ("1", "3")]
+    # One simulated set and one pretraining for both folds: the optics fitted to the images of the
+    # folds not evaluated, on which each of them trains.
     for rule in ("sim2real_simulate", "sim2real_pretrain"):
-        assert sorted(wc["fold"] for r, wc in jobs if r == rule) == ["1", "3"]
+        assert [wc["folds"] for r, wc in jobs if r == rule] == ["1-3"]
     assert ("sim2real_eval", {"scene": "balls"}) in jobs
     # Off (the default): no sim-to-real job (the same imported scene without sim_to_real is
     # test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes's dry run).
@@ -359,3 +355,21 @@ def test_realism_sets_carry_each_pairs_gel_mechanics():
     bad = {"real": "data/gelsight_ball_fots", "gel_mechanics": "soft"}
     with pytest.raises(ConfigError, match="gel_mechanics"):
         validate_config({"realism": bad, "scenes": {"s": {"sensor": "digit", "printer": "ender3"}}})
+
+
+def test_only_a_real_printer_is_held_one_job_at_a_time(tmp_path):
+    """`resources: printer` serialises the jobs that drive a real printer; every simulated scene
+    has its own bench, so its collection runs beside another's."""
+    config = {
+        "scenes": {
+            "real": {"sensor": "digit", "printer": "ender3", "port": "/dev/ttyUSB0", "camera": 0},
+            "sim": {"sensor": "digit", "printer": "ender3"},
+        }
+    }
+    result = snakemake(tmp_path, write_config(tmp_path, config), "--dry-run")
+    held = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", result.stdout + result.stderr):
+        if re.match(r"(?:local)?rule collect:", block.strip()):
+            scene = re.search(r"wildcards: scene=(\w+)", block).group(1)
+            held[scene] = re.search(r"resources: .*printer=(\d)", block).group(1)
+    assert held == {"real": "1", "sim": "0"}

@@ -136,9 +136,12 @@ RESKIN_EVAL = {"metrics": f"{SCENE}/reskin_eval.json", "figure": f"{SCENE}/reski
 # and the sim-to-real stage (threedcal.model.sim2real).
 CV_FOLDS = f"{SCENE}/cv/folds.csv"
 CV_MODEL_DIR = f"{SCENE}/cv/{{method}}/fold{{fold}}"
-SIM2REAL_SIMSET = f"{SCENE}/sim2real/fold{{fold}}/simset"
-SIM2REAL_PRETRAINED_DIR = f"{SCENE}/sim2real/fold{{fold}}/pretrained"
-SIM2REAL_MODEL_DIR = f"{SCENE}/sim2real/{{condition}}/k{{k}}/fold{{fold}}"
+# One simulated set and pretraining per group of test folds (`{folds}`: 0-1-2), one folder of
+# models (k{k}/model.pt) per condition and fold.
+SIM2REAL_PRETRAINING = f"{SCENE}/sim2real/pretraining/folds{{folds}}"
+SIM2REAL_SIMSET = f"{SIM2REAL_PRETRAINING}/simset"
+SIM2REAL_PRETRAINED_DIR = f"{SIM2REAL_PRETRAINING}/pretrained"
+SIM2REAL_FOLD_DIR = f"{SCENE}/sim2real/{{condition}}/fold{{fold}}"
 BALL_EVAL = {
     "json": f"{SCENE}/ball_eval.json",
     "images": f"{SCENE}/cv/images.csv",
