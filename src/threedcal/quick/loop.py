@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from threedcal.collect.plan import quick_rounds
+from threedcal.collect.plan import quick_rounds, rows_per_press
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.quick.stop_rule import Improvement, decide, mean_interval, rule_problems
 
@@ -107,7 +107,10 @@ class QuickLoop:
         self.store_path, self.work = Path(store_path), Path(work_dir)
         self.progress = progress
         self.settings = QuickSettings.from_scene(scene)
+        # the rounds' first row: after the touch search and any registration lattice
+        self.per_press = rows_per_press(scene["plan"])
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
+        self.first_row -= self.per_press - 1
         self.ends = quick_rounds(scene["plan"], self.first_row)
         base = TrainSettings.from_scene(scene)  # run r trains with the seed's replicate r − 1
         base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
@@ -166,7 +169,7 @@ class QuickLoop:
         self.records.append(
             RoundRecord(
                 round=k,
-                presses=rows - self.first_row,
+                presses=self.presses(rows),
                 presses_scored=len(after),
                 printer_s=round(self.printer_s(rows), 1),
                 mse=mse,
@@ -206,6 +209,10 @@ class QuickLoop:
         estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
         return coordinate_mse(estimator, view, split="score")["mse"].to_numpy(float)
 
+    def presses(self, rows: int) -> int:
+        """The rounds' presses in the plan's first `rows` rows."""
+        return (rows - self.first_row) // self.per_press
+
     def printer_s(self, rows: int) -> float:
         """The printer's time for the plan's first `rows` rows, from the motion model (homing,
         moves, waits, settling, capture): what the user waits at the rig, training aside."""
@@ -223,7 +230,8 @@ class QuickLoop:
             "round": last.round,
             "presses": last.presses,
             "presses_in_all": last.presses
-            + self.first_row,  # the touch search's and registration's too
+            + self.first_row,  # the touch search's and any registration lattice's too
+            "touch_presses": int(np.sum(self.plan["phase"].to_numpy() == "touch")),
             "printer_s": last.printer_s,
             "printer_minutes": round(last.printer_s / 60, 2),
             "mse": None if math.isnan(last.mse) else last.mse,
@@ -238,7 +246,16 @@ class QuickLoop:
             "round_presses": int(self.scene["plan"]["round_presses"]),
             "registration": {
                 k: self.registration.get(k)
-                for k in ("residual_px", "touch_offset_mm", "contact_z_mm", "touch_method")
+                for k in (
+                    "residual_px",
+                    "touch_offset_mm",
+                    "contact_z_mm",
+                    "touch_method",
+                    "contacts_used",
+                    "lens_free",
+                    "affine_px_per_mm",
+                    "lens",
+                )
             },
         }
 
@@ -291,7 +308,7 @@ def quick_stage(
         loop.round_done(held)
         if loop.stopped is None:
             raise StoreError(
-                f"{store}: holds {held - loop.first_row} quick presses, but the stop rule as "
+                f"{store}: holds {loop.presses(held)} quick presses, but the stop rule as "
                 "configured now asks for more; restore the settings it was collected with, or "
                 f"move it away to collect anew (e.g. `mv {store} {store}.old`)"
             )
