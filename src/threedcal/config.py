@@ -227,7 +227,9 @@ def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
         first = first.iloc[: int(plan["round_presses"]) * rows_per_press(plan)]
         paused = first[first["phase"] == "register"]
         rows = first if paused.empty else paused
-        which = f"its first round's {len(rows)} presses" + (" paused" * (not paused.empty))
+        which = f"its first round's {len(rows)} presses"
+        if not paused.empty:
+            which += f" (paused {plan['registration']['depth_mm']:g} mm deep)"
     whole = whole_contacts(sensor, rows, float(scene["probe"]["radius_mm"]))
     if whole >= MIN_FIRST_CONTACTS:
         return []

@@ -370,7 +370,9 @@ class TouchBisection:
        the onset to within (high − low) / 2^bisections;
     3. the rest past the bracket's contact end, spread over `span_mm`, so that the growth
        L = α (c + δ)^p can be fitted from the onset (`fit_touch_onset`, L less the mean L of the
-       presses without contact: the frames' drift since the blanks) and δ read where it starts.
+       presses without contact: the frames' drift since the blanks) and δ read where it starts;
+       the first of them at low_mm itself when every halving touched (the onset in the lowest
+       halving's cell, or the gel above the window).
 
     A contact at every press (the gel higher than low_mm) or none at high_mm (lower than it) is a
     RegistrationError naming the setting to change, as the stepped search's are."""
@@ -408,7 +410,7 @@ class TouchBisection:
         self._template: np.ndarray | None = None
         self._window = None
         self.level = math.nan
-        self._bracket = (self.low, self.high)
+        self.bracket = (self.low, self.high)  # [no contact, contact] after the halvings so far
 
     def next_depth(self) -> float | None:
         """Where to press next (mm below the nominal touch); None when the search is done."""
@@ -418,11 +420,17 @@ class TouchBisection:
         if k == 0:
             return self.high
         if k <= self.bisections:
-            low, high = self._bracket
+            low, high = self.bracket
             return (low + high) / 2
+        if not any(not p.contact for p in self.pressed) and self.low not in self._depths():
+            return self.low  # every halving touched: is the gel above the window, or just in?
         rest = self.presses - 1 - self.bisections
         step = self.span_mm / (rest + 1)
-        return min(self._bracket[1] + step * (k - self.bisections), self.high)
+        past = sum(d != self.low for d in self._depths()[self.bisections + 1 :])
+        return min(self.bracket[1] + step * (past + 1), self.high)
+
+    def _depths(self) -> list[float]:
+        return [p.depth_mm for p in self.pressed]
 
     def observe(self, depth_mm: float, frame: np.ndarray) -> TouchPress:
         """The frame (mean of the press's frames) pressed at `depth_mm`: its signal and verdict."""
@@ -433,8 +441,8 @@ class TouchBisection:
         press = TouchPress(float(depth_mm), signal, bool(signal > self.level))
         self.pressed.append(press)
         if 1 < len(self.pressed) <= self.bisections + 1:
-            low, high = self._bracket
-            self._bracket = (low, depth_mm) if press.contact else (depth_mm, high)
+            low, high = self.bracket
+            self.bracket = (low, depth_mm) if press.contact else (depth_mm, high)
         return press
 
     def _first(self, frame: np.ndarray) -> None:

@@ -429,7 +429,7 @@ def verdicts(
             "line": f"at most {MAX_PRESSES} presses: "
             f"{'met' if presses + setup_presses <= MAX_PRESSES else 'not met'} "
             f"({presses + setup_presses} in all: {presses} in rounds, {setup_presses} touch search "
-            "and registration)",
+            "and any registration lattice)",
         },
         "printer_minutes": {
             "verdict": "met" if minutes <= MAX_PRINTER_MINUTES else "not met",
