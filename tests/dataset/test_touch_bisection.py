@@ -134,3 +134,12 @@ def test_noise_and_drift_leave_the_onset_within_a_hundredth_of_a_millimetre():
     without = [p.signal for p in bisection.pressed if not p.contact]
     assert without and 0.2 * bisection.level < np.mean(without) < bisection.level
     assert bisection.result().offset_mm == pytest.approx(delta, abs=0.01)
+
+
+def test_an_onset_near_the_bottom_of_the_window_keeps_the_fit_inside_it():
+    """Past a bracket that ends near the deepest press, the presses to fit crowd into what is left
+    of the window rather than press deeper than the plan allows."""
+    bisection = search(-0.2)
+    assert max(p.depth_mm for p in bisection.pressed) == HIGH
+    assert len({p.depth_mm for p in bisection.pressed}) == 8
+    assert bisection.result().offset_mm == pytest.approx(-0.2, abs=1e-5)

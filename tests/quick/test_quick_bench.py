@@ -28,8 +28,8 @@ def scene(margin: float) -> dict:
                     "pattern": "quick",
                     "depth_mm": 1.0,
                     "frames": 1,
-                    "round_presses": 4,
-                    "max_presses": 12,
+                    "round_presses": 6,
+                    "max_presses": 18,
                     # each press pauses 0.25 mm deep to register; 8 presses find the gel
                     "registration": {"depth_mm": 0.25, "each_press": True},
                     "touch_search": {"method": "bisect", "presses": 8, "points": 1, "frames": 2},
@@ -77,14 +77,14 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     stop = json.loads(outputs["stop"].read_text())
     assert tuple(rounds.columns) == ROUND_COLUMNS
     # round 1 cannot measure an improvement; round 2's bound lies below 0.99: stopped there
-    assert rounds["round"].tolist() == [1, 2] and rounds["presses"].tolist() == [4, 8]
+    assert rounds["round"].tolist() == [1, 2] and rounds["presses"].tolist() == [6, 12]
     assert np.isnan(rounds["improvement"].iloc[0]) and rounds["decision"].iloc[0] == "continue"
     assert rounds["improvement_upper"].iloc[1] < 0.99
     assert rounds["decision"].iloc[1] == "stop: improvement below margin"
-    assert (rounds["presses_scored"] == 4).all()  # every press inside the view is labelled
+    assert (rounds["presses_scored"] == 6).all()  # every press inside the view is labelled
     assert (rounds["mse_low"] < rounds["mse"]).all() and (rounds["mse"] < rounds["mse_high"]).all()
     assert rounds["printer_s"].is_monotonic_increasing
-    assert stop["stopped"] == "improvement below margin" and stop["presses"] == 8
+    assert stop["stopped"] == "improvement below margin" and stop["presses"] == 12
     assert stop["printer_minutes"] == pytest.approx(rounds["printer_s"].iloc[-1] / 60, abs=0.01)
     # the starting weights and one model a round; the final one is usable as is
     assert sorted(p.name for p in outputs["work"].iterdir()) == ["r0", "r1", "r2"]
@@ -96,10 +96,10 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     captured = zarr.open_group(str(store), mode="r")["captured"][:]
     rows = attrs["captured_rows"]
     assert attrs["complete"] and captured[:rows].all() and not captured[rows:].any()
-    assert len(captured) - rows == 8  # round 3 (4 presses, 2 rows each) was never collected
+    assert len(captured) - rows == 12  # round 3 (6 presses, 2 rows each) was never collected
     # 8 presses found the gel within 0.02 mm of the bench's hidden truth, each at a depth the
     # search chose inside its window; every press registered, through the profile's lens
-    assert stop["touch_presses"] == 8 and stop["presses_in_all"] == 8 + 8
+    assert stop["touch_presses"] == 8 and stop["presses_in_all"] == 8 + 12
     registration = stop["registration"]
     truth = draw_truth(load_profile("sensor", "digit_fots"), scene(0.99)["bench"], 2)
     assert registration["touch_method"] == "bisect"

@@ -425,9 +425,10 @@ class TouchBisection:
         if not any(not p.contact for p in self.pressed) and self.low not in self._depths():
             return self.low  # every halving touched: is the gel above the window, or just in?
         rest = self.presses - 1 - self.bisections
-        step = self.span_mm / (rest + 1)
+        top = min(self.bracket[1] + self.span_mm, self.high)  # never past the deepest press
+        step = (top - self.bracket[1]) / (rest + 1)
         past = sum(d != self.low for d in self._depths()[self.bisections + 1 :])
-        return min(self.bracket[1] + step * (past + 1), self.high)
+        return self.bracket[1] + step * (past + 1)
 
     def _depths(self) -> list[float]:
         return [p.depth_mm for p in self.pressed]
