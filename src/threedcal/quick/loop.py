@@ -23,7 +23,7 @@ import os
 import shutil
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,20 +33,6 @@ import pandas as pd
 from threedcal.collect.plan import quick_rounds, rows_per_press
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.quick.stop_rule import Improvement, decide, mean_interval, rule_problems
-
-ROUND_COLUMNS = (
-    "round",
-    "presses",
-    "presses_scored",
-    "printer_s",
-    "mse",
-    "mse_low",
-    "mse_high",
-    "improvement",
-    "improvement_upper",
-    "decision",
-    "train_s",
-)
 
 
 @dataclass(frozen=True)
@@ -84,6 +70,10 @@ class RoundRecord:
     improvement_upper: float
     decision: str
     train_s: float  # wall time of this round's labelling, scoring and fine-tuning
+
+
+# rounds.csv's columns: RoundRecord's fields, in order (a new figure per round is a new field)
+ROUND_COLUMNS = tuple(field.name for field in fields(RoundRecord))
 
 
 class QuickLoop:
