@@ -196,39 +196,35 @@ def over_units(table: pd.DataFrame, level: float = LEVEL) -> dict:
 
 
 def study_figure(table: pd.DataFrame, summary: Mapping, path: str | Path) -> None:
-    """Each unit's relative change with its within-unit interval, and each sensor's interval over
-    units, against the ±10 % band."""
+    """Each unit's relative change with its within-unit interval, each sensor's interval over
+    units and every unit's together, against the ±10 % band."""
     from threedcal.plotting import pyplot
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7, 3.2), dpi=110)
-    labels, position = [], 0
+    fig, ax = plt.subplots(figsize=(1.0 + 0.8 * (len(table) + 3), 3.4), dpi=110)
+
+    def point(value, low, high, marker, size, colour):
+        ax.errorbar(
+            [len(labels)],
+            [100 * value],
+            yerr=[[100 * (value - low)], [100 * (high - value)]],
+            fmt=marker,
+            ms=size,
+            capsize=size / 2 + 1,
+            c=colour,
+        )
+
+    labels: list[str] = []
     for sensor, part in table.groupby("sensor", sort=False):
         for row in part.itertuples(index=False):
-            ax.errorbar(
-                [position],
-                [100 * row.change],
-                yerr=[[100 * (row.change - row.change_lo)], [100 * (row.change_hi - row.change)]],
-                fmt="o",
-                ms=4,
-                capsize=2,
-                c="tab:blue",
-            )
+            point(row.change, row.change_lo, row.change_hi, "o", 4, "tab:blue")
             labels.append(f"{sensor}\nunit {row.unit}")
-            position += 1
         claim = summary[str(sensor)]
-        low, high = (100 * v for v in claim["interval"])
-        ax.errorbar(
-            [position],
-            [100 * claim["change"]],
-            yerr=[[100 * claim["change"] - low], [high - 100 * claim["change"]]],
-            fmt="D",
-            ms=6,
-            capsize=4,
-            c="black",
-        )
+        point(claim["change"], *claim["interval"], "D", 6, "black")
         labels.append(f"{sensor}\nover units")
-        position += 1
+    if "all" in summary:
+        point(summary["all"]["change"], *summary["all"]["interval"], "s", 6, "black")
+        labels.append("every unit")
     ax.axhspan(-100 * MSE_WITHIN, 100 * MSE_WITHIN, color="tab:green", alpha=0.15, lw=0)
     ax.axhline(0, c="grey", lw=0.8)
     ax.set_xticks(range(len(labels)), labels, fontsize=6)
