@@ -10,7 +10,6 @@ from threedcal.config import (
     convergence_fractions,
     is_imported,
     model_keys,
-    runs_of,
     validate_config,
 )
 from threedcal.evaluate.objects import check_object_files
@@ -45,6 +44,7 @@ from threedcal.scenes import (
     QUICK_ARMS,
     QUICK_ROUNDS,
     QUICK_SCRATCH,
+    QUICK_STUDY,
     REALISM_TABLE,
     REALISM_HALO,
     REGISTRATION,
@@ -65,7 +65,7 @@ from threedcal.scenes import (
     TRAINSET,
     TWICE_STATS,
     ablation_scenes,
-    first_runs,
+    arms_scenes,
     full_model_file,
     has_objects,
     lockstep_groups,
@@ -110,8 +110,8 @@ IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
 QUICK_SCENES = quick_scenes(config)
-# quick scenes measured against a full calibration of their unit (quick.compare_with), run 1 of each
-COMPARED_SCENES = first_runs(config)
+# quick scenes scored arm by arm against a full calibration of their unit (quick.compare_with)
+COMPARED_SCENES = arms_scenes(config)
 # scenes the collect stage probes (a quick scene collects in its own stage, round by round)
 COLLECTED_SCENES = [
     name for name in SCENES if name not in IMPORTED_SCENES and name not in QUICK_SCENES

@@ -169,14 +169,38 @@ def pretrained_input(wildcards):
     return {"pretrained": str(shipped_weights(sensor))}  # a clear error when missing
 
 
+def study_pairs():
+    """(quick scene, full scene) of every compared quick scene: the units of `quick_study`."""
+    return [
+        (name, compared_with(config["scenes"][name]))
+        for name in QUICK_SCENES
+        if compared_with(config["scenes"][name])
+    ]
+
+
+def quick_study_inputs(wildcards):
+    """Each unit's stopped quick model and stop.json, and its full calibration's P = 80 models,
+    validation set, splits and (on the bench) hidden truth."""
+    inputs = {}
+    for quick, full in study_pairs():
+        inputs[f"{quick}_model"] = target(QUICK["model"], quick)
+        inputs[f"{quick}_stop"] = target(QUICK["stop"], quick)
+        inputs[f"{full}_models"] = [
+            model_file(full, p, r)
+            for p, r in model_keys(config["scenes"][full])
+            if p == FULL_TRAINING_P
+        ]
+        inputs[f"{full}_trainset"] = target(TRAINSET, full)
+        inputs[f"{full}_splits"] = target(SPLITS, full)
+        if config["scenes"][full].get("port") == "sim":
+            inputs[f"{full}_truth"] = target(BENCH_TRUTH, full)
+    return inputs
+
+
 def arms_inputs(wildcards):
-    """The compared scene's files: its P = 80 models, validation set, registration, object presses;
-    and the rounds of the calibration's other runs (threedcal.config.runs_of)."""
+    """The compared scene's files: its P = 80 models, validation set, registration, object presses."""
     full = compared_with(config["scenes"][wildcards.scene])
-    others = runs_of(config, wildcards.scene)[1:]
     return {
-        "runs_rounds": [target(QUICK["rounds"], n) for n in others],
-        "runs_work": [target(QUICK_ROUNDS, n) for n in others],
         "full": [
             model_file(full, p, r)
             for p, r in model_keys(config["scenes"][full])

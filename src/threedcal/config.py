@@ -227,23 +227,34 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
 
 def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """A quick plan whose registration presses (or, with none, its first round's) leave too few
-    whole contacts for the lens fit: registered by the affine alone, every label would carry the
-    lens's distortion, and a few presses cannot make up for it."""
-    from threedcal.collect.plan import quick_plan, registration_presses_of, whole_contacts
-    from threedcal.dataset.camera_fit import MIN_LENS_CONTACTS
+    whole contacts for the first round's registration: the affine through the profile's lens, its
+    contacts to spare for the outliers (threedcal.dataset.camera_fit.fit_camera)."""
+    from threedcal.collect.plan import (
+        quick_plan,
+        registration_presses_of,
+        rows_per_press,
+        whole_contacts,
+    )
+    from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS
 
     plan = scene["plan"]
     rows = registration_presses_of(plan, sensor)
     which = f"its {len(rows)} registration presses"
     if rows.empty:
-        rows = quick_plan(sensor, plan, quick_run(scene)).iloc[: int(plan["round_presses"])]
-        which = f"with no registration presses, its first round's {len(rows)}"
+        first = quick_plan(sensor, plan, quick_run(scene))
+        first = first.iloc[: int(plan["round_presses"]) * rows_per_press(plan)]
+        paused = first[first["phase"] == "register"]
+        rows = first if paused.empty else paused
+        which = f"its first round's {len(rows)} presses"
+        if not paused.empty:
+            which += f" (paused {plan['registration']['depth_mm']:g} mm deep)"
     whole = whole_contacts(sensor, rows, float(scene["probe"]["radius_mm"]))
-    if whole >= MIN_LENS_CONTACTS:
+    if whole >= MIN_FIRST_CONTACTS:
         return []
     return [
         f"plan.registration: {which} would leave about {whole} contacts whole in the frame; the "
-        f"lens fit needs {MIN_LENS_CONTACTS} (a smaller spacing_mm, e.g. 1.0; "
+        f"first round's registration needs {MIN_FIRST_CONTACTS} (more round_presses, a "
+        "shallower depth_mm, or registration presses; "
         "docs/explanation/registration.md#registration-presses)"
     ]
 
@@ -304,9 +315,12 @@ def compare_problems(config: Mapping) -> list[str]:
             problems.append(
                 f"{key}: {other} trains no P = {FULL_TRAINING_P} models (its ablation.fractions)"
             )
-        if not full.get("objects"):
-            problems.append(f"{key}: {other} presses no test objects (its `objects`)")
-    return problems + _run_problems_of(config)
+        if has_arms(scene) and not full.get("objects"):
+            problems.append(
+                f"{key}: {other} presses no test objects (its `objects`), which the arms score "
+                "(or set quick.arms: false)"
+            )
+    return problems
 
 
 def is_quick(scene: Mapping) -> bool:
@@ -319,52 +333,15 @@ def compared_with(scene: Mapping) -> str | None:
     return (scene.get("quick") or {}).get("compare_with") if is_quick(scene) else None
 
 
+def has_arms(scene: Mapping) -> bool:
+    """A compared quick scene scored arm by arm (`quick.arms`, quick/arms.*)."""
+    return bool(compared_with(scene)) and bool((scene.get("quick") or {}).get("arms", True))
+
+
 def quick_run(scene: Mapping) -> int:
     """Which run of its quick calibration a quick scene is (`quick.run`, 1 unless set): run r
     draws its own presses and training seed, as a second calibration of the unit would."""
     return int((scene.get("quick") or {}).get("run", 1)) if is_quick(scene) else 1
-
-
-def _run_free(scene: Mapping) -> dict:
-    """A scene's settings less what tells its runs apart (`description`, `quick.run`)."""
-    out = {k: v for k, v in scene.items() if k != "description"}
-    out["quick"] = {k: v for k, v in (scene.get("quick") or {}).items() if k != "run"}
-    return out
-
-
-def runs_of(config: Mapping, name: str) -> list[str]:
-    """The runs of quick scene `name`'s calibration, by run: `name` and every quick scene alike in
-    all but `description` and `quick.run` (quick/arms.csv pools them)."""
-    scenes = config["scenes"]
-    alike = [
-        other
-        for other, scene in scenes.items()
-        if is_quick(scene) and _run_free(scene) == _run_free(scenes[name])
-    ]
-    return sorted(alike, key=lambda other: quick_run(scenes[other]))
-
-
-def _run_problems_of(config: Mapping) -> list[str]:
-    """Compared runs of one quick calibration (`quick.run`): a run 1 alike in all but
-    `description` and `quick.run`, whose quick_arms pools them, and no run number twice."""
-    problems = []
-    for name, scene in config["scenes"].items():
-        if not compared_with(scene) or quick_run(scene) == 1:
-            continue
-        runs = runs_of(config, name)
-        numbers = [quick_run(config["scenes"][n]) for n in runs]
-        key = f"scenes.{name}.quick.run"
-        if 1 not in numbers:
-            problems.append(
-                f"{key}: {quick_run(scene)}, but no quick scene alike in all but description and "
-                "quick.run is run 1 (the run whose quick_arms pools the others)"
-            )
-        elif numbers.count(quick_run(scene)) > 1:
-            twins = ", ".join(n for n in runs if quick_run(config["scenes"][n]) == quick_run(scene))
-            problems.append(
-                f"{key}: {quick_run(scene)} is the run of more than one scene ({twins})"
-            )
-    return problems
 
 
 def _pretrained_problems(sensor: Mapping, model: Mapping, downscale: int) -> list[str]:

@@ -15,13 +15,12 @@ from typing import Any
 
 from threedcal.config import (
     FULL_TRAINING_P,
-    compared_with,
     convergence_fractions,
+    has_arms,
     is_imported,
     is_quick,
     model_keys,
     normalise_ablation,
-    quick_run,
     realism_sets,
     training_fractions,
 )
@@ -74,6 +73,11 @@ QUICK_ROUNDS = f"{SCENE}/quick/rounds"
 # the same presses trained from scratch (one model a round under scratch/), its full calibration.
 QUICK_ARMS = _files(f"{SCENE}/quick", table="arms.csv", figure="arms.png", verdicts="arms.json")
 QUICK_SCRATCH = f"{SCENE}/quick/scratch"
+# The quick calibration over units (rules/quick.smk, quick_study; `make quick-study`): every compared
+# quick scene's stopped model against its full calibration, and the claim over units.
+QUICK_STUDY = _files(
+    f"{RESULTS}/quick_study", table="units.csv", summary="summary.json", figure="units.png"
+)
 # The stats stage (rules/stats.smk), for scenes with an ablation.
 STATS = _files(
     f"{SCENE}/stats",
@@ -278,7 +282,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     targets = of(SCENE_JSON)
     if is_quick(scene):  # one model, round by round; no dataset, ablation or objects stage
         targets += of(*QUICK.values())
-        if compared_with(scene) and quick_run(scene) == 1:  # run 1's arms pool its runs
+        if has_arms(scene):
             targets += of(*QUICK_ARMS.values(), QUICK_SCRATCH)
         return targets
     if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
@@ -309,13 +313,9 @@ def quick_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if is_quick(scene)]
 
 
-def first_runs(config: Mapping) -> list[str]:
-    """The compared quick scenes that are run 1 of their calibration: one quick_arms each."""
-    return [
-        name
-        for name in quick_scenes(config)
-        if compared_with(config["scenes"][name]) and quick_run(config["scenes"][name]) == 1
-    ]
+def arms_scenes(config: Mapping) -> list[str]:
+    """The compared quick scenes scored arm by arm (quick_arms)."""
+    return [name for name in quick_scenes(config) if has_arms(config["scenes"][name])]
 
 
 def is_vision(scene: Mapping) -> bool:

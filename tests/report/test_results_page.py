@@ -570,19 +570,3 @@ def test_the_quick_table_reads_each_compared_scenes_verdicts(small, tmp_path):
         "| pawn 12 [6, 18] (undecided) | met, met |"
     ) in part
     assert "## Quick calibration" not in results_page(small[0])  # no compared quick scene
-
-
-def test_a_quick_calibrations_runs_share_its_row(tmp_path):
-    quick = {
-        "sensor": "digit",
-        "printer": "ender3",
-        "plan": {"pattern": "quick", "depth_mm": 1.0, "registration": {"spacing_mm": 1.0}},
-        "quick": {"compare_with": "sim"},
-    }
-    again = {**quick, "description": "run 2", "quick": {"compare_with": "sim", "run": 2}}
-    alone = {**quick, "quick": {"run": 2, "steps": 600}}  # a second calibration, its run 1 not here
-    scenes = {**SMALL["scenes"], "q": quick, "q2": again, "r2": alone}
-    results = build_results(tmp_path / "results", validate_config({**SMALL, "scenes": scenes}))
-    part = section(results_page(results), "## Scenes")
-    assert "| `q` (2 runs) | digit |" in part and "`q2`" not in part
-    assert "| `sim` | digit |" in part and "| `r2` | digit |" in part  # one run: its own row

@@ -303,8 +303,33 @@ def collect_on_rig(
             attach_probe=None if rig.simulated else lambda: rig.prompt(ATTACH_PROBE),
             progress=progress,
             replay=rig.simulated,
+            touch_search=live_touch_search(scene, prepared),
             **rounds,
         )
+
+
+def live_touch_search(scene: Mapping, prepared: ScenePlan):
+    """The decider of a plan's bisecting touch search (plan.touch_search.method: bisect), the
+    depth of each of its presses chosen from those before; None for a stepped search or none."""
+    from threedcal.collect.plan import touch_search_range
+    from threedcal.dataset.touch import planned_touch_search
+
+    search = scene["plan"].get("touch_search") or {}
+    plan = prepared.plan
+    if search.get("method", "steps") != "bisect" or "phase" not in plan:
+        return None
+    rows = plan[plan["phase"] == "touch"]
+    if rows.empty:
+        return None
+    low, high = touch_search_range(prepared.sensor, search)
+    return planned_touch_search(
+        rows[["x_mm", "y_mm"]].to_numpy(float),
+        rows["depth_mm"].to_numpy(float),
+        low,
+        high,
+        float(prepared.sensor["px_per_mm"]),
+        float(scene["probe"]["radius_mm"]),
+    )
 
 
 class _EstimateSink:

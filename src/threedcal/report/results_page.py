@@ -24,14 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.config import (
-    compared_with,
-    convergence_fractions,
-    is_quick,
-    quick_run,
-    runs_of,
-    training_fractions,
-)
+from threedcal.config import convergence_fractions, has_arms, is_quick, training_fractions
 from threedcal.config import is_imported as config_is_imported
 from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
@@ -293,18 +286,15 @@ def reading_lines() -> list[str]:
 
 
 def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
-    """One row a scene; a quick calibration's runs in the row of its first run here."""
-    configs = {"scenes": {name: _config(record) for name, record in scenes.items()}}
+    """One row a scene."""
     rows = [
         [
-            f"`{name}`" + (f" ({len(runs)} runs)" if len(runs) > 1 else ""),
+            f"`{name}`",
             str(_config(record).get("sensor", MISSING)),
             str(_config(record).get("printer") or MISSING),
             frames_of(record),
         ]
         for name, record in scenes.items()
-        for runs in [runs_of(configs, name) if is_quick(_config(record)) else [name]]
-        if runs[0] == name
     ]
     return [
         "## Scenes",
@@ -323,13 +313,9 @@ def _objects_of(scenes: Mapping[str, dict]) -> list[str]:
 
 
 def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
-    """Each compared quick calibration's stopped models against its unit's full calibration
-    (run 1's arms.json), and run 1's presses from scratch."""
-    chosen = [
-        n
-        for n, r in scenes.items()
-        if compared_with(_config(r)) and quick_run(_config(r)) == 1  # run 1 holds the runs' arms
-    ]
+    """Each compared quick calibration's stopped model against its unit's full calibration
+    (arms.json), and its presses from scratch."""
+    chosen = [n for n, r in scenes.items() if has_arms(_config(r))]
     if not chosen:
         return []
     rows = []
@@ -346,8 +332,7 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
         )
         rows.append(
             [
-                f"`{name}` vs `{arms['compare_with']}`"
-                + (f" ({len(arms['runs'])} runs)" if len(arms.get("runs") or []) > 1 else ""),
+                f"`{name}` vs `{arms['compare_with']}`",
                 f"{arms.get('presses_in_all', arms['presses'])}, {arms['printer_minutes']:.1f}",
                 f"{_pct(mse['change'])} {_interval(*mse['interval95'])} ({mse['verdict']})",
                 MISSING
@@ -361,9 +346,10 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Quick calibration",
         "",
-        "Each run's stopped model against the unit's P = 80 models; targets: "
-        "+10 %, +10 µm (printer protocol), 50 presses (touch search and registration included), "
-        "5 minutes.",
+        "The stopped model against the unit's P = 80 models; targets: "
+        "+10 %, +10 µm (printer protocol), 50 presses (touch search included), 5 minutes. "
+        "One unit a sensor; over units: `make quick-study` "
+        "([statistics](explanation/statistics.md#a-quick-calibration-against-a-full-one)).",
         "",
         *_table(
             ["scene", "presses, min", "MSE vs full", "scratch", "worst Δ Type 2 µm", "budget"],
