@@ -595,10 +595,11 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             rows,
         ),
         "",
-        "How many points to probe, read at the budget and at twice it:",
-        "",
-        *readings,
-        "",
+        *(
+            ["How many points to probe, read at the budget and at twice it:", "", *readings, ""]
+            if readings
+            else []
+        ),
     ]
 
 
