@@ -574,12 +574,11 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Has the training converged? Twice the budget",
         "",
-        "Protocol: every model of the ablation trains the same optimiser steps (the budget), in "
-        "cycles that end at a quarter, a half and all of it, then one more cycle to twice the "
-        "budget; each cycle end is scored by mean validation MSE (`stats/error_vs_time.csv`). "
-        "The change at twice the budget pairs the same models by replicate and spatial block, "
-        "with its 95 % interval (`stats/convergence.csv`); the ablation is read again there "
-        "(`stats/twice/`).",
+        "Protocol: every model trains the same steps (the budget) in cycles ending at a quarter, "
+        "a half, all and twice the budget, scored by mean validation MSE "
+        "(`stats/error_vs_time.csv`); the change at twice pairs models by replicate and "
+        "block, 95 % interval (`stats/convergence.csv`); `stats/twice/` reads the "
+        "ablation there.",
         "",
         *_table(
             [
