@@ -309,8 +309,8 @@ def _t(sample, reference, theta, independent: bool = False):
     # no spread at all: a zero contrast is t = 0 (the data sit on the hypothesis), any other +-inf
     estimate = np.where(np.abs(estimate) <= ROUNDING * scale, 0.0, estimate)
     spread = np.asarray(se) > ROUNDING * scale
-    exact = np.where(estimate == 0, 0.0, np.sign(estimate) * np.inf)
     with np.errstate(divide="ignore", invalid="ignore"):
+        exact = np.where(estimate == 0, 0.0, np.copysign(np.inf, estimate))
         t = np.where(spread, estimate / np.where(spread, se, 1.0), exact)
     return t, df
 
