@@ -2,7 +2,9 @@
 
 from pathlib import Path
 
+from threedcal.dataset.trainset import TrainingSet
 from threedcal.logs import stage_log
+from threedcal.model.contact_guard import check_calibration_presses
 from threedcal.model.lockstep import Member, train_lockstep
 from threedcal.model.train import TrainSettings
 
@@ -20,3 +22,9 @@ with stage_log(snakemake.log[0]):
         batching=ablation["batching"],
         resume=snakemake.params.resume,
     )
+    # the calibration's own presses: a model reading more than the probe can touch is named
+    trainset = TrainingSet.load(snakemake.input.trainset)
+    for r, model in enumerate(snakemake.output.models):
+        check_calibration_presses(
+            model, trainset, f"scene {snakemake.wildcards.scene}, P={percent} r{r}"
+        )

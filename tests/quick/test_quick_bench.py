@@ -84,7 +84,9 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     assert (rounds["presses_scored"] == 6).all()  # every press inside the view is labelled
     assert (rounds["mse_low"] < rounds["mse"]).all() and (rounds["mse"] < rounds["mse_high"]).all()
     assert rounds["printer_s"].is_monotonic_increasing
-    assert (rounds["contact_area_ratio"] > 0).all()  # each round's presses under its model
+    # each round's presses read by the model before it: the untrained start may see none
+    assert rounds["contact_area_ratio"].notna().all()
+    assert (rounds["contact_area_ratio"].iloc[1:] > 0).all()
     assert stop["stopped"] == "improvement below margin" and stop["presses"] == 12
     assert stop["printer_minutes"] == pytest.approx(rounds["printer_s"].iloc[-1] / 60, abs=0.01)
     # the starting weights and one model a round; the final one is usable as is
