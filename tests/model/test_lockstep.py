@@ -1,6 +1,8 @@
 """The ablation's lockstep training (threedcal.model.lockstep): equal steps for every model, the
 stacked (vmap) step against each model trained alone, snapshots, twice the budget, resuming."""
 
+import shutil
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -127,21 +129,30 @@ def test_an_interrupted_lockstep_resumes_to_the_same_bytes(tmp_path, monkeypatch
             ts, members(tmp_path / "resumed", keys), s, 8, twice=True, resume=resume, progress=False
         )
     assert torch.load(resume, weights_only=True)["step"] == 11
+    # Snakemake removes an incomplete job's outputs before running it again
+    for p, r in keys:
+        shutil.rmtree(tmp_path / f"resumed/P{p}/r{r}")
     monkeypatch.setattr(lockstep, "optimizer_step", real)
     train_lockstep(
         ts, members(tmp_path / "resumed", keys), s, 8, twice=True, resume=resume, progress=False
     )
     assert not resume.exists()
     for p, r in keys:
-        for leaf in ("model.pt", "twice/model.pt"):
+        for leaf in (
+            "model.pt",
+            "snapshots/step0000002.pt",
+            "snapshots/step0000004.pt",
+            "twice/model.pt",
+        ):
             full, resumed = (
                 read_checkpoint(tmp_path / d / f"P{p}/r{r}" / leaf) for d in ("full", "resumed")
             )
             for name, value in full["state_dict"].items():
                 assert torch.equal(value, resumed["state_dict"][name]), (p, r, leaf, name)
-        full_losses = pd.read_csv(tmp_path / f"full/P{p}/r{r}/twice/losses.csv")
-        resumed_losses = pd.read_csv(tmp_path / f"resumed/P{p}/r{r}/twice/losses.csv")
-        pd.testing.assert_series_equal(full_losses["train_loss"], resumed_losses["train_loss"])
+        for leaf in ("losses.csv", "twice/losses.csv"):
+            full_losses = pd.read_csv(tmp_path / f"full/P{p}/r{r}/{leaf}")
+            resumed_losses = pd.read_csv(tmp_path / f"resumed/P{p}/r{r}/{leaf}")
+            pd.testing.assert_series_equal(full_losses["train_loss"], resumed_losses["train_loss"])
 
 
 @pytest.mark.parametrize("batching", ["loop", "vmap"])

@@ -41,7 +41,7 @@ from tqdm import tqdm
 from threedcal.dataset.splits import replicate_seed
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError, TrainingError
-from threedcal.model.checkpoint import adapt_inputs, read_checkpoint, save_checkpoint
+from threedcal.model.checkpoint import adapt_inputs, save_checkpoint
 from threedcal.model.loss_log import plot_losses, write_losses
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import describe as describe_machine
@@ -369,12 +369,17 @@ def train_lockstep(
     )
     key = _resume_key(ts, members, settings, budget, twice, batching, precision)
     step, totals = 0, np.zeros(len(models))
+    # every cycle end's checkpoints so far: a resumed job writes again what Snakemake removed
+    written: dict[int, list[dict]] = {}
     state = _read_resume(resume, key)
     if state is not None:
         runner.restore(state["runner"])
         step, totals = int(state["step"]), np.asarray(state["totals"], float)
         for model, rows in zip(models, state["rows"], strict=True):
             model.rows = list(rows)
+        written = {int(end): checkpoints for end, checkpoints in state["written"].items()}
+        for end, checkpoints in sorted(written.items()):
+            _write_outputs(models, checkpoints, end, budget)
     else:
         for model in models:
             model.rows = [loss_row(0, 0, float("nan"), _check(model, ts, device), 0.0, settings.lr)]
@@ -385,7 +390,6 @@ def train_lockstep(
         unit="step",
         disable=not progress,
     )
-    finals: list[dict] = []
     began, saved = time.perf_counter(), time.monotonic()
     for index, end in enumerate(ends):
         start = ends[index - 1] if index else 0
@@ -409,7 +413,7 @@ def train_lockstep(
             step += 1
             bar.update(1)
             if resume is not None and step < end and time.monotonic() - saved >= RESUME_EVERY_S:
-                _save_resume(resume, key, runner, models, step, totals)
+                _save_resume(resume, key, runner, models, step, totals, written)
                 saved = time.monotonic()
         runner.sync()
         seconds = round(time.perf_counter() - began, 3)
@@ -422,14 +426,15 @@ def train_lockstep(
                 loss_row(model.stream.epochs_done, end, train_loss, check, share, rule.lr_at(0, 1))
             )
         totals[:] = 0.0
-        finals = _write_cycle_end(models, ts, end, budget, precision, batching) or finals
+        written[end] = _cycle_checkpoints(models, ts, end, precision, batching)
+        _write_outputs(models, written[end], end, budget)
         if resume is not None:
-            _save_resume(resume, key, runner, models, step, totals)
+            _save_resume(resume, key, runner, models, step, totals, written)
         began, saved = time.perf_counter(), time.monotonic()
     bar.close()
     if resume is not None:
         Path(resume).unlink(missing_ok=True)
-    return finals or [_read_final(m) for m in models]
+    return written[budget]
 
 
 def _read_resume(path, key) -> dict | None:
@@ -442,19 +447,16 @@ def _read_resume(path, key) -> dict | None:
     return state if isinstance(state, dict) and state.get("resume_key") == key else None
 
 
-def _save_resume(path, key, runner, models, step, totals) -> None:
+def _save_resume(path, key, runner, models, step, totals, written) -> None:
     state = {
         "resume_key": key,
         "step": int(step),
         "totals": [float(t) for t in totals],
         "rows": [m.rows for m in models],
         "runner": runner.state(),
+        "written": {str(end): checkpoints for end, checkpoints in written.items()},
     }
     save_checkpoint(path, state)
-
-
-def _read_final(model: _Model) -> dict:
-    return read_checkpoint(Path(model.member.out_dir) / "model.pt")
 
 
 def _check(model: _Model, ts: TrainingSet, device) -> float:
@@ -463,9 +465,9 @@ def _check(model: _Model, ts: TrainingSet, device) -> float:
     return windows_mse(model.module, *args)
 
 
-def _write_cycle_end(models, ts, steps, budget, precision, batching) -> list[dict] | None:
-    """Snapshots at an earlier cycle end; model.pt and losses at the budget; twice/ after it."""
-    finals = []
+def _cycle_checkpoints(models, ts, steps, precision, batching) -> list[dict]:
+    """Every model's checkpoint at a cycle end."""
+    checkpoints = []
     for model in models:
         member = model.member
         checkpoint = checkpoint_of(
@@ -486,18 +488,23 @@ def _write_cycle_end(models, ts, steps, budget, precision, batching) -> list[dic
             fit_frames=int(len(model.fit_idx)),
             holdout_frames=0,
         )
-        out = Path(member.out_dir)
+        checkpoints.append(checkpoint)
+    return checkpoints
+
+
+def _write_outputs(models, checkpoints, steps, budget) -> None:
+    """Snapshots at an earlier cycle end; model.pt and losses at the budget; twice/ after it."""
+    for model, checkpoint in zip(models, checkpoints, strict=True):
+        member, out = model.member, Path(model.member.out_dir)
         if steps < budget:
             save_checkpoint(out / SNAPSHOT_DIR / snapshot_name(steps), checkpoint)
             continue
         folder = out if steps == budget else out / TWICE_DIR
         folder.mkdir(parents=True, exist_ok=True)
         save_checkpoint(folder / "model.pt", checkpoint)
-        rows = [r for r in model.rows if r["step"] <= budget] if steps == budget else model.rows
+        rows = [r for r in model.rows if r["step"] <= steps]
         write_losses(folder / "losses.csv", rows)
         title = f"{model.settings.preset}, P={member.percent}, replicate {member.replicate}"
         if steps > budget:
             title += f", {steps} steps"
         plot_losses(folder / "losses.png", rows, title=title)
-        finals.append(checkpoint)
-    return finals if steps == budget else None
