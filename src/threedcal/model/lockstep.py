@@ -444,7 +444,8 @@ def _read_resume(path, key) -> dict | None:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except (RuntimeError, EOFError, OSError, pickle.UnpicklingError):
         return None  # damaged: trained anew
-    return state if isinstance(state, dict) and state.get("resume_key") == key else None
+    whole = isinstance(state, dict) and "written" in state
+    return state if whole and state.get("resume_key") == key else None
 
 
 def _save_resume(path, key, runner, models, step, totals, written) -> None:
