@@ -58,6 +58,8 @@ def test_a_unit_is_set_up_from_nothing_through_the_page_api(tmp_path, monkeypatc
         assert call(url, "api/find", {})[0] == 200
         status = wait_idle(url)
         assert status["find"]["state"] == "found", status
+        # the touch search bisects: its 8 presses at each of the three places
+        assert status["find"]["touch_presses"] == 3 * 8, status
         found, truth = status["found"], truth_mount(control)
         assert abs(found["x_offset_mm"] - truth["x_offset_mm"]) < 0.1
         assert abs(found["y_offset_mm"] - truth["y_offset_mm"]) < 0.1

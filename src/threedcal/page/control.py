@@ -424,6 +424,7 @@ class RigControl:
                 find_state={
                     "state": "found",
                     "presses": found.presses,
+                    "touch_presses": found.touch_presses,
                     "contact_px": [round(v, 2) for v in found.contact_px],
                 },
                 message=f"gel found in {found.presses} presses: save the mount",

@@ -4,9 +4,10 @@ From wherever the user left the ball (over the gel, not touching it): blank fram
 coarse steps until the image changes (ChangeDetector, the touch search's own noise model); a
 press, its contact located (threedcal.dataset.contacts) and the head moved until the contact lies
 at the image centre, which the probe area's centre is imaged at; then the touch search at that
-centre (threedcal.collect.plan.touch_search_plan, threedcal.dataset.touch.measure_touch_search,
-called in `touch_search_at` alone). The answer is a Mount: the probe area's origin and the
-first-touch Z. Every press stays above the floor the sensor profile allows.
+centre, bisecting (threedcal.dataset.touch.TouchBisection: `presses` presses a place, 8 by
+default, whatever method the scene's collection uses; called in `touch_search_at` alone). The
+answer is a Mount: the probe area's origin and the first-touch Z. Every press stays above the
+floor the sensor profile allows.
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from threedcal.collect.plan import dome_sag_mm, plan_to_printer, touch_search_plan
+from threedcal.collect.plan import plan_to_printer, touch_search_plan, touch_search_range
 from threedcal.dataset.contacts import locate_contact
-from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, ChangeDetector, measure_touch_search
+from threedcal.dataset.touch import ChangeDetector, planned_touch_search
 from threedcal.errors import ThreedcalError
 from threedcal.mount import Mount, with_mount
 
@@ -44,6 +45,7 @@ class GelFound:
     contact_px: tuple[float, float]  # the last centring press's contact
     touch_offset_mm: float  # the touch search's δ against the descent's estimate
     presses: int
+    touch_presses: int  # of them, the touch search's
 
 
 @dataclass
@@ -103,12 +105,12 @@ def find_gel(
         onset + COARSE_STEP_MM / 2,
         float(sensor["mount"]["z_clearance_mm"]),
     )
+    before = presser.presses
     offset = touch_search_at(
         presser,
         with_mount(sensor, nominal.as_dict()),
         search,
         blank_frames,
-        contact,
         probe_radius_mm,
         floor_z,
     )
@@ -118,7 +120,7 @@ def find_gel(
         nominal.z_touch_mm + offset,
         nominal.z_clearance_mm,
     )
-    return GelFound(found, contact, offset, presser.presses)
+    return GelFound(found, contact, offset, presser.presses, presser.presses - before)
 
 
 def _descend(presser: Presser, detector: ChangeDetector, x, y, z_start, floor_z) -> float:
@@ -165,44 +167,32 @@ def touch_search_at(
     sensor: Mapping,
     search: Mapping,
     blank_frames: np.ndarray,
-    contact_px: tuple[float, float],
     probe_radius_mm: float,
     floor_z: float,
 ) -> float:
-    """δ (true first touch = the sensor's mount.z_touch_mm + δ) from the library's touch search
-    about the probe area's centre, where `contact_px` shows a contact: the plan's search rows
-    (`search`: its places, steps and frames), pressed one by one from above, and their frames
-    measured as the dataset stage measures a collection's."""
-    rows = touch_search_plan(sensor, {**search, "points": max(int(search.get("points", 1)), 1)})
+    """δ (true first touch = the sensor's mount.z_touch_mm + δ) from a bisecting touch search
+    about the probe area's centre: `search`'s places, presses and frames (the scene's plan.touch_search), each press's depth decided from the frames before
+    it, as a quick collection's search is."""
+    search = {**search, "method": "bisect", "points": max(int(search.get("points", 1)), 1)}
+    rows = touch_search_plan(sensor, search)
     mount = sensor["mount"]
     lift_z = mount["z_touch_mm"] + float(sensor["probing"].get("touch_uncertainty_mm", 0.2)) + 0.5
-    frames = []
-    targets = [plan_to_printer(sensor, r.x_mm, r.y_mm, r.depth_mm) for r in rows.itertuples()]
-    if min(z for _, _, z in targets) < floor_z:
+    deepest = [plan_to_printer(sensor, r.x_mm, r.y_mm, r.depth_mm)[2] for r in rows.itertuples()]
+    if min(deepest) < floor_z:
         raise GelNotFound(
             f"the touch search would press below Z={floor_z:g} mm, the lowest the sensor profile "
             "allows: lower plan.touch_search.beyond_mm or probing.touch_uncertainty_mm"
         )
-    for (x, y, z), count in zip(targets, rows["frames"], strict=True):
-        frames.append(presser.press(x, y, z, lift_z=lift_z, frames=int(count)))
-    depth = rows["depth_mm"].to_numpy(float) - dome_sag_mm(
-        sensor, rows["x_mm"].to_numpy(float), rows["y_mm"].to_numpy(float)
+    low, high = touch_search_range(sensor, search)
+    xy = rows[["x_mm", "y_mm"]].to_numpy(float)
+    bisection = planned_touch_search(
+        xy, rows["depth_mm"].to_numpy(float), low, high, float(sensor["px_per_mm"]), probe_radius_mm
     )
-    # each place's contact: the centre's, moved as the printer's X runs along the columns and
-    # its Y up the image
-    width, height = sensor["probing"]["plan_area_mm"]
-    scale = float(sensor["px_per_mm"])
-    offsets = rows[["x_mm", "y_mm"]].to_numpy(float) - (width / 2, height / 2)
-    centres = np.asarray(contact_px, dtype=float) + offsets * (scale, -scale)
-    places = np.unique(rows[["x_mm", "y_mm"]].to_numpy(float), axis=0, return_inverse=True)[1]
-    result = measure_touch_search(
-        frames,
-        blank_frames,
-        depth,
-        places.ravel(),
-        centres,
-        scale,
-        reach_mm=probe_radius_mm,
-        span_mm=TOUCH_FIT_SPAN_MM,
-    )
-    return float(result.offset_mm)
+    bisection.begin(np.asarray(blank_frames))
+    for k, (x_mm, y_mm) in enumerate(xy):
+        depth = bisection.depth(k)
+        x, y, z = plan_to_printer(sensor, x_mm, y_mm, depth)
+        frames = int(rows["frames"].iloc[k])
+        frame = presser.press(x, y, z, lift_z=lift_z, frames=frames)
+        bisection.observe(k, depth, frame[None])
+    return float(bisection.result().offset_mm)
