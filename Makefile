@@ -10,7 +10,7 @@ CORES  ?= 2
 # The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: all smoke setup quick-study test lint bench report results-page clean cluster-test cluster-clean pretrained
+.PHONY: all smoke setup quick-study test test-long lint bench report results-page clean cluster-test cluster-clean pretrained
 
 all: $(STAMP)
 	@start=$$(date +%s); \
@@ -62,9 +62,14 @@ $(STAMP): pyproject.toml
 
 # The suite runs in TEST_WORKERS processes (pytest-xdist), handed out one test at a time in the order
 # tests/conftest.py sets (the end-to-end run first, then the slow files); --durations lists where the time goes.
+# `test`: the unit tests and the tiny end-to-end run; `test-long`: the tests marked long (CI runs both).
 TEST_WORKERS ?= $(CORES)
+PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --maxschedchunk 1 --durations=10
 test: $(STAMP)
-	set -o pipefail; $(BIN)/python -m pytest -n $(TEST_WORKERS) --maxschedchunk 1 --durations=10 2>&1 | tee .pytest-last.log
+	set -o pipefail; $(PYTEST) -m "not long" 2>&1 | tee .pytest-last.log
+
+test-long: $(STAMP)
+	set -o pipefail; $(PYTEST) -m long 2>&1 | tee .pytest-long.log
 
 # Every Python file of the repository (pyproject.toml's [tool.ruff]: *.py, less what git ignores),
 # the workflow's rules and Snakemake's own lint.

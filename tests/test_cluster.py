@@ -61,6 +61,7 @@ def test_a_real_printers_jobs_take_turns_and_simulated_ones_run_side_by_side(tmp
     assert "printer=1" in jobs["one"] and "printer=0" in jobs["two"], jobs
 
 
+@pytest.mark.long
 def test_every_rule_writes_a_benchmark_file_beside_its_logs(tmp_path, tiny_study_dry_run):
     tiny, dry_run = tiny_study_dry_run
     config = write_config(tmp_path, tiny)
@@ -109,6 +110,7 @@ def test_slurm_profile_asks_a_gpu_for_training_and_the_printer_for_collection(tm
         assert "slurm_partition=cpu" in job and "gres=" not in job
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_slurm_profile_runs_printer_jobs_on_this_machine_without_sbatch(tmp_path):
     pytest.importorskip("snakemake_executor_plugin_slurm", reason='pip install -e ".[cluster]"')

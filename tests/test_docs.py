@@ -197,8 +197,28 @@ def stop_server(server: subprocess.Popen) -> None:
     assert code == 0, f"{server.args}: exited {code} after Ctrl-C"
 
 
+# pages whose examples run whole stages (over ten seconds each): `make test-long`
+LONG_PAGES = {
+    f"docs/{name}.md"
+    for name in (
+        "tutorials/real-sensor",
+        "how-to/import-data",
+        "how-to/deploy",
+        "how-to/rerun-a-stage",
+        "how-to/slurm",
+    )
+}
+
+
 @pytest.mark.slow  # a page dry-runs the default study: tens of seconds
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+@pytest.mark.parametrize(
+    "page",
+    [
+        pytest.param(page, marks=[pytest.mark.long] * (str(page.relative_to(REPO)) in LONG_PAGES))
+        for page in PAGES
+    ],
+    ids=lambda p: str(p.relative_to(REPO)),
+)
 def test_page_examples_run(page, workspace):
     servers: list[subprocess.Popen] = []
     try:

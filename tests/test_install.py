@@ -41,6 +41,7 @@ def run(*command, cwd=None, env=None):
     return done.stdout
 
 
+@pytest.mark.long
 @pytest.mark.slow  # a wheel build and a fresh venv: 21-35 s with uv's cache warm
 def test_a_wheel_in_a_fresh_venv_runs_predict_and_live_without_the_workflow(tmp_path):
     # the wheel, built from a copy of what it packages (the tree itself stays clean)

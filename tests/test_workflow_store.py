@@ -90,6 +90,7 @@ def interrupt(workdir, configfile, ready, *args, timeout=120.0):
     return process.wait(timeout=120)
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_no_snakemake_action_deletes_or_overwrites_the_store(tmp_path):
     configfile = write(tmp_path, CONFIG)

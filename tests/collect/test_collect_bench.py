@@ -107,6 +107,7 @@ def captured_points(store) -> int:
         return 0
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_store(tmp_path, reference):
     config_path = tmp_path / "config.yaml"
@@ -188,6 +189,7 @@ def test_invalid_plan_fails_before_any_motion(tmp_path):
     assert not (tmp_path / "raw.zarr").exists()
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_registration_recovers_the_hidden_seating(tmp_path):
     scene = validate_config(
@@ -235,6 +237,7 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
     assert abs(record["touch_offset_error_mm"]) <= 0.02, record
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_probing_at_several_depths_separates_touch_height_from_rim_offset(tmp_path):
     """One depth: the rim's edge offset reads as 0.09 mm of extra depth (README, registration).
@@ -314,6 +317,7 @@ def test_a_plan_without_registration_presses_registers_the_rows_captured_so_far(
     assert len(fits) == 1 and list(fits[0]) == list(so_far.registered_rows[:-5])
 
 
+@pytest.mark.long
 def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path):
     """A cross plan cycling d < R and d > R (a vertical contact rim)."""
     plan = {
@@ -448,6 +452,7 @@ def test_touch_search_sees_through_a_blurred_camera(tmp_path):
     assert abs(touch_error_with_true_centres(tmp_path, sensor, 11)) <= 0.01
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_a_domed_gels_edge_presses_train_at_the_depth_the_plan_wrote(tmp_path):
     """Near the DIGIT's edge the plan commands a 1 mm press up to a millimetre deeper (the dome's

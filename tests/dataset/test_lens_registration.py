@@ -127,6 +127,7 @@ def mini_with_lens(tmp_path_factory):
     )
 
 
+@pytest.mark.long
 def test_registration_fits_the_lens_within_0_3_px_of_the_benchs_over_the_view(mini_with_lens):
     folder, record = mini_with_lens
     truth = json.loads((folder / "truth.json").read_text())["lens"]
@@ -137,6 +138,7 @@ def test_registration_fits_the_lens_within_0_3_px_of_the_benchs_over_the_view(mi
     assert fitted["kappa1_per_px2"] == pytest.approx(truth["kappa1_per_px2"], rel=0.15)
 
 
+@pytest.mark.long
 def test_shallow_registration_presses_register_the_digit_within_0_3_px(tmp_path):
     """The DIGIT's grid contacts (1-3 mm deep, up to R across) leave a 45 px band along each edge of
     its 240 px wide frame where no contact lies whole and the lens fit extrapolates (0.35 px in the
@@ -150,6 +152,7 @@ def test_shallow_registration_presses_register_the_digit_within_0_3_px(tmp_path)
     assert record["error_px"] <= 0.3, record
 
 
+@pytest.mark.long
 def test_the_elastic_mini_with_its_skin_registers_within_0_3_px_with_k1_alone(tmp_path):
     """The skin's shading halo reaches far past the rim. A free κ₂ followed the few outermost
     contacts, located a fraction of a pixel inward, and bent that into the outer band where no
@@ -162,6 +165,7 @@ def test_the_elastic_mini_with_its_skin_registers_within_0_3_px_with_k1_alone(tm
     assert record["error_px"] <= 0.3, record
 
 
+@pytest.mark.long
 def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_within_0_3_px(
     tmp_path, monkeypatch
 ):
@@ -185,6 +189,7 @@ def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_wit
     assert rigid["error_px"] > record["error_px"] + 0.05, rigid
 
 
+@pytest.mark.long
 def test_dataset_frames_are_rectified_so_contacts_sit_at_their_labels(mini_with_lens):
     folder, record = mini_with_lens
     ts = TrainingSet.load(folder / "ts")

@@ -70,6 +70,7 @@ def run(folder, margin):
     return outputs
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_rounds_stop_record_model_and_replay(tmp_path):
     outputs = run(tmp_path, margin=0.99)

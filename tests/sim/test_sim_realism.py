@@ -16,6 +16,7 @@ from threedcal.sim.realism import BallLabel, compare, image_figures, load_ball_d
 KNOWN_GAPS = {"noise_acf1", "halo_r50_px", "halo_width_px", "dI_p1_R", "dI_p99_R"}
 
 
+@pytest.mark.long
 def test_realism_in_sample_passes_the_figures_the_profile_was_fitted_to(real_data, capsys):
     code = main(["sim", "realism", "--in-sample", "--real", str(real_data / "gelsight_ball_fots")])
     out = capsys.readouterr().out
@@ -49,6 +50,7 @@ def test_write_fitted_never_overwrites_a_file_and_is_checked_before_the_fit(
     assert f"--write-fitted {nowhere}: folder {nowhere.parent} does not exist" in err
 
 
+@pytest.mark.long
 def test_realism_with_the_elastic_gel_and_its_skin_has_the_real_halo(real_data):
     """The Mini with the elastic gel and its skin (realism.gel_mechanics, as the default study's
     bench simulates it; its contact at a given depth is smaller, so each label's depth comes from
