@@ -168,3 +168,33 @@ def test_a_camera_needs_its_sensor_profile_before_anything_loads(tmp_path, capsy
     missing = str(tmp_path / "missing.pt")
     assert main(["live", "--checkpoint", missing, "--source", "0"]) == 1
     assert "--source 0 is a camera: give --sensor" in capsys.readouterr().err
+
+
+def test_live_with_a_stated_probe_warns_when_the_contact_outgrows_it(
+    tmp_path, monkeypatch, capsys, flat_model
+):
+    """A model that reads depth over the whole frame (its lighting read as depth) covers more
+    than a 2 mm ball can touch: one warning naming the unit and the fix, none again until a frame
+    comes back within; with no probe stated, or one large enough, no warning."""
+    frames = [BLANK] * 4
+    reads = iter([0.0, 0.3, 0.3, 0.0] * 3)
+
+    def depth(self, frame):
+        return np.full(frame.shape[:2], next(reads), np.float32)
+
+    monkeypatch.setattr(DepthEstimator, "depth", depth)
+    import threedcal.model.sources
+
+    monkeypatch.setattr(threedcal.model.sources, "open_source", lambda spec, sensor=None: frames)
+    args = ["live", "--checkpoint", flat_model, "--source", "stream", "--device", "cpu"]
+    assert main([*args, "--probe-radius-mm", "2"]) == 0
+    warnings = [line for line in capsys.readouterr().out.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and warnings[0].startswith("live: warning: frame 1: --source stream")
+    assert "the most a 2 mm probe can touch" in warnings[0]
+    assert "Calibrate this unit" in warnings[0] and "retake the blank" in warnings[0]
+    assert main(args) == 0  # no probe stated: no bound to check
+    assert "warning" not in capsys.readouterr().out
+    assert main([*args, "--probe-radius-mm", "100"]) == 0  # a ball larger than the frame
+    assert "warning" not in capsys.readouterr().out
+    assert main([*args, "--probe-radius-mm", "-2"]) == 1
+    assert "--probe-radius-mm must be a number > 0" in capsys.readouterr().err

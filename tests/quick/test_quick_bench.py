@@ -81,6 +81,7 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     assert (rounds["presses_scored"] == 4).all()  # every press inside the view is labelled
     assert (rounds["mse_low"] < rounds["mse"]).all() and (rounds["mse"] < rounds["mse_high"]).all()
     assert rounds["printer_s"].is_monotonic_increasing
+    assert (rounds["contact_area_ratio"] > 0).all()  # each round's presses under its model
     assert stop["stopped"] == "improvement below margin" and stop["presses"] == 8
     assert stop["printer_minutes"] == pytest.approx(rounds["printer_s"].iloc[-1] / 60, abs=0.01)
     # the starting weights and one model a round; the final one is usable as is
@@ -110,3 +111,53 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     with pytest.raises(StoreError, match="asks for more"):
         run(tmp_path, margin=0.01)
     assert snapshot(store) == before
+
+
+def test_a_rounds_contact_area_is_its_median_press_over_the_probes_disc_and_warns(
+    monkeypatch, caplog
+):
+    """The figure the rounds table records, on depth maps of known contact; a round whose median
+    press reads more than the probe can touch is warned of, naming the sensor and the fix."""
+    import logging
+    import math
+    from types import SimpleNamespace
+
+    import threedcal.model.inference as inference
+    from threedcal.quick.loop import QuickLoop
+
+    shape, px_per_mm, radius = (40, 50), 5.0, 2.0  # the disc: pi 10^2 = 314 px
+    areas = [100, 2000, 400, 600]  # plan rows 10..13; the round scores rows 11..13
+    maps = [np.zeros(shape) for _ in areas]
+    for depth, area in zip(maps, areas, strict=True):
+        depth.reshape(-1)[:area] = 0.3
+
+    class Estimator:
+        def depth(self, frames):
+            return np.stack([maps[int(f[0, 0, 0])] for f in frames])
+
+    monkeypatch.setattr(
+        inference.DepthEstimator, "from_checkpoint", classmethod(lambda cls, *a, **k: Estimator())
+    )
+    frames = np.zeros((4, *shape, 3), np.uint8)
+    frames[:, 0, 0, 0] = np.arange(4)
+    trainset = SimpleNamespace(
+        samples=pd.DataFrame({"plan_row": [10, 11, 12, 13]}),
+        frames=frames,
+        sphere_radius_mm=radius,
+        px_per_mm=px_per_mm,
+    )
+    loop = QuickLoop.__new__(QuickLoop)
+    loop.sensor = {"name": "digit_fots"}
+    bound = math.pi * (radius * px_per_mm) ** 2
+    with caplog.at_level(logging.WARNING, logger="threedcal"):
+        ratio = loop._contact_area_ratio("model.pt", trainset, 11, 14, 3)
+    assert ratio == pytest.approx(600 / bound)  # the median of 2000, 400, 600
+    assert "digit_fots, quick calibration round 3" in caplog.text
+    assert "600 px" in caplog.text and "Calibrate this unit" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="threedcal"):
+        assert loop._contact_area_ratio("model.pt", trainset, 10, 11, 1) == pytest.approx(
+            100 / bound
+        )
+        assert math.isnan(loop._contact_area_ratio("model.pt", trainset, 20, 30, 2))
+    assert not caplog.text

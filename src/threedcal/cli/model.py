@@ -177,7 +177,7 @@ def _live(args: argparse.Namespace) -> int:
     source = open_source(args.source, _live_sensor(args))
     frames_out, times = [], []
     retake = _BlankRequest()
-    warned = False
+    warned = oversized = False
     print(f"live: press b in the window, or kill -USR1 {os.getpid()}, to re-take the blank")
     with retake.on_signal():
         for count, frame in enumerate(tqdm(source, desc="live", unit="frame", total=args.frames)):
@@ -202,6 +202,11 @@ def _live(args: argparse.Namespace) -> int:
                     "send SIGUSR1 to re-take the blank"
                 )
             warned = drift > args.drift_warn_dn  # warned again only after it settled
+            if args.probe_radius_mm:
+                message = _oversized(estimator, depth, args)
+                if message and not oversized:
+                    tqdm.write(f"live: warning: frame {count}: {message}")
+                oversized = bool(message)  # warned again only after it came back within
             if args.points:
                 from threedcal.model.points import write_ply
 
@@ -228,6 +233,9 @@ def _check_live_args(args: argparse.Namespace) -> None:
         raise ConfigError(f"--frames must be >= 0 (0: all), got {args.frames}")
     if not args.drift_warn_dn > 0:
         raise ConfigError(f"--drift-warn-dn must be a number > 0, got {args.drift_warn_dn}")
+    radius = args.probe_radius_mm
+    if radius is not None and not (np.isfinite(radius) and radius > 0):
+        raise ConfigError(f"--probe-radius-mm must be a number > 0 (mm), got {radius}")
     inputs = {"--source": args.source, "--blank": args.blank, "--checkpoint": args.checkpoint}
     if args.out:
         if not (args.video_fps > 0 and np.isfinite(args.video_fps)):
@@ -248,6 +256,15 @@ def _check_live_args(args: argparse.Namespace) -> None:
             f"--source {args.source} is a camera: give --sensor (the sensor profile says how its "
             "frames are cropped, turned and sized, as at collection)"
         )
+
+
+def _oversized(estimator, depth, args: argparse.Namespace) -> str | None:
+    """The warning for a frame whose contact covers more than the stated probe can touch."""
+    from threedcal.model.contact_guard import contact_figures, oversized_message
+
+    figures = contact_figures(depth, args.probe_radius_mm, estimator.px_per_mm, args.contact_mm)
+    unit = f"sensor {args.sensor}" if args.sensor else f"--source {args.source}"
+    return oversized_message(f"{unit} with {args.checkpoint}", figures, args.probe_radius_mm)
 
 
 def _live_sensor(args: argparse.Namespace):
@@ -427,6 +444,13 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
         default=BACKGROUND_DRIFT_WARN_DN,
         help="warn when the no-contact region drifts this far from the blank (grey levels RMS, "
         "beyond a uniform shift)",
+    )
+    parser.add_argument(
+        "--probe-radius-mm",
+        type=float,
+        default=None,
+        help="the pressing ball's radius: warn when the contact covers more than it can touch "
+        "(the model reads this unit's lighting as depth: calibrate the unit, or retake the blank)",
     )
 
 

@@ -46,6 +46,7 @@ ROUND_COLUMNS = (
     "improvement_upper",
     "decision",
     "train_s",
+    "contact_area_ratio",
 )
 
 
@@ -84,6 +85,9 @@ class RoundRecord:
     improvement_upper: float
     decision: str
     train_s: float  # wall time of this round's labelling, scoring and fine-tuning
+    # the model before the round on its presses: median contact area over the probe's disc
+    # (threedcal.model.contact_guard; above 1, more than the probe can touch)
+    contact_area_ratio: float
 
 
 class QuickLoop:
@@ -150,6 +154,7 @@ class QuickLoop:
             self.models.append(initial)
         start = self.ends[k - 2] if k > 1 else self.first_row
         after = self._press_mse(self.models[k - 1], trainset, start, rows)
+        area_ratio = self._contact_area_ratio(self.models[k - 1], trainset, start, rows, k)
         improvement = None
         if k > 1:
             before = self._press_mse(self.models[k - 2], trainset, start, rows)
@@ -176,6 +181,7 @@ class QuickLoop:
                 improvement_upper=math.nan if improvement is None else improvement.upper,
                 decision=decision.reason if decision.go_on else f"stop: {decision.reason}",
                 train_s=round(time.perf_counter() - began, 2),
+                contact_area_ratio=area_ratio,
             )
         )
         if not decision.go_on:
@@ -205,6 +211,26 @@ class QuickLoop:
         )
         estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
         return coordinate_mse(estimator, view, split="score")["mse"].to_numpy(float)
+
+    def _contact_area_ratio(self, model_path: Path, trainset, start: int, stop: int, k: int):
+        """The median contact area over the probe's disc of the round's presses (plan rows
+        start..stop−1) under `model_path`; a median press over the bound is warned of."""
+        from threedcal.model.contact_guard import contact_figures, warn_if_oversized
+        from threedcal.model.inference import DepthEstimator
+
+        rows = trainset.samples["plan_row"].to_numpy()
+        scored = np.flatnonzero((rows >= start) & (rows < stop))
+        if not scored.size:
+            return math.nan
+        estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
+        depth = estimator.depth(np.asarray(trainset.frames)[scored])
+        radius = float(trainset.sphere_radius_mm)
+        figures = [contact_figures(d, radius, trainset.px_per_mm) for d in depth]
+        ratios = [f.area_ratio for f in figures]
+        middle = figures[int(np.argsort(ratios)[(len(ratios) - 1) // 2])]
+        unit = f"sensor {self.sensor.get('name')}, quick calibration round {k}"
+        warn_if_oversized(unit, middle, radius)
+        return float(np.median(ratios))
 
     def printer_s(self, rows: int) -> float:
         """The printer's time for the plan's first `rows` rows, from the motion model (homing,
