@@ -78,3 +78,56 @@ def test_a_contact_larger_than_the_probe_warns_naming_the_unit_and_the_fix(caplo
     with caplog.at_level(logging.WARNING, logger="threedcal"):
         assert warn_if_oversized("unit", within, 2.0) is None
     assert not caplog.text
+
+
+def test_a_trained_model_is_checked_on_its_calibrations_validation_presses(monkeypatch, caplog):
+    """Up to `limit` validation presses, evenly spread, read by the model; their median contact
+    over the probe's disc is returned and warned of above 1 (the training presses stand in for a
+    set without validation ones)."""
+    import pandas as pd
+
+    import threedcal.model.inference as inference
+    from threedcal.dataset.trainset import TrainingSet, samples_table
+    from threedcal.model.contact_guard import check_calibration_presses
+
+    n, shape = 10, (30, 40)
+    frames = np.zeros((n, *shape, 3), np.uint8)
+    frames[:, 0, 0, 0] = np.arange(n)  # each frame says which it is
+    read = []
+
+    class Estimator:
+        def depth(self, batch):
+            read.extend(int(f[0, 0, 0]) for f in batch)
+            # frame k reads a contact of 100 k px
+            return np.stack(
+                [
+                    np.pad(
+                        np.full(100 * int(f[0, 0, 0]), 0.2), (0, 1200 - 100 * int(f[0, 0, 0]))
+                    ).reshape(shape)
+                    for f in batch
+                ]
+            )
+
+    monkeypatch.setattr(
+        inference.DepthEstimator, "from_checkpoint", classmethod(lambda cls, *a, **k: Estimator())
+    )
+    split = ["train"] * 4 + ["val"] * 6
+    samples = samples_table(np.arange(n), np.zeros((n, 2)), np.ones(n), np.ones(n), split, [80] * n)
+    ts = TrainingSet(frames, np.zeros((*shape, 3), np.float32), samples, 5.0, 2.0)
+    bound = math.pi * 10.0**2
+    with caplog.at_level(logging.WARNING, logger="threedcal"):
+        ratio = check_calibration_presses("model.pt", ts, "scene s, P=80 r0", limit=3)
+    assert read == [4, 6, 9]  # three of the six validation presses, first to last
+    assert ratio == pytest.approx(600 / bound)
+    assert "scene s, P=80 r0" in caplog.text and "600 px" in caplog.text
+    train_only = TrainingSet(frames, ts.blank, samples.assign(split="train"), 5.0, 2.0)
+    read.clear()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="threedcal"):
+        assert check_calibration_presses("m.pt", train_only, "u", limit=2) == pytest.approx(
+            450 / bound
+        )
+    assert read == [0, 9] and "u:" in caplog.text  # 900 px over 314: the median is warned of
+    empty = TrainingSet(frames[:0], ts.blank, samples.iloc[:0], 5.0, 2.0)
+    assert math.isnan(check_calibration_presses("m.pt", empty, "u"))
+    assert isinstance(samples, pd.DataFrame)

@@ -72,6 +72,12 @@ def contact_figures(
     )
 
 
+def median_press(figures: list[ContactFigures]) -> ContactFigures:
+    """The press in the middle by contact area (of two middles, the larger): over the bound
+    whenever the median area ratio is."""
+    return sorted(figures, key=lambda f: f.area_ratio)[len(figures) // 2]
+
+
 def oversized_message(unit: str, figures: ContactFigures, probe_radius_mm: float) -> str | None:
     """The warning for a contact larger than the probe can make, or None within the bound."""
     if figures.area_px <= figures.bound_px:
@@ -90,3 +96,28 @@ def warn_if_oversized(unit: str, figures: ContactFigures, probe_radius_mm: float
     if message:
         logging.getLogger("threedcal").warning("%s", message)
     return message
+
+
+def check_calibration_presses(model_path, trainset, unit: str, limit: int = 8) -> float:
+    """A trained model on up to `limit` of its calibration's validation presses (evenly spread;
+    the training ones where it has none): the median contact area over the probe's disc, and a
+    warning when the median press reads more than the probe can touch. NaN without presses."""
+    from threedcal.dataset.trainset import TrainingSet
+    from threedcal.model.inference import DepthEstimator
+
+    if not isinstance(trainset, TrainingSet):
+        trainset = TrainingSet.load(trainset)
+    chosen = trainset.indices("val")
+    if not chosen.size:
+        chosen = trainset.indices("train")
+    if not chosen.size or limit < 1:
+        return math.nan
+    spread = np.unique(np.linspace(0, chosen.size - 1, min(limit, chosen.size)).round())
+    chosen = chosen[spread.astype(int)]
+    estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
+    radius = float(trainset.sphere_radius_mm)
+    depth = estimator.depth(np.asarray(trainset.frames)[chosen])
+    figures = [contact_figures(d, radius, trainset.px_per_mm) for d in depth]
+    ratios = [f.area_ratio for f in figures]
+    warn_if_oversized(unit, median_press(figures), radius)
+    return float(np.median(ratios))

@@ -215,7 +215,7 @@ class QuickLoop:
     def _contact_area_ratio(self, model_path: Path, trainset, start: int, stop: int, k: int):
         """The median contact area over the probe's disc of the round's presses (plan rows
         start..stop−1) under `model_path`; a median press over the bound is warned of."""
-        from threedcal.model.contact_guard import contact_figures, warn_if_oversized
+        from threedcal.model.contact_guard import contact_figures, median_press, warn_if_oversized
         from threedcal.model.inference import DepthEstimator
 
         rows = trainset.samples["plan_row"].to_numpy()
@@ -226,11 +226,9 @@ class QuickLoop:
         depth = estimator.depth(np.asarray(trainset.frames)[scored])
         radius = float(trainset.sphere_radius_mm)
         figures = [contact_figures(d, radius, trainset.px_per_mm) for d in depth]
-        ratios = [f.area_ratio for f in figures]
-        middle = figures[int(np.argsort(ratios)[(len(ratios) - 1) // 2])]
         unit = f"sensor {self.sensor.get('name')}, quick calibration round {k}"
-        warn_if_oversized(unit, middle, radius)
-        return float(np.median(ratios))
+        warn_if_oversized(unit, median_press(figures), radius)
+        return float(np.median([f.area_ratio for f in figures]))
 
     def printer_s(self, rows: int) -> float:
         """The printer's time for the plan's first `rows` rows, from the motion model (homing,
