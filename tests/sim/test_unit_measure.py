@@ -121,3 +121,15 @@ def test_too_few_pixels_or_a_wrong_mask_is_refused():
         um.smooth_field(image, np.ones((10, 20), bool))
     with pytest.raises(ConfigError, match="blanks of shapes"):
         um.field_difference_dn(image, np.zeros((20, 21, 3)))
+
+
+def test_markers_and_their_rims_are_kept_out():
+    height, width = 60, 80
+    image = np.full((height, width, 3), 150.0)
+    image += np.linspace(0, 40, width)[None, :, None]  # a bright side: no marker
+    yy, xx = np.mgrid[:height, :width]
+    distance = np.hypot((xx - 20) % 30 - 10, (yy - 15) % 30 - 10)  # to the nearest marker's centre
+    image[distance <= 3] = 30.0
+    keep = um.away_from_markers(image, grow_px=2)
+    assert not keep[distance <= 4].any()  # the marker and its rim (the square grow reaches 5-6 px)
+    assert keep[distance > 6].all()

@@ -44,6 +44,17 @@ def _keep(shape: tuple[int, int], keep: np.ndarray | None) -> np.ndarray:
     return keep
 
 
+def away_from_markers(image: np.ndarray, darkness: float = 0.6, grow_px: int = 3) -> np.ndarray:
+    """(H, W) bool: the pixels that are not a dark marker (luminance under `darkness` times its
+    sigma-15 px surroundings) nor within `grow_px` of one."""
+    import cv2
+
+    lum = np.asarray(image, dtype=np.float32).mean(axis=2)
+    dark = (lum < darkness * cv2.GaussianBlur(lum, (0, 0), 15)).astype(np.uint8)
+    size = 2 * int(grow_px) + 1
+    return ~cv2.dilate(dark, np.ones((size, size), np.uint8)).astype(bool)
+
+
 def smooth_field(
     image: np.ndarray, keep: np.ndarray | None = None, degree: int = FIELD_DEGREE
 ) -> np.ndarray:
