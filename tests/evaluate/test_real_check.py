@@ -86,7 +86,8 @@ def test_each_frames_contact_centroid_and_peak_against_what_the_ball_allows(
     """The model's depth is replaced by known caps: frame k's contact is a disc of (k + 1) x 4 px
     radius in the weights' frame, 1 px right of the located contact; its peak 0.5 mm."""
     ts, located = load_real_set(_folder(tmp_path / "set", labelled=False))
-    assert "background.png" in located and len(ts.frames) == len(CENTRES)
+    assert "locate_contact" in located and "6 of 6 frames" in located
+    assert len(ts.frames) == len(CENTRES) and ts.samples["located"].all()
     # located from the image: the disc's own centre, exactly (a uniform disc's centroid)
     np.testing.assert_allclose(ts.center_px, CENTRES, atol=0.05)
     assert set(ts.split) == {"train", "val"}  # two halves by place
@@ -137,3 +138,25 @@ def test_the_stage_reads_every_set_and_fine_tunes_where_it_has_labels(tmp_path, 
     assert not (tmp_path / "work" / "plain").exists()
     assert isinstance(frames, pd.DataFrame) and set(frames["half"]) == {"fit", "check"}
     assert len(frames) == 3 * len(CENTRES)  # plain once, labelled shipped and fine-tuned
+
+
+def test_frames_without_a_located_contact_count_for_area_not_for_centroid():
+    from threedcal.evaluate.real_check import summarise
+
+    rows = pd.DataFrame(
+        {
+            "area_ratio": [0.5, 0.9, 1.2, 0.8],
+            "within_bound": [True, True, False, True],
+            "centroid_error_mm": [0.1, np.nan, 0.3, 0.15],
+            "peak_mm": [1.0, 1.2, 1.4, 0.9],
+            "allowed_mm": [1.5, 1.5, 1.5, 1.5],
+            "peak_within": [True, True, True, True],
+        }
+    )
+    figures = summarise(rows)
+    assert figures["frames"] == 4 and figures["within_bound"] == 0.75
+    assert figures["centroid_frames"] == 3
+    assert figures["centroid_error_mm_median"] == pytest.approx(0.15)
+    assert figures["centroid_within_0p2mm"] == pytest.approx(2 / 3)
+    none = summarise(rows.assign(centroid_error_mm=np.nan))
+    assert none["centroid_frames"] == 0 and math.isnan(none["centroid_error_mm_median"])

@@ -7,9 +7,9 @@ side: threedcal.dataset.reframe) and read with the folder's own blank. Each fram
 
 - its contact area against the ball's physical bound πR²;
 - its contact centroid against the located contact: a labelled folder's circles refined from the
-  images, as the dataset stage refines them (threedcal.dataset.refine); an unlabelled folder's
-  contact found in the frame minus the background, as the realism check finds it
-  (threedcal.sim.realism.locate_ball);
+  images, as the dataset stage refines them (threedcal.dataset.refine); in an unlabelled folder,
+  the contact the dataset stage's locator finds in the frame minus the blank
+  (threedcal.dataset.contacts.locate_contact), and no centroid where it finds none;
 - its peak depth against what the press allows: the cap depth of the located contact's radius
   (never more than the ball's radius).
 
@@ -39,8 +39,7 @@ def load_real_set(folder: str | Path, seed: int = SPLIT_SEED) -> tuple:
     fitting half, 'val' the other."""
     from threedcal.dataset.importers import load_ball_folder
     from threedcal.dataset.refine import refine_labels
-    from threedcal.dataset.trainset import TrainingSet, from_imported, samples_table
-    from threedcal.images import read_rgb
+    from threedcal.dataset.trainset import from_imported
     from threedcal.sim.fit import split_halves
     from threedcal.sim.realism import load_ball_dataset
 
@@ -53,26 +52,49 @@ def load_real_set(folder: str | Path, seed: int = SPLIT_SEED) -> tuple:
         names = list(ts.meta["names"])
         located = "labels.csv, refined from the images (threedcal.dataset.refine)"
     else:
-        r_mm, px = data.ball_radius_mm, data.px_per_mm
-        names = [label.image for label in data.labels]
-        centres = np.array([label.center_px for label in data.labels], float)
-        a_mm = np.minimum([label.radius_px / px for label in data.labels], r_mm)
-        depth = r_mm - np.sqrt(r_mm * r_mm - a_mm * a_mm)
-        n = len(names)
-        ts = TrainingSet(
-            frames=np.stack([data.read(name) for name in names]),
-            blank=read_rgb(folder / "background.png").astype(np.float32),
-            samples=samples_table(np.arange(n), centres, depth, a_mm * px, ["val"] * n, [0] * n),
-            px_per_mm=px,
-            sphere_radius_mm=r_mm,
-            meta={"source": str(folder), "names": names},
+        ts = _located_set(folder, data)
+        names = list(ts.meta["names"])
+        located = (
+            "the dataset stage's contact locator (threedcal.dataset.contacts.locate_contact); "
+            f"{int(ts.samples['located'].sum())} of {len(names)} frames"
         )
-        located = "found in the frame minus background.png (threedcal.sim.realism.locate_ball)"
     in_fit = np.isin(names, sorted(fit_names))
     samples = ts.samples.assign(
         split=np.where(in_fit, "train", "val"), min_p=np.where(in_fit, 80, 0)
     )
     return dataclasses.replace(ts, samples=samples), located
+
+
+def _located_set(folder: Path, data):
+    """An unlabelled folder's frames, each contact where the dataset stage's locator finds a whole
+    one (column `located`); elsewhere the realism check's (threedcal.sim.realism.locate_ball),
+    for its radius only: such a frame's centroid is not scored."""
+    from threedcal.dataset.contacts import locate_contact
+    from threedcal.dataset.trainset import TrainingSet, samples_table
+    from threedcal.images import read_rgb
+
+    blank = read_rgb(folder / "background.png")
+    r_mm, px = data.ball_radius_mm, data.px_per_mm
+    names = [label.image for label in data.labels]
+    frames = np.stack([data.read(name) for name in names])
+    centres, radii, found = [], [], []
+    for frame, label in zip(frames, data.labels, strict=True):
+        contact = locate_contact(frame, blank)
+        found.append(contact is not None)
+        centres.append(label.center_px if contact is None else (contact.x_px, contact.y_px))
+        radii.append(label.radius_px if contact is None else contact.radius_px)
+    a_mm = np.minimum(np.asarray(radii) / px, r_mm)
+    depth = r_mm - np.sqrt(r_mm * r_mm - a_mm * a_mm)
+    n = len(names)
+    samples = samples_table(np.arange(n), centres, depth, a_mm * px, ["val"] * n, [0] * n)
+    return TrainingSet(
+        frames=frames,
+        blank=blank.astype(np.float32),
+        samples=samples.assign(located=found),
+        px_per_mm=px,
+        sphere_radius_mm=r_mm,
+        meta={"source": str(folder), "names": names},
+    )
 
 
 def allowed_depth_mm(ts) -> np.ndarray:
@@ -108,11 +130,14 @@ def frame_rows(ts, model_path: str | Path, frames: Sequence[int], threads: int =
 
     depth, framed = read_frames(ts, model_path, frames, threads)
     allowed = allowed_depth_mm(ts)
+    located = ts.samples["located"].to_numpy(bool) if "located" in ts.samples else None
     rows = []
     for k, frame in enumerate(frames):
         figures = contact_figures(depth[k], framed.sphere_radius_mm, framed.px_per_mm)
         cx, cy = framed.center_px[int(frame)]
         error_px = math.hypot(figures.centroid_x_px - cx, figures.centroid_y_px - cy)
+        if located is not None and not located[int(frame)]:
+            error_px = math.nan  # no contact the dataset stage would locate: not scored
         rows.append(
             {
                 "frame": int(frame),
@@ -165,14 +190,16 @@ def summarise(rows: pd.DataFrame) -> dict:
     """The per-frame rows of one (set, weights, half) reduced to the table's figures."""
     ratio = rows["area_ratio"].to_numpy(float)
     error = rows["centroid_error_mm"].to_numpy(float)
+    scored = error[np.isfinite(error)]
     return {
         "frames": int(len(rows)),
         "within_bound": float(rows["within_bound"].mean()) if len(rows) else math.nan,
         "area_ratio_median": float(np.median(ratio)) if len(rows) else math.nan,
         "area_ratio_p90": float(np.percentile(ratio, 90)) if len(rows) else math.nan,
-        "centroid_error_mm_median": float(np.nanmedian(error)) if len(rows) else math.nan,
-        "centroid_error_mm_p90": float(np.nanpercentile(error, 90)) if len(rows) else math.nan,
-        "centroid_within_0p2mm": float(np.mean(error <= 0.2)) if len(rows) else math.nan,
+        "centroid_error_mm_median": float(np.median(scored)) if scored.size else math.nan,
+        "centroid_error_mm_p90": float(np.percentile(scored, 90)) if scored.size else math.nan,
+        "centroid_frames": int(scored.size),
+        "centroid_within_0p2mm": float(np.mean(scored <= 0.2)) if scored.size else math.nan,
         "peak_mm_median": float(rows["peak_mm"].median()) if len(rows) else math.nan,
         "allowed_mm_median": float(rows["allowed_mm"].median()) if len(rows) else math.nan,
         "peak_within": float(rows["peak_within"].mean()) if len(rows) else math.nan,
@@ -191,6 +218,7 @@ TABLE_COLUMNS = (
     "area_ratio_p90",
     "centroid_error_mm_median",
     "centroid_error_mm_p90",
+    "centroid_frames",
     "centroid_within_0p2mm",
     "peak_mm_median",
     "allowed_mm_median",
