@@ -122,3 +122,11 @@ def test_unit_spread_smoke():
         assert finite([figures[k] for k in figures if k.startswith("spread_")])
         assert 1.0 < figures["spread_field_dn"] < 30.0  # two units' fields differ, by DN
         assert 0.0 < figures["spread_azimuth_deg"] < 60.0
+
+
+def test_pretrained_edges_smoke():
+    from diagnostics import pretrained_edges
+
+    figures = pretrained_edges.main(["--smoke", "--sensor", "digit_fots"])["digit_fots"]
+    assert finite(list(figures.values()))
+    assert 0 <= figures["within_bound"] <= 1 and figures["gradient_mse"] > 0
