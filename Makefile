@@ -10,7 +10,7 @@ CORES  ?= 2
 # The CPU torch wheel lives in /opt/wheels on our machines; pip looks there when it exists.
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: all smoke setup test lint bench report results-page clean cluster-test cluster-clean pretrained
+.PHONY: all smoke setup quick-study test lint bench report results-page clean cluster-test cluster-clean pretrained
 
 all: $(STAMP)
 	@start=$$(date +%s); \
@@ -24,6 +24,17 @@ smoke: $(STAMP)
 	$(BIN)/snakemake all --profile workflow/profiles/default --cores $(CORES) --configfile config/first_scene.yaml
 
 setup: $(STAMP)
+
+# The quick calibration against full calibrations over units (config/quick_study.yaml): every unit's
+# dense collection, P = 80 models and quick run, then results/quick_study/. CPU heavy (hours on 2
+# cores), not part of `all`; each simulated collection runs beside another.
+quick-study: $(STAMP)
+	@start=$$(date +%s); \
+	nice -n 10 $(BIN)/snakemake quick_study --profile workflow/profiles/default --cores $(CORES) \
+		--resources printer=$(CORES) --configfile config/quick_study.yaml; rc=$$?; \
+	took=$$(( $$(date +%s) - start )); \
+	echo "make quick-study took $$(( took / 60 )) min $$(( took % 60 )) s (exit $$rc) on $$(hostname): results/quick_study/"; \
+	exit $$rc
 
 # The weights shipped for `model.init: pretrained` (src/threedcal/pretrained/), rebuilt from simulated
 # presses of many units and installed into the package: about an hour on 2 cores, not part of `all`.

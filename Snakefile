@@ -10,15 +10,16 @@ from threedcal.config import (
     convergence_fractions,
     is_imported,
     model_keys,
-    runs_of,
     validate_config,
 )
 from threedcal.evaluate.objects import check_object_files
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
 from threedcal.model.crossval import CV_METHODS, method_settings
+from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
 from threedcal.model.sim2real import (
     SIM2REAL_CONDITIONS,
+    group_of,
     sensor_profile,
     sim2real_inputs,
     sim2real_keys,
@@ -29,12 +30,12 @@ from threedcal.scenes import (
     BENCH_TRUTH,
     COLLECT,
     CONVERGENCE,
-    CONVERGENCE_RUN,
     CV_FOLDS,
     CV_MODEL_DIR,
     ENVIRONMENT,
     INFERENCE_SPEED,
     INTEGRATION_STUDY,
+    LOCKSTEP_RESUME,
     OBJECTS,
     PRESETS,
     PRESSING,
@@ -43,6 +44,7 @@ from threedcal.scenes import (
     QUICK_ARMS,
     QUICK_ROUNDS,
     QUICK_SCRATCH,
+    QUICK_STUDY,
     REAL_CHECK,
     REALISM_TABLE,
     REALISM_HALO,
@@ -52,7 +54,7 @@ from threedcal.scenes import (
     RESKIN_MODEL,
     SCENE_JSON,
     SIM2REAL,
-    SIM2REAL_MODEL_DIR,
+    SIM2REAL_FOLD_DIR,
     SIM2REAL_PRETRAINED_DIR,
     SIM2REAL_SIMSET,
     SPLITS,
@@ -62,10 +64,12 @@ from threedcal.scenes import (
     STORE,
     SUMMARY,
     TRAINSET,
+    TWICE_STATS,
     ablation_scenes,
-    first_runs,
+    arms_scenes,
     full_model_file,
     has_objects,
+    lockstep_groups,
     model_file,
     quick_scenes,
     real_check_files,
@@ -98,8 +102,8 @@ config.update(validate_config(config, source=CONFIG_SOURCE))
 check_object_files(config, source=CONFIG_SOURCE)
 validate(config, "workflow/schemas/config.schema.yaml")
 
-# One printer: jobs that drive it hold `resources: printer=1`, so two never run at once, with or without
-# a profile. `--resources printer=N` (command line or profile) still decides where it is given.
+# One printer: jobs that drive a real one hold `resources: printer=1` (printer_held), so two never run at
+# once, with or without a profile; simulated scenes hold none. `--resources printer=N` still decides.
 if "printer" not in workflow.global_resources:
     workflow.global_resources["printer"] = 1
 
@@ -108,13 +112,17 @@ IMPORTED_SCENES = [
     name for name, scene in config["scenes"].items() if is_imported(scene)
 ]
 QUICK_SCENES = quick_scenes(config)
-# quick scenes measured against a full calibration of their unit (quick.compare_with), run 1 of each
-COMPARED_SCENES = first_runs(config)
+# quick scenes scored arm by arm against a full calibration of their unit (quick.compare_with)
+COMPARED_SCENES = arms_scenes(config)
 # scenes the collect stage probes (a quick scene collects in its own stage, round by round)
 COLLECTED_SCENES = [
     name for name in SCENES if name not in IMPORTED_SCENES and name not in QUICK_SCENES
 ]
 ABLATION_SCENES = ablation_scenes(config)
+# an ablation's models train a fraction at a time (rule train_ablation); every other scene's one
+# model in rule train
+LOCKSTEP_GROUPS = lockstep_groups(config)
+SINGLE_MODEL_SCENES = [name for name in SCENES if name not in ABLATION_SCENES]
 OBJECT_SCENES = [name for name in SCENES if has_objects(config["scenes"][name])]
 RESKIN_SCENES = reskin_scenes(config)
 # One software environment for every rule (used with `--sdm conda`; the local .venv otherwise).

@@ -1,5 +1,5 @@
 # Stage `ball_eval`: the cross-validated real-data evaluation of imported scenes (docs/explanation/real-data.md):
-# grouped folds, one model per (method, fold), then the pooled figures with intervals.
+# grouped folds, one job per fold training its model of every method, then the pooled figures with intervals.
 
 
 rule cv_folds:
@@ -29,23 +29,26 @@ rule cv_train:
         trainset=TRAINSET,
         folds=CV_FOLDS,
     output:
-        model=f"{CV_MODEL_DIR}/model.pt",
-        losses=f"{CV_MODEL_DIR}/losses.csv",
+        models=expand(f"{CV_MODEL_DIR}/model.pt", method=CV_METHODS, allow_missing=True),
+        losses=expand(
+            f"{CV_MODEL_DIR}/losses.csv", method=CV_METHODS, allow_missing=True
+        ),
     log:
-        "results/{scene}/logs/cv_{method}_fold{fold}.log",
+        "results/{scene}/logs/cv_train_fold{fold}.log",
     benchmark:
-        "results/{scene}/benchmarks/cv_{method}_fold{fold}.tsv"
+        "results/{scene}/benchmarks/cv_train_fold{fold}.tsv"
     wildcard_constraints:
         scene=one_of(IMPORTED_SCENES),
-        method="|".join(CV_METHODS),
         fold=r"\d+",
     conda:
         CONDA_ENV
     threads: scene_threads
     params:
-        model=lambda wildcards: method_settings(
-            config["scenes"][wildcards.scene], wildcards.method
-        ),
+        # every method of the fold in one job, in the order of `models`
+        methods=lambda wildcards: {
+            method: method_settings(config["scenes"][wildcards.scene], method)
+            for method in CV_METHODS
+        },
         seed=scene_seed,
         threads=scene_threads,
         code=code_digest("cv_train.py"),
@@ -86,8 +89,9 @@ rule ball_eval:
 
 
 # Stage `sim2real` (scenes with sim_to_real.enabled; docs/explanation/real-data.md): simulated presses of the
-# scene's sensor profile -> a pretrained model -> per fold and k, fine-tuned and real-only models
-# (and, with sim_to_real.shipped, the package's pretrained weights fine-tuned) -> error against k.
+# scene's sensor profile -> a pretrained model per group of test folds -> per condition and fold, one job
+# training every k: fine-tuned and real-only models (and, with sim_to_real.shipped, the package's
+# pretrained weights fine-tuned) -> error against k.
 
 
 rule sim2real_simulate:
@@ -97,12 +101,12 @@ rule sim2real_simulate:
     output:
         directory(SIM2REAL_SIMSET),
     log:
-        "results/{scene}/logs/sim2real_simulate_fold{fold}.log",
+        "results/{scene}/logs/sim2real_simulate_folds{folds}.log",
     benchmark:
-        "results/{scene}/benchmarks/sim2real_simulate_fold{fold}.tsv"
+        "results/{scene}/benchmarks/sim2real_simulate_folds{folds}.tsv"
     wildcard_constraints:
         scene=one_of(IMPORTED_SCENES),
-        fold=r"\d+",
+        folds=r"\d+(-\d+)*",
     conda:
         CONDA_ENV
     params:
@@ -123,12 +127,12 @@ rule sim2real_pretrain:
         model=f"{SIM2REAL_PRETRAINED_DIR}/model.pt",
         losses=f"{SIM2REAL_PRETRAINED_DIR}/losses.csv",
     log:
-        "results/{scene}/logs/sim2real_pretrain_fold{fold}.log",
+        "results/{scene}/logs/sim2real_pretrain_folds{folds}.log",
     benchmark:
-        "results/{scene}/benchmarks/sim2real_pretrain_fold{fold}.tsv"
+        "results/{scene}/benchmarks/sim2real_pretrain_folds{folds}.tsv"
     wildcard_constraints:
         scene=one_of(IMPORTED_SCENES),
-        fold=r"\d+",
+        folds=r"\d+(-\d+)*",
     conda:
         CONDA_ENV
     threads: scene_threads
@@ -150,16 +154,14 @@ rule sim2real_train:
         trainset=TRAINSET,
         folds=CV_FOLDS,
     output:
-        model=f"{SIM2REAL_MODEL_DIR}/model.pt",
-        losses=f"{SIM2REAL_MODEL_DIR}/losses.csv",
+        directory(SIM2REAL_FOLD_DIR),
     log:
-        "results/{scene}/logs/sim2real_{condition}_k{k}_fold{fold}.log",
+        "results/{scene}/logs/sim2real_{condition}_fold{fold}.log",
     benchmark:
-        "results/{scene}/benchmarks/sim2real_{condition}_k{k}_fold{fold}.tsv"
+        "results/{scene}/benchmarks/sim2real_{condition}_fold{fold}.tsv"
     wildcard_constraints:
         scene=one_of(IMPORTED_SCENES),
         condition="|".join(SIM2REAL_CONDITIONS),
-        k=r"\d+|all",
         fold=r"\d+",
     conda:
         CONDA_ENV

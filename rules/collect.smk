@@ -37,7 +37,7 @@ rule collect:
     conda:
         CONDA_ENV
     resources:
-        printer=1,
+        printer=printer_held,
     params:
         # Canonical JSON (sorted keys): reordering keys in the config never reruns anything.
         scene=lambda wildcards: canonical_json(

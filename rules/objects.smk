@@ -30,7 +30,7 @@ rule object_presses:
     conda:
         CONDA_ENV
     resources:
-        printer=1,
+        printer=printer_held,
     params:
         scene=lambda wildcards: stage_config(
             config["scenes"][wildcards.scene], "object_presses"

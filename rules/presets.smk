@@ -1,9 +1,10 @@
 # Stage `presets`: every CPU model preset trained alike on an imported scene, depth error against
-# inference time (the report's "which preset when").
+# inference time (the report's "which preset when"); the scene's own preset is its P = 80 model.
 
 
 rule presets:
     input:
+        unpack(presets_scene_model),
         trainset=TRAINSET,
     output:
         csv=PRESETS["csv"],

@@ -39,10 +39,10 @@ rule quick:
         "../scripts/quick.py"
 
 
-# Stage `quick_arms`, for quick scenes with `quick.compare_with` (run 1 of each): the rounds' models
-# of every run (quick; stopped: where each run stopped), run 1's presses trained from scratch, and the
-# compared scene's P = 80 models (full), scored on that scene's validation coordinates and
-# test-object presses (threedcal.quick.arms).
+# Stage `quick_arms`, for quick scenes with `quick.compare_with` (and quick.arms): the rounds' models
+# (quick; stopped: where the rule stopped), the same presses trained from scratch, and the compared
+# scene's P = 80 models (full), scored on that scene's validation coordinates and test-object
+# presses (threedcal.quick.arms).
 rule quick_arms:
     input:
         unpack(arms_inputs),
@@ -78,7 +78,39 @@ rule quick_arms:
             "objects",
         ),
         store=lambda wildcards: target(STORE, wildcards.scene),
-        runs=lambda wildcards: runs_of(config, wildcards.scene)[1:],
         code=code_digest("quick_arms.py"),
     script:
         "../scripts/quick_arms.py"
+
+
+# Target `quick_study` (`make quick-study`, config/quick_study.yaml; never part of `all`): every
+# compared quick scene's stopped model against its unit's full calibration, and the claim over
+# units (threedcal.quick.study).
+rule quick_study:
+    input:
+        unpack(quick_study_inputs),
+    output:
+        table=QUICK_STUDY["table"],
+        summary=QUICK_STUDY["summary"],
+        figure=report(
+            QUICK_STUDY["figure"],
+            caption="../workflow/report/quick_study.rst",
+            category="quick calibration over units",
+        ),
+    log:
+        "results/quick_study/logs/quick_study.log",
+    benchmark:
+        "results/quick_study/benchmarks/quick_study.tsv"
+    conda:
+        CONDA_ENV
+    threads: 1
+    params:
+        pairs=lambda wildcards: study_pairs(),
+        sensors={name: config["scenes"][name]["sensor"] for name, _ in study_pairs()},
+        units={
+            name: (config["scenes"][name].get("bench") or {}).get("unit")
+            for name, _ in study_pairs()
+        },
+        code=code_digest("quick_study.py"),
+    script:
+        "../scripts/quick_study.py"

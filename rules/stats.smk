@@ -1,7 +1,7 @@
 # Stage `stats`: per-coordinate validation error of every model (P, replicate) of a scene's ablation,
-# the tests against P = 80 (the paper's, paired, equivalence), the recommendation, the power of the
-# design and the paper's Fig. 3B / 4 figures; the cross-scene spread figure (Fig. 4C). See
-# docs/explanation/statistics.md.
+# the tests against P = 80 (the paper's, paired, equivalence), the learning curve over every
+# fraction, the recommendation, the power of the design and the paper's Fig. 3B / 4 figures; the
+# cross-scene spread figure (Fig. 4C). See docs/explanation/statistics.md.
 
 
 rule stats:
@@ -26,6 +26,18 @@ rule stats:
             subcategory="4 ablation",
         ),
         recommendation=STATS["recommendation"],
+        learning_curve=report(
+            STATS["learning_curve"],
+            caption="../workflow/report/stats_learning_curve.rst",
+            category="{scene}",
+            subcategory="4 ablation",
+        ),
+        learning_curve_figure=report(
+            STATS["learning_curve_figure"],
+            caption="../workflow/report/stats_learning_curve_figure.rst",
+            category="{scene}",
+            subcategory="4 ablation",
+        ),
         power=STATS["power"],
         power_figure=report(
             STATS["power_figure"],
@@ -98,28 +110,39 @@ rule stats_overview:
         "../scripts/stats_overview.py"
 
 
+# The ablation read again on the same models trained on to twice the budget (ablation.convergence).
+rule stats_twice:
+    input:
+        unpack(twice_models),
+        trainset=TRAINSET,
+        splits=SPLITS,
+    output:
+        **TWICE_STATS,
+    log:
+        "results/{scene}/logs/stats_twice.log",
+    benchmark:
+        "results/{scene}/benchmarks/stats_twice.tsv"
+    wildcard_constraints:
+        scene=one_of(ABLATION_SCENES),
+    conda:
+        CONDA_ENV
+    params:
+        models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
+        settings=config["stats"],
+        seed=scene_seed,
+        code=code_digest("stats_twice.py"),
+    script:
+        "../scripts/stats_twice.py"
+
+
+# Every fraction's error against training time: the snapshots at the earlier cycle ends scored,
+# with the validation errors at the budget and at twice it; per P, the change from one to the other.
 rule convergence:
     input:
-        study=lambda wildcards: [
-            model_file(wildcards.scene, p, 0)
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
-        study_losses=lambda wildcards: [
-            model_file(wildcards.scene, p, 0, "losses.csv")
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
-        twice=lambda wildcards: [
-            target(f"{CONVERGENCE_RUN}/snapshots", wildcards.scene).replace(
-                "{p}", str(p)
-            )
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
-        twice_losses=lambda wildcards: [
-            target(f"{CONVERGENCE_RUN}/losses.csv", wildcards.scene).replace(
-                "{p}", str(p)
-            )
-            for p in convergence_fractions(config["scenes"][wildcards.scene])
-        ],
+        snapshots=ablation_snapshots,
+        twice_losses=lambda wildcards: twice_files(wildcards, "losses.csv"),
+        budget_mse=STATS["validation_mse"],
+        twice_mse=TWICE_STATS["validation_mse"],
         trainset=TRAINSET,
     output:
         convergence=CONVERGENCE["convergence"],
@@ -139,9 +162,8 @@ rule convergence:
     conda:
         CONDA_ENV
     params:
-        fractions=lambda wildcards: convergence_fractions(
-            config["scenes"][wildcards.scene]
-        ),
+        models=lambda wildcards: model_keys(config["scenes"][wildcards.scene]),
+        steps=lambda wildcards: config["scenes"][wildcards.scene]["ablation"]["steps"],
         threads=lambda wildcards: config["scenes"][wildcards.scene]["torch_threads"],
         code=code_digest("convergence.py"),
     script:

@@ -1,15 +1,19 @@
-"""Rule `cv_train`: one cross-validation fold's model, trained on the other folds' images."""
+"""Rule `cv_train`: one cross-validation fold's model of every method, trained on the other folds'
+images."""
+
+from pathlib import Path
 
 from threedcal.logs import stage_log
-from threedcal.model.crossval import train_fold
+from threedcal.model.crossval import train_fold_methods
 
 with stage_log(snakemake.log[0]):
-    train_fold(
+    methods = snakemake.params.methods  # in the order of the models' outputs
+    train_fold_methods(
         snakemake.input.trainset,
         snakemake.input.folds,
         int(snakemake.wildcards.fold),
-        snakemake.params.model,
+        methods,
         snakemake.params.seed,
         snakemake.params.threads,
-        snakemake.output.model.rsplit("/", 1)[0],
+        {m: Path(p).parent for m, p in zip(methods, snakemake.output.models, strict=True)},
     )

@@ -12,4 +12,5 @@ with stage_log(snakemake.log[0]):
         snakemake.params.presets,
         snakemake.output.csv,
         snakemake.output.png,
+        scene_model=snakemake.input.get("scene_model"),
     )

@@ -27,12 +27,4 @@ with stage_log(snakemake.log[0]):
         pressing_dir=Path(snakemake.input.pressing_frames).parent,
         registration=snakemake.input.registration,
         out=dict(snakemake.output.items()),
-        more_runs=list(
-            zip(
-                snakemake.params.runs,
-                snakemake.input.runs_rounds,
-                snakemake.input.runs_work,
-                strict=True,
-            )
-        ),
     )

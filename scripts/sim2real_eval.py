@@ -1,5 +1,5 @@
-"""Rule `sim2real_eval`: held-out real-image errors of the sim+real and real-only models against
-k (errors.csv, images.csv, error_vs_k.png)."""
+"""Rule `sim2real_eval`: held-out real-image errors of the sim+real, real-only (and shipped+real)
+models against k (errors.csv, images.csv, error_vs_k.png)."""
 
 from threedcal.logs import stage_log
 from threedcal.model.sim2real import sim2real_eval

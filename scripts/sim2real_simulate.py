@@ -1,9 +1,9 @@
-"""Rule `sim2real_simulate`: one fold's simulated ball presses at the real set's image size, px/mm
-and ball radius, labelled exactly (a model-ready set), with the sensor profile's optics fitted to
-the fold's training images (`sim_to_real.profile: fitted`) or as they are (`as_is`)."""
+"""Rule `sim2real_simulate`: one group of test folds' simulated ball presses at the real set's image
+size, px/mm and ball radius, labelled exactly (a model-ready set), with the sensor profile's optics
+fitted to the images outside those folds (`sim_to_real.profile: fitted`) or as they are (`as_is`)."""
 
 from threedcal.logs import stage_log
-from threedcal.model.sim2real import write_simulated
+from threedcal.model.sim2real import parse_group, write_simulated
 
 with stage_log(snakemake.log[0]):
     write_simulated(
@@ -13,5 +13,5 @@ with stage_log(snakemake.log[0]):
         snakemake.params.seed,
         snakemake.output[0],
         folds_path=snakemake.input.folds,
-        fold=int(snakemake.wildcards.fold),
+        held_out=parse_group(snakemake.wildcards.folds),
     )

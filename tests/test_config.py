@@ -110,12 +110,9 @@ def test_training_fractions_default_to_one_full_model():
 def test_ablation_takes_a_list_or_fractions_with_replicates():
     plain = validate_config(config_with(ablation=[80, 5]))["scenes"]["s"]
     full = validate_config(config_with(ablation={"fractions": [5, 80], "replicates": 3}))
-    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1, "convergence": False}
-    assert full["scenes"]["s"]["ablation"] == {
-        "fractions": [5, 80],
-        "replicates": 3,
-        "convergence": False,
-    }
+    defaults = {"steps": 2000, "convergence": False, "batching": "auto"}
+    assert plain["ablation"] == {"fractions": [80, 5], "replicates": 1, **defaults}
+    assert full["scenes"]["s"]["ablation"] == {"fractions": [5, 80], "replicates": 3, **defaults}
     assert model_keys(full["scenes"]["s"]) == [(5, 0), (5, 1), (5, 2), (80, 0), (80, 1), (80, 2)]
     assert ablation_replicates(validate_config(config_with())["scenes"]["s"]) == 1
     assert "scenes.s.ablation.replicates: 0 is less than the minimum of 1" in error_of(
@@ -138,6 +135,7 @@ def test_stats_settings_default_to_the_papers_alpha_and_a_ten_percent_margin():
         "equivalence_margin": 0.10,
         "equivalence_alpha": 0.05,
         "power_simulations": 1000,
+        "curve_bootstrap": 2000,
     }
     assert "stats.equivalence_margin: 1.5 is greater than or equal to the maximum of 1" in error_of(
         {**config_with(), "stats": {"equivalence_margin": 1.5}}

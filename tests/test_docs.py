@@ -10,6 +10,10 @@ the line before a fence changes how its block runs:
     <!-- docs-test: setup: CODE -->       Python run first, unseen by the reader (e.g. `frame = ...`)
     <!-- docs-test: dry-run -->           each `snakemake` and `make` line runs with `-n` (what it
                                           would do: the default study takes 20 minutes)
+    <!-- docs-test: serve: URL -->        the block's one command is a server (`threedcal rig`):
+                                          started in the background, waited for until URL answers,
+                                          used by the blocks after it, stopped with Ctrl-C (SIGINT)
+                                          at the end of the page, where it must exit 0
 
 Helpers a setup line may call: `tiny_checkpoint(path)` trains a tiny model there (seconds) and
 `sim_frame()` renders a DIGIT ball press.
@@ -20,7 +24,11 @@ from __future__ import annotations
 import os
 import re
 import shlex
+import signal
 import subprocess
+import time
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -156,16 +164,64 @@ def run_shell(block: dict, page: Path, workspace: Path) -> None:
         assert done.returncode == 0, f"{where}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
 
 
+def start_server(block: dict, page: Path, workspace: Path) -> subprocess.Popen:
+    """The block's one command, started in the background; returned once `arg` (a URL) answers."""
+    lines = [line.split(" #", 1)[0].strip() for line in block["body"].splitlines()]
+    lines = [line for line in lines if line and not line.startswith("#")]
+    where = f"{page.relative_to(REPO)}:{block['line']}"
+    assert len(lines) == 1, f"{where}: a served block holds one command"
+    log = (workspace / f"server-{block['line']}.log").open("w")
+    server = subprocess.Popen(
+        shlex.split(lines[0]), cwd=workspace, stdout=log, stderr=subprocess.STDOUT, text=True
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        assert server.poll() is None, f"{where}: exited\n{Path(log.name).read_text()[-2000:]}"
+        try:
+            with urllib.request.urlopen(block["arg"], timeout=5):
+                return server
+        except (urllib.error.URLError, ConnectionError):
+            time.sleep(0.2)
+    server.kill()
+    raise AssertionError(f"{where}: {block['arg']} did not answer in 120 s")
+
+
+def stop_server(server: subprocess.Popen) -> None:
+    """Ctrl-C, as a user stops it; it must then exit cleanly."""
+    server.send_signal(signal.SIGINT)
+    try:
+        code = server.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        server.kill()
+        raise AssertionError(f"{server.args}: still running 60 s after Ctrl-C") from None
+    assert code == 0, f"{server.args}: exited {code} after Ctrl-C"
+
+
 @pytest.mark.slow  # a page dry-runs the default study: tens of seconds
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
 def test_page_examples_run(page, workspace):
+    servers: list[subprocess.Popen] = []
+    try:
+        run_page(page, workspace, servers)
+    finally:
+        for server in servers:
+            if server.poll() is None:
+                stop_server(server)
+
+
+def run_page(page: Path, workspace: Path, servers: list) -> None:
     namespace: dict = {"tiny_checkpoint": tiny_checkpoint, "sim_frame": sim_frame}
     for block in blocks(page):
         where = f"{page.relative_to(REPO)}:{block['line']}"
         if block["directive"] == "skip":
             assert block["arg"], f"{where}: a skipped example must say why"
             continue
-        assert block["directive"] in ("", "setup", "dry-run"), f"{where}: {block['directive']!r}"
+        assert block["directive"] in ("", "setup", "dry-run", "serve"), (
+            f"{where}: {block['directive']!r}"
+        )
+        if block["directive"] == "serve":
+            servers.append(start_server(block, page, workspace))
+            continue
         if block["lang"] == "yaml":
             first = block["body"].splitlines()[0]
             data = yaml.safe_load(block["body"])  # every YAML example parses

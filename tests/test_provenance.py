@@ -70,8 +70,10 @@ def test_every_rule_digests_the_script_it_runs():
 
     rules = 0
     for smk in sorted((REPO / "rules").glob("*.smk")):
-        for block in re.split(r"(?m)^(?=rule |checkpoint )", smk.read_text())[1:]:
-            name = block.split()[1].rstrip(":")
+        # rules defined in a loop are indented and may be anonymous (`rule:`)
+        for block in re.split(r"(?m)^[ \t]*(?=rule\b|checkpoint\b)", smk.read_text())[1:]:
+            head = block.split(":")[0].split()
+            name = head[1] if len(head) > 1 else "(defined in a loop)"
             script = re.search(r'script:\s*"\.\./scripts/([\w.]+)"', block)
             if script is None:
                 continue  # a rule without a script (e.g. `all`) runs no library code

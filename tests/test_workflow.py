@@ -128,6 +128,8 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         "stats/tests.png",
         "stats/power.csv",
         "stats/recommendation.txt",
+        "stats/learning_curve.csv",
+        "stats/learning_curve.png",
         "objects/errors.csv",
         "objects/figures/pill_by_P.png",
         "models/inference.json",
@@ -157,8 +159,9 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
         assert (tmp_path / f"results/{leaf}").is_file(), leaf
     summary = (tmp_path / "results/summary.md").read_text()
     assert collected in summary
-    # the stage-time table: the training of the collected scene is among the summed stages
-    assert f"| train | {collected} | 4 |" in summary
+    # the stage-time table: the training of the collected scene is among the summed stages, one
+    # job per fraction
+    assert f"| train_ablation | {collected} | 2 |" in summary
     # Snakemake limits every job's BLAS/OpenMP pools to the job's threads (1 for this rule)
     environment = json.loads((tmp_path / "results/environment.json").read_text())
     assert environment["thread_environment"] == dict.fromkeys(
@@ -177,7 +180,31 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert validation.groupby(["P", "replicate"])["point"].apply(frozenset).nunique() == 1
     tests = pd.read_csv(stats_dir / "tests.csv")
     assert set(tests["family"]) == {"paper", "paired", "equivalence", "placebo"}
-    assert "margin of mean validation MSE" in (stats_dir / "recommendation.txt").read_text()
+    recommendation = (stats_dir / "recommendation.txt").read_text().splitlines()
+    assert "margin of mean validation MSE" in recommendation[0]
+    # two fractions: no curve of three parameters, and the line says so
+    assert recommendation[1].startswith("learning curve not fitted: a curve of three parameters")
+    curve = pd.read_csv(stats_dir / "learning_curve.csv").set_index("quantity")
+    assert curve.loc["points_within_margin", "note"].startswith("not fitted")
+    assert (stats_dir / "learning_curve.png").stat().st_size > 0
+    # every model trained the same steps, and on to twice them: the ablation read again there,
+    # and every fraction's error at every cycle end (2, 4, 8 and 16 steps)
+    steps = config["scenes"][collected]["ablation"]["steps"]
+    for p, r in ((20, 0), (20, 1), (80, 0), (80, 1)):
+        folder = tmp_path / f"results/{collected}/models/P{p}/r{r}"
+        assert pd.read_csv(folder / "losses.csv")["step"].iloc[-1] == steps
+        assert pd.read_csv(folder / "twice/losses.csv")["step"].iloc[-1] == 2 * steps
+    twice = pd.read_csv(stats_dir / "twice/validation_mse.csv")
+    assert sorted(twice.groupby(["P", "replicate"]).groups) == sorted(
+        validation.groupby(["P", "replicate"]).groups
+    )
+    assert "margin of mean validation MSE" in (stats_dir / "twice/recommendation.txt").read_text()
+    assert (stats_dir / "twice/learning_curve.csv").is_file()
+    curve = pd.read_csv(stats_dir / "error_vs_time.csv")
+    assert sorted(curve["steps"].unique()) == [steps // 4, steps // 2, steps, 2 * steps]
+    assert len(curve) == 4 * 4 and curve["mse"].gt(0).all()
+    convergence = pd.read_csv(stats_dir / "convergence.csv")
+    assert convergence["P"].tolist() == [20, 80] and convergence["replicates"].eq(2).all()
     # `make cluster-test` compares this study's outputs with a Slurm run's byte for byte, timing
     # columns excepted: every table that times something must be named there.
     assert cluster_check().uncovered_timing_tables(tmp_path / "results") == []
@@ -189,7 +216,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     path = write_config(tmp_path, config)
     jobs = scheduled_jobs(tmp_path, path)
     rules = {rule for rule, _ in jobs}
-    assert {"train", "stats", "objects"} <= rules
+    assert {"train_ablation", "stats", "objects"} <= rules
     assert not rules & {
         "collect",
         "object_presses",
@@ -217,21 +244,22 @@ def test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes(tmp_p
         }
     }
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, config))
-    trains = sorted((wc["p"], wc["r"]) for rule, wc in jobs if rule == "train")
-    assert trains == [("20", "0"), ("80", "0")]  # the plain list form: one replicate
+    trains = sorted(wc["p"] for rule, wc in jobs if rule == "train_ablation")
+    assert trains == ["20", "80"]  # one job per fraction (the plain list form: one replicate)
     assert ("ball_eval", {"scene": "balls"}) in jobs
-    folds = sorted((wc["method"], wc["fold"]) for rule, wc in jobs if rule == "cv_train")
-    assert folds == [(m, str(f)) for m in ("lookup", "model") for f in range(6)]
+    # one job per fold trains the fold's model of every method
+    folds = sorted(int(wc["fold"]) for rule, wc in jobs if rule == "cv_train")
+    assert folds == list(range(6))
     # sim_to_real off (the default): no sim-to-real job
     assert not [rule for rule, _ in jobs if rule.startswith("sim2real")]
     # Asking for one P schedules that training alone (plus the dataset it reads).
     one = scheduled_jobs(
         tmp_path, write_config(tmp_path, config), "results/balls/models/P20/r0/model.pt"
     )
-    assert sorted(rule for rule, _ in one) == ["dataset_import", "train"]
+    assert sorted(rule for rule, _ in one) == ["dataset_import", "train_ablation"]
 
 
-def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path):
+def test_sim_to_real_schedules_one_job_per_condition_and_chosen_fold(tmp_path):
     balls = {
         "sensor": "gelsight_mini",
         "import": {"format": "ball_folder", "path": str(tmp_path / "data")},
@@ -239,24 +267,19 @@ def test_sim_to_real_schedules_one_job_per_condition_k_and_chosen_fold(tmp_path)
         "sim_to_real": {"enabled": True, "k": [4, "all"], "folds": [1, 3], "shipped": True},
     }
     jobs = scheduled_jobs(tmp_path, write_config(tmp_path, {"scenes": {"balls": balls}}))
-    trains = sorted(
-        (wc["condition"], wc["k"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train"
-    )
-    assert trains == [
-        (c, k, f)
-        for c in ("real_only", "shipped_real", "sim_real")
-        for k in ("4", "all")
-        for f in ("1", "3")
-    ]
-    # One simulated set and one pretraining per chosen fold (the optics fitted to its training images).
+    # every k of a (condition, fold) in one job
+    trains = sorted((wc["condition"], wc["fold"]) for rule, wc in jobs if rule == "sim2real_train")
+    assert trains == [(c, f) for c in ("real_only", "shipped_real", "sim_real") for f in ("1", "3")]
+    # One simulated set and one pretraining for both folds: the optics fitted to the images of the
+    # folds not evaluated, on which each of them trains.
     for rule in ("sim2real_simulate", "sim2real_pretrain"):
-        assert sorted(wc["fold"] for r, wc in jobs if r == rule) == ["1", "3"]
+        assert [wc["folds"] for r, wc in jobs if r == rule] == ["1-3"]
     assert ("sim2real_eval", {"scene": "balls"}) in jobs
     # Off (the default): no sim-to-real job (the same imported scene without sim_to_real is
     # test_one_training_job_per_fraction_and_a_ball_eval_for_imported_scenes's dry run).
 
 
-def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_single_model_stages(
+def test_one_training_job_per_fraction_for_its_replicates_and_replicate_0_for_single_model_stages(
     tmp_path,
 ):
     config = {
@@ -283,10 +306,15 @@ def test_one_training_job_per_fraction_and_replicate_and_replicate_0_for_the_sin
             values = dict(kv.split("=", 1) for kv in wildcards.group(1).split(", "))
             key = (rule.group(1), values["scene"], values.get("p"), values.get("r"))
             blocks[key] = block
-    trains = sorted((scene, p, r) for rule, scene, p, r in blocks if rule == "train")
-    assert trains == [("balls", p, r) for p in ("20", "80") for r in ("0", "1")] + [
-        ("sim", p, r) for p in ("20", "80") for r in ("0", "1", "2")
+    trains = sorted((scene, p) for rule, scene, p, _ in blocks if rule.startswith("train"))
+    assert trains == [("balls", "20"), ("balls", "80"), ("sim", "20"), ("sim", "80")]
+    # each job trains every replicate of its fraction (two rules: two replicate counts)
+    sim_job = blocks[
+        next(
+            key for key in blocks if key[:3] == (key[0], "sim", "80") and key[0].startswith("train")
+        )
     ]
+    assert all(f"models/P80/r{r}/model.pt" in sim_job for r in range(3))
     # objects reads every replicate of every P; inference_speed replicate 0 of the largest P;
     # ball_eval scores the cross-validation's fold models, never an ablation replicate
     objects = blocks[("objects", "sim", None, None)]
@@ -327,3 +355,21 @@ def test_realism_sets_carry_each_pairs_gel_mechanics():
     bad = {"real": "data/gelsight_ball_fots", "gel_mechanics": "soft"}
     with pytest.raises(ConfigError, match="gel_mechanics"):
         validate_config({"realism": bad, "scenes": {"s": {"sensor": "digit", "printer": "ender3"}}})
+
+
+def test_only_a_real_printer_is_held_one_job_at_a_time(tmp_path):
+    """`resources: printer` serialises the jobs that drive a real printer; every simulated scene
+    has its own bench, so its collection runs beside another's."""
+    config = {
+        "scenes": {
+            "real": {"sensor": "digit", "printer": "ender3", "port": "/dev/ttyUSB0", "camera": 0},
+            "sim": {"sensor": "digit", "printer": "ender3"},
+        }
+    }
+    result = snakemake(tmp_path, write_config(tmp_path, config), "--dry-run")
+    held = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", result.stdout + result.stderr):
+        if re.match(r"(?:local)?rule collect:", block.strip()):
+            scene = re.search(r"wildcards: scene=(\w+)", block).group(1)
+            held[scene] = re.search(r"resources: .*printer=(\d)", block).group(1)
+    assert held == {"real": "1", "sim": "0"}

@@ -14,6 +14,7 @@ from typing import Any
 from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.dataset.importers import check_import
 from threedcal.errors import ConfigError
+from threedcal.mount import scene_mount_values, with_mount
 from threedcal.profiles import ProfileNotFound, load_profile, resolve_profile
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
@@ -21,17 +22,30 @@ from threedcal.sim.marlin import parse_faults
 # The one fraction trained when a scene asks for no ablation: all training coordinates (80 % of all).
 FULL_TRAINING_P = 80
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
-IMPORT_IRRELEVANT = ("printer", "port", "camera", "reader", "probe", "plan", "bench", "pressing")
+IMPORT_IRRELEVANT = (
+    "printer",
+    "port",
+    "camera",
+    "reader",
+    "mount",
+    "probe",
+    "plan",
+    "bench",
+    "pressing",
+)
 # The built-in test objects (threedcal.evaluate.objects builds them); any other is an STL path.
 BUILTIN_OBJECTS = ("hemispheres", "pill", "pawn")
 
 
-def validate_config(config: Mapping, source: str = "config", *, check_files: bool = False) -> dict:
+def validate_config(
+    config: Mapping, source: str = "config", *, check_files: bool = False, new_mount: bool = False
+) -> dict:
     """Return a validated copy of `config` with defaults filled; raise ConfigError naming every bad key.
 
     Beyond the schema this finds what a run would refuse: unknown serial fault names, plans over the
     size limit, deeper than the sensor allows or outside the gel or the printer's travel.
     `check_files` (``threedcal config check``) also reads every imported dataset as its stage would.
+    `new_mount` (``threedcal rig``, which writes it): a scene's mount file may be missing.
     """
     if not isinstance(config, Mapping):
         raise ConfigError(
@@ -64,7 +78,7 @@ def validate_config(config: Mapping, source: str = "config", *, check_files: boo
         [
             f"scenes.{name}.{msg}"
             for name, scene in config["scenes"].items()
-            for msg in _run_problems(scene, check_files)
+            for msg in _run_problems(scene, check_files, new_mount)
         ]
         + _realism_problems(config)
         + _real_check_problems(config)
@@ -125,13 +139,17 @@ def _real_check_problems(config: Mapping) -> list[str]:
     return problems
 
 
-def _run_problems(scene: Mapping, check_files: bool) -> list[str]:
+def _run_problems(scene: Mapping, check_files: bool, new_mount: bool = False) -> list[str]:
     """What the scene's stages would refuse at run time, found before anything runs."""
     try:
         sensor = load_profile("sensor", scene["sensor"])
         printer = load_profile("printer", scene["printer"]) if scene.get("printer") else None
     except ConfigError as exc:
         return [f"{'printer' if 'printer profile' in str(exc) else 'sensor'}: {exc}"]
+    try:
+        sensor = with_mount(sensor, scene_mount_values(scene, None, missing_ok=new_mount))
+    except ConfigError as exc:
+        return [str(exc)]
     if check_files and (scene.get("model") or {}).get("init") == "pretrained":
         # (the workflow finds them when it plans a training: `make pretrained` builds them)
         from threedcal.pretrained import shipped_weights
@@ -235,23 +253,34 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
 
 def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """A quick plan whose registration presses (or, with none, its first round's) leave too few
-    whole contacts for the lens fit: registered by the affine alone, every label would carry the
-    lens's distortion, and a few presses cannot make up for it."""
-    from threedcal.collect.plan import quick_plan, registration_presses_of, whole_contacts
-    from threedcal.dataset.camera_fit import MIN_LENS_CONTACTS
+    whole contacts for the first round's registration: the affine through the profile's lens, its
+    contacts to spare for the outliers (threedcal.dataset.camera_fit.fit_camera)."""
+    from threedcal.collect.plan import (
+        quick_plan,
+        registration_presses_of,
+        rows_per_press,
+        whole_contacts,
+    )
+    from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS
 
     plan = scene["plan"]
     rows = registration_presses_of(plan, sensor)
     which = f"its {len(rows)} registration presses"
     if rows.empty:
-        rows = quick_plan(sensor, plan, quick_run(scene)).iloc[: int(plan["round_presses"])]
-        which = f"with no registration presses, its first round's {len(rows)}"
+        first = quick_plan(sensor, plan, quick_run(scene))
+        first = first.iloc[: int(plan["round_presses"]) * rows_per_press(plan)]
+        paused = first[first["phase"] == "register"]
+        rows = first if paused.empty else paused
+        which = f"its first round's {len(rows)} presses"
+        if not paused.empty:
+            which += f" (paused {plan['registration']['depth_mm']:g} mm deep)"
     whole = whole_contacts(sensor, rows, float(scene["probe"]["radius_mm"]))
-    if whole >= MIN_LENS_CONTACTS:
+    if whole >= MIN_FIRST_CONTACTS:
         return []
     return [
         f"plan.registration: {which} would leave about {whole} contacts whole in the frame; the "
-        f"lens fit needs {MIN_LENS_CONTACTS} (a smaller spacing_mm, e.g. 1.0; "
+        f"first round's registration needs {MIN_FIRST_CONTACTS} (more round_presses, a "
+        "shallower depth_mm, or registration presses; "
         "docs/explanation/registration.md#registration-presses)"
     ]
 
@@ -312,9 +341,12 @@ def compare_problems(config: Mapping) -> list[str]:
             problems.append(
                 f"{key}: {other} trains no P = {FULL_TRAINING_P} models (its ablation.fractions)"
             )
-        if not full.get("objects"):
-            problems.append(f"{key}: {other} presses no test objects (its `objects`)")
-    return problems + _run_problems_of(config)
+        if has_arms(scene) and not full.get("objects"):
+            problems.append(
+                f"{key}: {other} presses no test objects (its `objects`), which the arms score "
+                "(or set quick.arms: false)"
+            )
+    return problems
 
 
 def is_quick(scene: Mapping) -> bool:
@@ -327,52 +359,15 @@ def compared_with(scene: Mapping) -> str | None:
     return (scene.get("quick") or {}).get("compare_with") if is_quick(scene) else None
 
 
+def has_arms(scene: Mapping) -> bool:
+    """A compared quick scene scored arm by arm (`quick.arms`, quick/arms.*)."""
+    return bool(compared_with(scene)) and bool((scene.get("quick") or {}).get("arms", True))
+
+
 def quick_run(scene: Mapping) -> int:
     """Which run of its quick calibration a quick scene is (`quick.run`, 1 unless set): run r
     draws its own presses and training seed, as a second calibration of the unit would."""
     return int((scene.get("quick") or {}).get("run", 1)) if is_quick(scene) else 1
-
-
-def _run_free(scene: Mapping) -> dict:
-    """A scene's settings less what tells its runs apart (`description`, `quick.run`)."""
-    out = {k: v for k, v in scene.items() if k != "description"}
-    out["quick"] = {k: v for k, v in (scene.get("quick") or {}).items() if k != "run"}
-    return out
-
-
-def runs_of(config: Mapping, name: str) -> list[str]:
-    """The runs of quick scene `name`'s calibration, by run: `name` and every quick scene alike in
-    all but `description` and `quick.run` (quick/arms.csv pools them)."""
-    scenes = config["scenes"]
-    alike = [
-        other
-        for other, scene in scenes.items()
-        if is_quick(scene) and _run_free(scene) == _run_free(scenes[name])
-    ]
-    return sorted(alike, key=lambda other: quick_run(scenes[other]))
-
-
-def _run_problems_of(config: Mapping) -> list[str]:
-    """Compared runs of one quick calibration (`quick.run`): a run 1 alike in all but
-    `description` and `quick.run`, whose quick_arms pools them, and no run number twice."""
-    problems = []
-    for name, scene in config["scenes"].items():
-        if not compared_with(scene) or quick_run(scene) == 1:
-            continue
-        runs = runs_of(config, name)
-        numbers = [quick_run(config["scenes"][n]) for n in runs]
-        key = f"scenes.{name}.quick.run"
-        if 1 not in numbers:
-            problems.append(
-                f"{key}: {quick_run(scene)}, but no quick scene alike in all but description and "
-                "quick.run is run 1 (the run whose quick_arms pools the others)"
-            )
-        elif numbers.count(quick_run(scene)) > 1:
-            twins = ", ".join(n for n in runs if quick_run(config["scenes"][n]) == quick_run(scene))
-            problems.append(
-                f"{key}: {quick_run(scene)} is the run of more than one scene ({twins})"
-            )
-    return problems
 
 
 def _pretrained_problems(sensor: Mapping, model: Mapping, downscale: int) -> list[str]:
@@ -489,8 +484,10 @@ def _magnetic_problems(scene: Mapping) -> list[str]:
     return problems
 
 
-def load_config(path: str | Path, *, check_files: bool = False) -> dict:
-    return validate_config(load_yaml(path) or {}, source=str(path), check_files=check_files)
+def load_config(path: str | Path, *, check_files: bool = False, new_mount: bool = False) -> dict:
+    return validate_config(
+        load_yaml(path) or {}, source=str(path), check_files=check_files, new_mount=new_mount
+    )
 
 
 def scene_config(config: Mapping, scene: str) -> dict:
@@ -502,19 +499,25 @@ def scene_config(config: Mapping, scene: str) -> dict:
 
 
 def normalise_ablation(ablation: Any) -> dict:
-    """`ablation` in its full form {fractions: [...], replicates: R, convergence: bool}.
+    """`ablation` in its full form {fractions, replicates, steps, convergence, batching}.
 
-    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate.
+    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate; the
+    schema's defaults fill what a mapping leaves out.
     """
+    defaults = load_schema("config")["$defs"]["ablation"]["oneOf"][1]["properties"]
+    full = {key: spec["default"] for key, spec in defaults.items() if "default" in spec}
     if not ablation:
-        return {"fractions": [], "replicates": 1, "convergence": False}
+        return {**full, "fractions": []}
     if isinstance(ablation, Mapping):
+        full.update({k: v for k, v in ablation.items() if v is not None})
         return {
-            "fractions": list(ablation.get("fractions") or []),
-            "replicates": int(ablation.get("replicates", 1)),
-            "convergence": bool(ablation.get("convergence", False)),
+            **full,
+            "fractions": list(full.get("fractions") or []),
+            "replicates": int(full["replicates"]),
+            "steps": int(full["steps"]),
+            "convergence": bool(full["convergence"]),
         }
-    return {"fractions": list(ablation), "replicates": 1, "convergence": False}
+    return {**full, "fractions": list(ablation)}
 
 
 def training_fractions(scene: Mapping) -> list[int]:
@@ -528,13 +531,13 @@ def ablation_replicates(scene: Mapping) -> int:
 
 
 def convergence_fractions(scene: Mapping) -> list[int]:
-    """The fractions trained again at twice the budget (ablation.convergence): P = 80 and the
-    smallest; none without the option or an ablation."""
+    """The fractions whose models train on to twice the budget (ablation.convergence): every
+    fraction of an ablation with the option; none without it or an ablation."""
     ablation = normalise_ablation(scene.get("ablation"))
     fractions = training_fractions(scene)
     if not ablation["convergence"] or len(fractions) < 2 or FULL_TRAINING_P not in fractions:
         return []
-    return sorted({min(fractions), FULL_TRAINING_P})
+    return fractions
 
 
 def model_keys(scene: Mapping) -> list[tuple[int, int]]:

@@ -112,6 +112,15 @@ def check_devices(scene: Mapping, sensor: Mapping, source: str = "scene") -> Non
         )
 
 
+def bench_sensor(scene: Mapping, sensor: Mapping) -> dict:
+    """The sensor as the simulated bench seats it: in the base its profile describes (the
+    profile's `mount`, give or take the bench's hidden seating). A scene's own `mount`
+    (threedcal.mount) is what its user measured of the rig, not where the bench put the sensor."""
+    from threedcal.profiles import load_profile
+
+    return {**sensor, "mount": load_profile("sensor", scene["sensor"])["mount"]}
+
+
 def open_camera(sensor: Mapping, device: int | str | None):
     """The sensor's camera (not yet opened: use it as a context manager)."""
     from threedcal.hardware.camera import OpenCVCamera
@@ -156,7 +165,7 @@ def _bench_rig(scene: Mapping, sensor: Mapping, printer: Mapping) -> Iterator[Ri
     with contextlib.ExitStack() as stack:
         bench = stack.enter_context(
             Bench(
-                sensor,
+                bench_sensor(scene, sensor),
                 scene["probe"]["radius_mm"],
                 settings,
                 scene["seed"],

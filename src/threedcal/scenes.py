@@ -15,17 +15,18 @@ from typing import Any
 
 from threedcal.config import (
     FULL_TRAINING_P,
-    compared_with,
     convergence_fractions,
+    has_arms,
     is_imported,
     is_quick,
     model_keys,
-    quick_run,
+    normalise_ablation,
     real_check_sets,
     realism_sets,
     training_fractions,
 )
 from threedcal.errors import ConfigError
+from threedcal.mount import scene_mount_values
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -57,11 +58,12 @@ TRAINSET = f"{SCENE}/dataset/trainset"
 SPLITS = f"{SCENE}/dataset/splits.csv"
 REGISTRATION = f"{SCENE}/dataset/registration.json"
 REGISTRATION_FIGURE = f"{SCENE}/dataset/registration.png"
-# One training job per (P, replicate) (rules/train.smk), and the speed of the largest P's model.
+# One model per (P, replicate) (rules/train.smk), and the speed of the largest P's model. An
+# ablation trains a fraction's replicates in one job (threedcal.model.lockstep), which keeps its
+# state in LOCKSTEP_RESUME until it ends.
 MODEL_DIR = f"{SCENE}/models/P{{p}}/r{{r}}"
+LOCKSTEP_RESUME = f"{SCENE}/models/P{{p}}/resume.pt"
 INFERENCE_SPEED = f"{SCENE}/models/inference.json"
-# The convergence check's second training of a fraction P (rules/train.smk, train_twice).
-CONVERGENCE_RUN = f"{SCENE}/convergence/P{{p}}"
 # The weights shipped for `model.init: pretrained`, one network per sensor (rules/pretrained.smk).
 PRETRAINED_DIR = f"{RESULTS}/pretrained/{{sensor}}"
 # The quick calibration (rules/quick.smk), for scenes whose plan is `pattern: quick`: rounds of
@@ -72,6 +74,11 @@ QUICK_ROUNDS = f"{SCENE}/quick/rounds"
 # the same presses trained from scratch (one model a round under scratch/), its full calibration.
 QUICK_ARMS = _files(f"{SCENE}/quick", table="arms.csv", figure="arms.png", verdicts="arms.json")
 QUICK_SCRATCH = f"{SCENE}/quick/scratch"
+# The quick calibration over units (rules/quick.smk, quick_study; `make quick-study`): every compared
+# quick scene's stopped model against its full calibration, and the claim over units.
+QUICK_STUDY = _files(
+    f"{RESULTS}/quick_study", table="units.csv", summary="summary.json", figure="units.png"
+)
 # The stats stage (rules/stats.smk), for scenes with an ablation.
 STATS = _files(
     f"{SCENE}/stats",
@@ -79,6 +86,8 @@ STATS = _files(
     tests="tests.csv",
     tests_figure="tests.png",
     recommendation="recommendation.txt",
+    learning_curve="learning_curve.csv",
+    learning_curve_figure="learning_curve.png",
     power="power.csv",
     power_figure="power.png",
     costs="error_vs_cost.csv",
@@ -87,7 +96,16 @@ STATS = _files(
     kde_figure="mse_kde.png",
     cost_figure="error_vs_cost.png",
 )
-# The convergence check (rules/stats.smk, ablation.convergence).
+# The ablation read again on the models trained on to twice the budget (ablation.convergence), and
+# every fraction's error against training time (rules/stats.smk).
+TWICE_STATS = _files(
+    f"{SCENE}/stats/twice",
+    validation_mse="validation_mse.csv",
+    tests="tests.csv",
+    recommendation="recommendation.txt",
+    learning_curve="learning_curve.csv",
+    learning_curve_figure="learning_curve.png",
+)
 CONVERGENCE = _files(
     f"{SCENE}/stats",
     convergence="convergence.csv",
@@ -123,9 +141,12 @@ RESKIN_EVAL = {"metrics": f"{SCENE}/reskin_eval.json", "figure": f"{SCENE}/reski
 # and the sim-to-real stage (threedcal.model.sim2real).
 CV_FOLDS = f"{SCENE}/cv/folds.csv"
 CV_MODEL_DIR = f"{SCENE}/cv/{{method}}/fold{{fold}}"
-SIM2REAL_SIMSET = f"{SCENE}/sim2real/fold{{fold}}/simset"
-SIM2REAL_PRETRAINED_DIR = f"{SCENE}/sim2real/fold{{fold}}/pretrained"
-SIM2REAL_MODEL_DIR = f"{SCENE}/sim2real/{{condition}}/k{{k}}/fold{{fold}}"
+# One simulated set and pretraining per group of test folds (`{folds}`: 0-1-2), one folder of
+# models (k{k}/model.pt) per condition and fold.
+SIM2REAL_PRETRAINING = f"{SCENE}/sim2real/pretraining/folds{{folds}}"
+SIM2REAL_SIMSET = f"{SIM2REAL_PRETRAINING}/simset"
+SIM2REAL_PRETRAINED_DIR = f"{SIM2REAL_PRETRAINING}/pretrained"
+SIM2REAL_FOLD_DIR = f"{SCENE}/sim2real/{{condition}}/fold{{fold}}"
 BALL_EVAL = {
     "json": f"{SCENE}/ball_eval.json",
     "images": f"{SCENE}/cv/images.csv",
@@ -176,25 +197,47 @@ RECORDED_PACKAGES = (
 # The scene keys each stage reads: its `params` carry exactly these, so a change reruns only the
 # stages that read the changed key (a new model preset never recollects).
 STAGE_KEYS = {
-    "collect": ("sensor", "printer", "port", "camera", "reader", "probe", "plan", "bench", "seed"),
-    "dataset": ("sensor", "probe", "import", "dataset", "ablation", "seed"),
+    "collect": (
+        "sensor",
+        "printer",
+        "port",
+        "camera",
+        "reader",
+        "mount",
+        "probe",
+        "plan",
+        "bench",
+        "seed",
+    ),
+    "dataset": ("sensor", "mount", "probe", "import", "dataset", "ablation", "seed"),
     "object_presses": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "bench",
         "objects",
         "pressing",
         "seed",
     ),
-    "objects": ("sensor", "port", "objects", "pressing", "integrators", "seed", "torch_threads"),
+    "objects": (
+        "sensor",
+        "mount",
+        "port",
+        "objects",
+        "pressing",
+        "integrators",
+        "seed",
+        "torch_threads",
+    ),
     "quick": (
         "sensor",
         "printer",
         "port",
         "camera",
+        "mount",
         "probe",
         "plan",
         "bench",
@@ -208,8 +251,16 @@ STAGE_KEYS = {
 
 
 def stage_config(scene: Mapping, stage: str) -> dict:
-    """The part of a scene's config that `stage` reads."""
-    return {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    """The part of a scene's config that `stage` reads. Of `ablation`, the subsets' fractions and
+    replicates alone: the training budget is not the dataset's. A `mount` file is read into its
+    values: a changed file is a changed config (the stage reruns, and reads what its params say)."""
+    part = {key: scene[key] for key in STAGE_KEYS[stage] if key in scene}
+    if "ablation" in part:
+        ablation = normalise_ablation(part["ablation"])
+        part["ablation"] = {key: ablation[key] for key in ("fractions", "replicates")}
+    if isinstance(part.get("mount"), str):
+        part["mount"] = scene_mount_values(scene)
+    return part
 
 
 def has_sim2real(scene: Mapping) -> bool:
@@ -233,7 +284,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     targets = of(SCENE_JSON)
     if is_quick(scene):  # one model, round by round; no dataset, ablation or objects stage
         targets += of(*QUICK.values())
-        if compared_with(scene) and quick_run(scene) == 1:  # run 1's arms pool its runs
+        if has_arms(scene):
             targets += of(*QUICK_ARMS.values(), QUICK_SCRATCH)
         return targets
     if is_magnetic_scene(scene):  # collection, then the MLP; no images, so no registration or depth
@@ -256,7 +307,7 @@ def scene_targets(name: str, scene: Mapping) -> list[str]:
     if has_ablation(scene):
         targets += of(*STATS.values())
     if convergence_fractions(scene):
-        targets += of(*CONVERGENCE.values())
+        targets += of(*TWICE_STATS.values(), *CONVERGENCE.values())
     return targets
 
 
@@ -264,13 +315,9 @@ def quick_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if is_quick(scene)]
 
 
-def first_runs(config: Mapping) -> list[str]:
-    """The compared quick scenes that are run 1 of their calibration: one quick_arms each."""
-    return [
-        name
-        for name in quick_scenes(config)
-        if compared_with(config["scenes"][name]) and quick_run(config["scenes"][name]) == 1
-    ]
+def arms_scenes(config: Mapping) -> list[str]:
+    """The compared quick scenes scored arm by arm (quick_arms)."""
+    return [name for name in quick_scenes(config) if has_arms(config["scenes"][name])]
 
 
 def is_vision(scene: Mapping) -> bool:
@@ -291,6 +338,21 @@ def has_ablation(scene: Mapping) -> bool:
 
 def ablation_scenes(config: Mapping) -> list[str]:
     return [name for name, scene in config["scenes"].items() if has_ablation(scene)]
+
+
+def lockstep_groups(config: Mapping) -> dict[tuple[int, int, bool], list[str]]:
+    """Ablation scenes by (replicates, steps, convergence): one lockstep training rule each, whose
+    outputs (every replicate's model, snapshots and twice-the-budget model) these fix."""
+    groups: dict[tuple[int, int, bool], list[str]] = {}
+    for name in ablation_scenes(config):
+        ablation = normalise_ablation(config["scenes"][name].get("ablation"))
+        key = (
+            ablation["replicates"],
+            ablation["steps"],
+            bool(convergence_fractions(config["scenes"][name])),
+        )
+        groups.setdefault(key, []).append(name)
+    return groups
 
 
 def model_file(name: str, percent, replicate=0, leaf: str = "model.pt") -> str:

@@ -10,6 +10,7 @@ import pytest
 from threedcal.collect.plan import clearance_z, grid_plan, plan_to_printer
 from threedcal.collect.run import CollectionInterrupted, MotionSettings, collect
 from threedcal.collect.store import RawStore, open_raw
+from threedcal.errors import ConfigError
 from threedcal.hardware.printer import MarlinHost, PrinterTimeout, printer_profile
 from threedcal.sim.marlin import SimMarlin
 
@@ -260,3 +261,70 @@ def test_the_end_of_a_run_releases_as_the_profile_says(tmp_path, bench):
         run_on(host, store, firmware, PositionCamera(firmware))
     assert firmware.executed_commands()[-1] == "M84 S60" and firmware.idle_timeout_s == 60
     assert firmware.position()[2] == pytest.approx(clearance_z(SENSOR))
+
+
+class ScriptedSearch:
+    """A touch-search decider that asks for the depths it is given, in turn, and keeps what it saw."""
+
+    def __init__(self, depths):
+        self.depths, self.seen, self.blank = list(depths), [], None
+
+    def begin(self, blank_frames):
+        self.blank = blank_frames
+
+    def depth(self, k):
+        return self.depths[k]
+
+    def observe(self, k, depth_mm, frames):
+        self.seen.append((k, depth_mm, frames[:, 0, 0, 2].astype(float) / 10))
+
+
+def z_moves(firmware) -> list[float]:
+    return [
+        float(word[1:])
+        for _, command in numbered_log(firmware)
+        if command.split()[0] in ("G0", "G1")
+        for word in command.split()[1:]
+        if word.startswith("Z")
+    ]
+
+
+def searched_plan(touch_depths) -> pd.DataFrame:
+    """Touch rows at the centre (their depth the deepest allowed), then one quick press pausing
+    0.25 mm deep on its way down to 1.0 mm."""
+    rows = [(1.0, 0.5, max(touch_depths), 2, "touch")] * len(touch_depths)
+    rows += [(0.5, 0.5, 0.25, 1, "register"), (0.5, 0.5, 1.0, 1, "grid")]
+    return pd.DataFrame(rows, columns=["x_mm", "y_mm", "depth_mm", "frames", "phase"])
+
+
+def test_a_search_decides_each_touch_rows_depth_and_a_press_pauses_without_lifting(tmp_path, bench):
+    url, firmware = bench
+    chosen = [0.3, 0.05, -0.075, 0.1125]
+    plan = searched_plan(chosen)
+    store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
+    search = ScriptedSearch(chosen)
+    run(store, url, firmware, touch_search=search)
+    store.finalize()
+    ds = open_raw(tmp_path / "raw.zarr")
+    # each touch row pressed where the search said, stored with its frames, seen by the search
+    touch = ds.point.values < len(chosen)
+    np.testing.assert_allclose(ds.depth_mm.values[touch], np.repeat(chosen, 2))
+    np.testing.assert_allclose(ds.cmd_z_mm.values[touch], 20.0 - np.repeat(chosen, 2))
+    assert [k for k, _, _ in search.seen] == [0, 1, 2, 3] and search.blank.shape == (2, 4, 4, 3)
+    for k, depth, z in search.seen:
+        assert depth == chosen[k] and z == pytest.approx([20.0 - depth] * 2, abs=0.1)
+    # the pause at 0.25 mm goes straight on down to 1.0 mm: no hop between the two rows
+    moves = z_moves(firmware)
+    paused = moves.index(19.75)
+    assert moves[paused + 1] == 19.0
+    assert ds.depth_mm.values[~touch].tolist() == [0.25, 1.0]  # the plan's own depths
+
+
+def test_a_search_asking_deeper_than_the_plan_allows_is_refused_before_that_press(tmp_path, bench):
+    url, firmware = bench
+    plan = searched_plan([0.3, 0.3])
+    store = RawStore.create(tmp_path / "raw.zarr", plan, (4, 4, 3), 2, {})
+    with pytest.raises(ConfigError, match="deeper than the plan's 0.3 mm there; not pressed"):
+        run(store, url, firmware, touch_search=ScriptedSearch([0.3, 0.45]))
+    assert min(z_moves(firmware)) == pytest.approx(19.7)  # 0.3 mm deep at most
+    assert store.captured.tolist() == [True, False, False, False]

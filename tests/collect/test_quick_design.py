@@ -21,6 +21,7 @@ from threedcal.collect.plan import (
     whole_contacts,
 )
 from threedcal.config import validate_config
+from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 
 SENSOR = load_profile("sensor", "digit_fots")
@@ -149,3 +150,62 @@ def test_whole_contacts_counts_the_contacts_whose_rim_and_margin_lie_in_the_fram
     assert whole_contacts(mini, rows, 2.0) == 2
     assert whole_contacts(mini, rows.iloc[2:], 2.0) == 0
     assert whole_contacts(mini, rows.iloc[:0], 2.0) == 0
+
+
+def test_each_quick_press_pauses_to_register_on_its_way_down():
+    """registration.each_press: every press is two rows at one place, its pause (phase register,
+    the registration depth) then its own depth (grid), one press; the rounds count presses."""
+    from threedcal.collect.plan import continued_presses, plan_phases, rows_per_press
+
+    config = quick_plan_config(
+        round_presses=10,
+        max_presses=30,
+        registration={"depth_mm": 0.25, "each_press": True, "frames": 3},
+        touch_search={"method": "bisect", "presses": 8, "points": 1},
+    )
+    plan = plan_from_config(config, SENSOR)
+    assert rows_per_press(config) == 2
+    assert plan["phase"].tolist() == ["touch"] * 8 + ["register", "grid"] * 30
+    paused, pressed = plan.iloc[8::2], plan.iloc[9::2]
+    np.testing.assert_array_equal(paused[["x_mm", "y_mm"]], pressed[["x_mm", "y_mm"]])
+    sag = dome_sag_mm(SENSOR, pressed["x_mm"], pressed["y_mm"])
+    np.testing.assert_allclose(paused["depth_mm"], 0.25 + sag, atol=1e-4)
+    np.testing.assert_allclose(pressed["depth_mm"], 1.0 + sag, atol=1e-4)
+    assert (paused["frames"] == 3).all() and (pressed["frames"] == 2).all()
+    # the same presses, in the same order, as the plan without pauses
+    plain = plan_from_config({**config, "registration": {}}, SENSOR)
+    np.testing.assert_array_equal(pressed[["x_mm", "y_mm"]], plain.iloc[8:][["x_mm", "y_mm"]])
+    assert quick_rounds(config, 8) == [28, 48, 68]  # 10 presses, 20 rows a round
+    assert continued_presses(plan).tolist() == [False] * 8 + [False, True] * 30
+    stored = plan[["x_mm", "y_mm", "depth_mm", "frames"]].to_dict("list")
+    assert plan_phases(stored, config, SENSOR).tolist() == plan["phase"].tolist()
+    validate_plan(plan, SENSOR, load_profile("printer", "ender3"))
+
+
+def test_a_bisecting_touch_search_plans_its_presses_at_the_deepest_it_may_press():
+    from threedcal.collect.plan import touch_search_range
+
+    search = {"method": "bisect", "presses": 8, "points": 1, "frames": 4, "beyond_mm": 0.1}
+    config = quick_plan_config(touch_search=search)
+    plan = plan_from_config(config, SENSOR)
+    touch = plan[plan["phase"] == "touch"]
+    low, high = touch_search_range(SENSOR, config["touch_search"])
+    assert (low, high) == pytest.approx((-0.2, 0.3))  # probing.touch_uncertainty_mm 0.2 each way
+    assert len(touch) == 8 and (touch["frames"] == 4).all()
+    np.testing.assert_allclose(touch["depth_mm"], high + dome_sag_mm(SENSOR, 8.0, 9.0))
+
+
+def test_a_grid_plan_keeps_to_its_area_as_the_whole_areas_lattice():
+    full = {"spacing_mm": 0.5, "depths_mm": [1.0, 2.0, 3.0], "depth_mode": "cycle", "frames": 1}
+    full["registration"] = {"spacing_mm": 1.0, "depth_mm": 0.25, "frames": 1}
+    whole = plan_from_config(full, SENSOR)
+    area = [2.0, 1.0, 14.0, 17.0]
+    kept = plan_from_config({**full, "area_mm": area}, SENSOR)
+    inside = whole["x_mm"].between(2.0, 14.0) & whole["y_mm"].between(1.0, 17.0)
+    for phase in ("grid", "register"):
+        ours, theirs = kept[kept["phase"] == phase], whole[inside & (whole["phase"] == phase)]
+        key = ["x_mm", "y_mm", "depth_mm"]
+        assert 0 < len(ours) < (whole["phase"] == phase).sum()
+        assert set(map(tuple, ours[key].to_numpy())) == set(map(tuple, theirs[key].to_numpy()))
+    with pytest.raises(ConfigError, match=r"plan.area_mm: \[0.0, 0.0, 17.0, 18.0\] must be"):
+        plan_from_config({**full, "area_mm": [0.0, 0.0, 17.0, 18.0]}, SENSOR)

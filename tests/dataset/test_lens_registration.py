@@ -9,9 +9,10 @@ from conftest import bench_scene, collect_and_register, elastic_gel, shared_acro
 
 from threedcal.collect.store import open_checked
 from threedcal.dataset.build import build_collected
-from threedcal.dataset.camera_fit import fit_affine, fit_lensed
+from threedcal.dataset.camera_fit import fit_affine, fit_camera, fit_lensed
 from threedcal.dataset.contacts import locate_contact
 from threedcal.dataset.trainset import TrainingSet
+from threedcal.errors import RegistrationError
 from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import BenchTruth, draw_lens
@@ -237,3 +238,52 @@ def test_a_distortion_free_lens_keeps_the_frames_constants_hot_spots_field_marke
     edge = int(np.ceil(4 * plain.blur_sigma)) + 2
     inner = np.s_[edge:-edge, edge:-edge]
     np.testing.assert_allclose(lensed.background[inner], plain.ideal()[inner], atol=2e-3)
+
+
+PRIOR = RadialLens(centre_px=(159.5, 119.5), kappa1=-7e-7, shape=SHAPE)
+TRUE_AFFINE = np.array([[15.6, 0.4, -1700.0], [0.5, -15.7, 1990.0]])
+
+
+def contacts_of(lens, count, rng=None, noise_px=0.0):
+    """`count` contacts spread over the inner frame (printer mm) and where `lens` images them."""
+    rng = rng or np.random.default_rng(0)
+    xy = np.column_stack([rng.uniform(103, 115, count), rng.uniform(114, 124, count)])
+    camera = lens.distort(xy @ TRUE_AFFINE[:, :2].T + TRUE_AFFINE[:, 2])
+    return xy, camera + rng.normal(0, noise_px, camera.shape) if noise_px else camera
+
+
+def test_fit_camera_refits_a_lens_the_profile_gets_wrong_once_the_contacts_pin_it_down():
+    truth = RadialLens(centre_px=(162.5, 117.0), kappa1=-8.4e-7, shape=SHAPE)  # κ₁ 20 % off, 3 px
+    xy, camera = contacts_of(truth, 60)
+    fit = fit_camera(xy, camera, SHAPE, PRIOR)
+    assert fit.lens_free == "all" and set(fit.lens_cv_px) == {"none", "kappa1", "all"}
+    assert fit.lens_cv_px["all"] < 1e-4 < fit.lens_cv_px["none"]
+    np.testing.assert_allclose(fit.matrix, TRUE_AFFINE, rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(fit.lens.centre_px, truth.centre_px, atol=1e-3)
+    assert fit.lens.kappa1 == pytest.approx(truth.kappa1, rel=1e-5)
+
+
+def test_fit_camera_keeps_the_profiles_lens_when_a_few_noisy_contacts_cannot_do_better():
+    """Eight contacts located to 0.3 px through the profile's own lens: refitting κ₁ or the
+    principal point follows the noise, and the contacts left out say so."""
+    xy, camera = contacts_of(PRIOR, 8, np.random.default_rng(3), noise_px=0.3)
+    fit = fit_camera(xy, camera, SHAPE, PRIOR)
+    assert fit.lens_free == "none" and fit.lens == PRIOR
+    assert fit.lens_cv_px["none"] < min(v for k, v in fit.lens_cv_px.items() if k != "none")
+    ideal = xy @ TRUE_AFFINE[:, :2].T + TRUE_AFFINE[:, 2]
+    assert np.abs(fit.ideal(xy) - ideal).max() < 0.5
+
+
+def test_fit_camera_needs_four_contacts_off_one_line_and_leaves_missing_ones_out():
+    xy, camera = contacts_of(PRIOR, 6)
+    missing = camera.copy()
+    missing[2] = np.nan  # a press whose contact was not whole: no point, never an inlier
+    fit = fit_camera(xy, missing, SHAPE, PRIOR)
+    assert not fit.inliers[2] and fit.inliers.sum() == 5
+    np.testing.assert_allclose(fit.matrix, TRUE_AFFINE, rtol=1e-7, atol=1e-5)
+    with pytest.raises(RegistrationError, match=">= 4 contacts"):
+        fit_camera(xy[:3], camera[:3], SHAPE, PRIOR)
+    line = np.column_stack([np.linspace(103, 115, 8), np.linspace(114, 124, 8)])
+    on_line = PRIOR.distort(line @ TRUE_AFFINE[:, :2].T + TRUE_AFFINE[:, 2])
+    with pytest.raises(RegistrationError, match="not on one line"):
+        fit_camera(line, on_line, SHAPE, PRIOR)

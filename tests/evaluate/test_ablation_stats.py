@@ -613,3 +613,15 @@ def test_the_tests_figure_cuts_intervals_at_its_axis_and_writes_their_true_bound
     out = tmp_path / "tests.png"
     ablation_figure.tests_figure(tests, out, "cut", margin=0.1)
     assert out.stat().st_size > 10_000
+
+
+def test_arms_that_do_not_differ_at_all_give_no_change_and_a_point_interval():
+    from threedcal.evaluate.ablation import difference_test, ratio_interval
+
+    base = np.random.default_rng(3).uniform(0.01, 0.02, (4, 6))
+    t, _, p = difference_test(base, base)
+    assert float(t) == 0.0 and float(p) == pytest.approx(1.0)
+    low, high = ratio_interval(base, base, 0.025)
+    assert low == pytest.approx(1.0, abs=1e-8) and high == pytest.approx(1.0, abs=1e-8)
+    low, high = ratio_interval(0.95 * base, base, 0.025)  # an exact 5 % drop everywhere
+    assert low == pytest.approx(0.95, abs=1e-8) and high == pytest.approx(0.95, abs=1e-8)

@@ -261,16 +261,13 @@ def test_duplicate_presses_bound_the_label_noise():
 def run_cv(trainset, tmp_path, folds=3):
     cv = {"folds": folds, "bootstrap": 200, "label_draws": 3}
     cv_folds.write_folds(trainset, cv, 0, tmp_path / "folds.csv", where="the folder")
-    models = {}
-    for method in crossval.CV_METHODS:
-        settings = crossval.method_settings({"model": TINY}, method)
-        models[method] = []
-        for fold in range(folds):
-            out = tmp_path / method / f"fold{fold}"
-            crossval.train_fold(
-                trainset, tmp_path / "folds.csv", fold, settings, 0, 1, out, progress=False
-            )
-            models[method].append(out / "model.pt")
+    methods = {m: crossval.method_settings({"model": TINY}, m) for m in crossval.CV_METHODS}
+    for fold in range(folds):
+        out = {m: tmp_path / m / f"fold{fold}" for m in methods}
+        crossval.train_fold_methods(
+            trainset, tmp_path / "folds.csv", fold, methods, 0, 1, out, progress=False
+        )
+    models = {m: [tmp_path / m / f"fold{f}" / "model.pt" for f in range(folds)] for m in methods}
     return ball_eval(
         trainset,
         tmp_path / "folds.csv",

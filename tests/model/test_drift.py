@@ -8,7 +8,7 @@ from test_model import TINY, synthetic_set
 from threedcal.errors import ConfigError
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.train import TrainSettings, _Inputs, train
+from threedcal.model.train import ModelInputs, TrainSettings, train
 
 
 def test_offset_is_the_global_shift_despite_a_contact():
@@ -36,12 +36,12 @@ def test_training_uses_the_full_frame_offset_for_every_window():
     ts = synthetic_set()
     frames = np.asarray(ts.frames).astype(int)
     ts.frames = np.clip(frames + np.array([12, -7, 3]), 0, 255).astype(np.uint8)
-    inputs = _Inputs(ts, "median")
+    inputs = ModelInputs(ts, "median")
     window = (slice(0, 9), slice(5, 17))
     full = inputs(1)
     torch.testing.assert_close(inputs(1, window), full[:, window[0], window[1]])
     torch.testing.assert_close(inputs.offset(1).flatten(), torch.tensor([12, -7, 3]) / 255.0)
-    np.testing.assert_array_equal(_Inputs(ts, "none")(1).numpy(), ts.inputs(1))
+    np.testing.assert_array_equal(ModelInputs(ts, "none")(1).numpy(), ts.inputs(1))
 
 
 @pytest.mark.parametrize("preset", ["lookup", "compact_tiny"])

@@ -77,8 +77,8 @@ def _fitted_frames(profile_yaml):
 
 
 def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
-    """profile: fitted (the default) fits the optics per fold to its training frames and the
-    blank: the fitted profile names them, and no test frame of the fold."""
+    """profile: fitted (the default) fits the optics to the frames outside the held-out folds and
+    the blank: the fitted profile names them, and no test frame of those folds."""
     root, trainset = real
     folds = pd.read_csv(root / "folds.csv")
     profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
@@ -86,19 +86,39 @@ def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
     with pytest.raises(ConfigError, match="needs the scene's folds"):
         sim2real.write_simulated(trainset, profile, fitted, 3, tmp_path / "none", False)
     sims = {}
-    for fold in (0, 1):
-        out = tmp_path / f"fold{fold}"
-        sims[fold] = sim2real.write_simulated(
-            trainset, profile, fitted, 3, out, False, folds_path=root / "folds.csv", fold=fold
+    for group in ((0,), (1,), (0, 1)):
+        out = tmp_path / sim2real.group_name(group)
+        sims[group] = sim2real.write_simulated(
+            trainset, profile, fitted, 3, out, False, folds_path=root / "folds.csv", held_out=group
         )
         named = _fitted_frames(out / "profile.yaml")
-        assert named == set(folds.loc[folds["fold"] != fold, "frame"])
-        assert not named & set(folds.loc[folds["fold"] == fold, "frame"])
+        assert named == set(folds.loc[~folds["fold"].isin(group), "frame"])
+        assert not named & set(folds.loc[folds["fold"].isin(group), "frame"])
     as_is = sim2real.write_simulated(trainset, profile, S2R, 3, tmp_path / "as_is", False)
     # Same seed, same presses; only the optics differ, per fold and from the built-in profile.
-    assert np.array_equal(sims[0].center_px, as_is.center_px)
-    assert not np.array_equal(sims[0].frames, as_is.frames)
-    assert not np.array_equal(sims[0].frames, sims[1].frames)
+    assert np.array_equal(sims[(0,)].center_px, as_is.center_px)
+    assert not np.array_equal(sims[(0,)].frames, as_is.frames)
+    assert not np.array_equal(sims[(0,)].frames, sims[(1,)].frames)
+    assert not np.array_equal(sims[(0, 1)].frames, sims[(0,)].frames)
+
+
+def test_folds_share_a_pretraining_when_their_fit_can_leave_them_all_out():
+    """One simulated set and pretraining for the chosen folds when some folds are left out (fitted
+    to those, on which every chosen fold trains); one per fold when all are chosen; one for all
+    with profile: as_is (no real image seen)."""
+    of = sim2real.SimToRealSettings.of
+    assert sim2real.pretraining_groups(of(folds=[2, 0, 1]), 6) == [(0, 1, 2)]
+    assert sim2real.pretraining_groups(of(), 3) == [(0,), (1,), (2,)]
+    assert sim2real.pretraining_groups(of(profile="as_is"), 3) == [(0, 1, 2)]
+    assert sim2real.group_name((0, 1, 2)) == "0-1-2"
+    assert sim2real.parse_group("0-1-2") == (0, 1, 2)
+    with pytest.raises(ConfigError, match="not a group of folds"):
+        sim2real.parse_group("a-b")
+    scene = {"cv": {"folds": 6}, "sim_to_real": {"folds": [0, 1, 2]}}
+    assert sim2real.group_of(scene, 1) == "0-1-2"
+    assert sim2real.group_of({"cv": {"folds": 3}, "sim_to_real": {}}, 1) == "1"
+    with pytest.raises(ConfigError, match="fold 4 is not evaluated"):
+        sim2real.group_of(scene, 4)
 
 
 def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_why(tmp_path):
@@ -111,13 +131,13 @@ def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_w
     fitted = {**S2R, "profile": "fitted"}
     out = tmp_path / "sim"
     sim2real.write_simulated(
-        trainset, profile, fitted, 0, out, False, folds_path=tmp_path / "folds.csv", fold=2
+        trainset, profile, fitted, 0, out, False, folds_path=tmp_path / "folds.csv", held_out=[2]
     )
     assert _fitted_frames(out / "profile.yaml") == set(folds.loc[folds["fold"] != 2, "frame"])
     # Two training images cannot pin the optics down: the error says which key to change.
     two = folds.assign(fold=np.where(folds["frame"] < 2, 1, 0))
     two.to_csv(tmp_path / "two.csv", index=False)
-    with pytest.raises(ConfigError, match="fold 0 has 2 training images.*profile: as_is"):
+    with pytest.raises(ConfigError, match="2 training images lie outside fold 0.*profile: as_is"):
         sim2real.write_simulated(
             trainset,
             profile,
@@ -126,7 +146,7 @@ def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_w
             tmp_path / "x",
             False,
             folds_path=tmp_path / "two.csv",
-            fold=0,
+            held_out=[0],
         )
 
 
@@ -180,6 +200,25 @@ def test_fine_tuning_starts_from_the_pretrained_model_with_the_same_steps(real, 
     weights = [k for k, v in start.items() if v.dtype.is_floating_point and v.numel() > 100]
     assert all(torch.allclose(tuned[k], start[k], atol=1e-6) for k in weights)
     assert not all(torch.allclose(scratch[k], start[k], atol=1e-6) for k in weights)
+    # one job trains every k of a (condition, fold), each the model train_k makes alone
+    both = {**S2R, "k": [2, "all"]}
+    sim2real.train_fold_ks(
+        trainset,
+        root / "folds.csv",
+        0,
+        "real_only",
+        still,
+        both,
+        0,
+        1,
+        tmp_path / "f0",
+        None,
+        False,
+    )
+    for k in (2, "all"):
+        alone = read_checkpoint(tmp_path / "real_only" / str(k) / "model.pt")["state_dict"]
+        looped = read_checkpoint(sim2real.k_model(tmp_path / "f0", k))["state_dict"]
+        assert all(torch.equal(alone[name], looped[name]) for name in alone)
     with pytest.raises(ConfigError, match="sim_real needs"):
         sim2real.train_k(
             trainset, root / "folds.csv", 0, 2, "sim_real", TINY, S2R, 0, 1, tmp_path / "x"
@@ -375,4 +414,4 @@ def test_shipped_weights_are_refused_for_a_sensor_without_them_or_frames_that_ca
     assert "shipped_real" not in sim2real.SimToRealSettings.of().conditions
     scene = {"cv": {"folds": 3}, "sim_to_real": {"shipped": True, "k": [4], "folds": [1]}}
     inputs = sim2real.sim2real_inputs("balls", scene)
-    assert inputs["shipped_real_k4"] == ["results/balls/sim2real/shipped_real/k4/fold1/model.pt"]
+    assert inputs["shipped_real"] == ["results/balls/sim2real/shipped_real/fold1"]

@@ -180,7 +180,7 @@ def test_an_interrupted_doubling_training_resumes_to_the_same_bytes(tmp_path, mo
     ts = synthetic_set(n=12)
     settings = doubling_settings(min_gain=0.0)  # cycles of 3, 3, 6, 12, 24 steps
     train(ts, tmp_path / "full", 80, settings, progress=False)
-    real = module._optimizer_step
+    real = module.optimizer_step
     calls = []
 
     def crash_on_step_20(*args, **kwargs):
@@ -189,12 +189,12 @@ def test_an_interrupted_doubling_training_resumes_to_the_same_bytes(tmp_path, mo
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(module, "_optimizer_step", crash_on_step_20)
+    monkeypatch.setattr(module, "optimizer_step", crash_on_step_20)
     monkeypatch.setattr(module, "RESUME_EVERY_S", 0.0)
     with pytest.raises(KeyboardInterrupt):
         train(ts, tmp_path / "resumed", 80, settings, progress=False)
     assert read_checkpoint(tmp_path / "resumed/checkpoint.pt")["steps"] == 12
-    monkeypatch.setattr(module, "_optimizer_step", real)
+    monkeypatch.setattr(module, "optimizer_step", real)
     train(ts, tmp_path / "resumed", 80, settings, progress=False)
     full, resumed = (read_checkpoint(tmp_path / d / "model.pt") for d in ("full", "resumed"))
     for name, value in full["state_dict"].items():

@@ -14,7 +14,7 @@ from threedcal.quick.loop import QuickLoop, quick_stage
 
 @pytest.mark.slow
 def test_scratch_models_train_on_each_rounds_presses_with_its_budget(tmp_path):
-    settings = scene(margin=0.99)  # two rounds of four presses, 10 steps a round
+    settings = scene(margin=0.99)  # two rounds of six presses, 10 steps a round
     outputs = {k: tmp_path / "quick" / k for k in ("model", "rounds", "stop", "work")}
     store = tmp_path / "raw.zarr"
     quick_stage(
@@ -32,14 +32,14 @@ def test_scratch_models_train_on_each_rounds_presses_with_its_budget(tmp_path):
     )
     start_min = loop.printer_s(loop.first_row) / 60
     quick = run_arm(rounds, outputs["work"], start_min)
-    assert [(m.round, m.presses, m.steps) for m in quick] == [(0, 0, 0), (1, 4, 10), (2, 8, 20)]
+    assert [(m.round, m.presses, m.steps) for m in quick] == [(0, 0, 0), (1, 6, 10), (2, 12, 20)]
     assert quick[0].printer_min == pytest.approx(start_min) and start_min > 0
     assert [m.printer_min * 60 for m in quick[1:]] == pytest.approx(rounds["printer_s"].tolist())
 
     scratch = scratch_arm(loop, quick, tmp_path / "scratch")
     assert [(m.arm, m.round, m.presses, m.steps) for m in scratch] == [
-        ("scratch", 1, 4, 10),
-        ("scratch", 2, 8, 20),
+        ("scratch", 1, 6, 10),
+        ("scratch", 2, 12, 20),
     ]
     for model in scratch:
         training = read_checkpoint(model.paths[0])["training"]

@@ -11,7 +11,9 @@ from conftest import snapshot
 from threedcal.collect.store import StoreError, open_checked
 from threedcal.config import validate_config
 from threedcal.model.inference import DepthEstimator
+from threedcal.profiles import load_profile
 from threedcal.quick.loop import ROUND_COLUMNS, quick_stage
+from threedcal.sim.bench import draw_truth
 
 
 def scene(margin: float) -> dict:
@@ -26,10 +28,11 @@ def scene(margin: float) -> dict:
                     "pattern": "quick",
                     "depth_mm": 1.0,
                     "frames": 1,
-                    "round_presses": 4,
-                    "max_presses": 12,
-                    "registration": {"spacing_mm": 2.0, "depth_mm": 0.25},
-                    "touch_search": {"points": 1},
+                    "round_presses": 6,
+                    "max_presses": 18,
+                    # each press pauses 0.25 mm deep to register; 8 presses find the gel
+                    "registration": {"depth_mm": 0.25, "each_press": True},
+                    "touch_search": {"method": "bisect", "presses": 8, "points": 1, "frames": 2},
                 },
                 "bench": {"unit": 1},
                 "dataset": {"downscale": 2},
@@ -74,15 +77,17 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     stop = json.loads(outputs["stop"].read_text())
     assert tuple(rounds.columns) == ROUND_COLUMNS
     # round 1 cannot measure an improvement; round 2's bound lies below 0.99: stopped there
-    assert rounds["round"].tolist() == [1, 2] and rounds["presses"].tolist() == [4, 8]
+    assert rounds["round"].tolist() == [1, 2] and rounds["presses"].tolist() == [6, 12]
     assert np.isnan(rounds["improvement"].iloc[0]) and rounds["decision"].iloc[0] == "continue"
     assert rounds["improvement_upper"].iloc[1] < 0.99
     assert rounds["decision"].iloc[1] == "stop: improvement below margin"
-    assert (rounds["presses_scored"] == 4).all()  # every press inside the view is labelled
+    assert (rounds["presses_scored"] == 6).all()  # every press inside the view is labelled
     assert (rounds["mse_low"] < rounds["mse"]).all() and (rounds["mse"] < rounds["mse_high"]).all()
     assert rounds["printer_s"].is_monotonic_increasing
-    assert (rounds["contact_area_ratio"] > 0).all()  # each round's presses under its model
-    assert stop["stopped"] == "improvement below margin" and stop["presses"] == 8
+    # each round's presses read by the model before it: the untrained start may see none
+    assert rounds["contact_area_ratio"].notna().all()
+    assert (rounds["contact_area_ratio"].iloc[1:] > 0).all()
+    assert stop["stopped"] == "improvement below margin" and stop["presses"] == 12
     assert stop["printer_minutes"] == pytest.approx(rounds["printer_s"].iloc[-1] / 60, abs=0.01)
     # the starting weights and one model a round; the final one is usable as is
     assert sorted(p.name for p in outputs["work"].iterdir()) == ["r0", "r1", "r2"]
@@ -94,7 +99,18 @@ def test_rounds_stop_record_model_and_replay(tmp_path):
     captured = zarr.open_group(str(store), mode="r")["captured"][:]
     rows = attrs["captured_rows"]
     assert attrs["complete"] and captured[:rows].all() and not captured[rows:].any()
-    assert len(captured) - rows == 4  # round 3 was never collected
+    assert len(captured) - rows == 12  # round 3 (6 presses, 2 rows each) was never collected
+    # 8 presses found the gel within 0.02 mm of the bench's hidden truth, each at a depth the
+    # search chose inside its window; every press registered, through the profile's lens
+    assert stop["touch_presses"] == 8 and stop["presses_in_all"] == 8 + 12
+    registration = stop["registration"]
+    truth = draw_truth(load_profile("sensor", "digit_fots"), scene(0.99)["bench"], 2)
+    assert registration["touch_method"] == "bisect"
+    assert abs(registration["touch_offset_mm"] - truth.touch_offset_mm) <= 0.02
+    depths = open_checked(store)["depth_mm"].values[: 8 * 2 : 2]
+    assert depths[0] == pytest.approx(0.3) and (depths >= -0.2).all() and len(set(depths)) == 8
+    assert registration["lens_free"] in ("none", "kappa1", "all")
+    assert registration["contacts_used"] >= 5
     assert attrs["quick"]["stopped"] == "improvement below margin"
     assert attrs["runs"][-1]["ended_at_row"] == rows  # one run, ended at the round's boundary
     assert open_checked(store)["point"].values.max() == rows - 1

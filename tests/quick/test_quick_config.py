@@ -72,16 +72,27 @@ def test_example_config_checks_and_asks_only_for_the_quick_outputs(repo, capsys)
         ),
         ({"dataset": {"downscale": 1}}, "the digit_fots weights were made for 160 x 120 px"),
         ({"sensor": "digit"}, "no pretrained weights for sensor 'digit'"),
-        # the DIGIT's lens fit needs 30 whole contacts: a 3 mm lattice over the quick area leaves
-        # 15, the first round's 1 mm presses without one 5
+        # the first round registers through the profile's lens: 5 whole contacts at least
         (
-            {"plan": {"registration": {"spacing_mm": 3.0, "depth_mm": 0.25}}},
-            "scenes.q.plan.registration: its 20 registration presses would leave about 15 "
-            "contacts whole in the frame; the lens fit needs 30",
+            {"plan": {"round_presses": 4, "registration": {"spacing_mm": 0.0}}},
+            "scenes.q.plan.registration: its first round's 4 presses would leave about 2 "
+            "contacts whole in the frame; the first round's registration needs 5",
         ),
         (
-            {"plan": {"registration": {"spacing_mm": 0.0}}},
-            "scenes.q.plan.registration: with no registration presses, its first round's 10",
+            {"plan": {"round_presses": 4, "registration": {"depth_mm": 0.25, "each_press": True}}},
+            "its first round's 4 presses (paused 0.25 mm deep) would leave about 4 contacts",
+        ),
+        (
+            {"plan": {"registration": {"depth_mm": 1.0, "each_press": True}}},
+            "scenes.q.plan.registration.depth_mm: 1.0 must lie above plan.depth_mm (1.0)",
+        ),
+        (
+            {"plan": {"registration": {"spacing_mm": 1.0, "depth_mm": 0.25, "each_press": True}}},
+            "scenes.q.plan.registration: each_press registers the rounds' presses; a lattice",
+        ),
+        (
+            {"plan": {"touch_search": {"method": "bisect", "presses": 3}}},
+            "scenes.q.plan.touch_search.presses: 3 is less than the minimum of 4",
         ),
         ({"ablation": [20, 80]}, "scenes.q.ablation: a quick calibration"),
         ({"objects": ["pill"]}, "scenes.q.objects: a quick calibration"),

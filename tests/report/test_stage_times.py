@@ -20,7 +20,12 @@ def bench(path, wall, rss, cpu, rerun=None):
     ("name", "stage"),
     [
         ("train_P20_r0.tsv", "train"),
+        ("train_ablation_P20.tsv", "train_ablation"),
         ("cv_model_fold3.tsv", "cv_model"),
+        ("cv_train_fold3.tsv", "cv_train"),
+        ("sim2real_shipped_real_fold1.tsv", "sim2real_shipped_real"),
+        ("sim2real_pretrain_folds0-1-2.tsv", "sim2real_pretrain"),
+        ("sim2real_simulate_folds4.tsv", "sim2real_simulate"),
         ("sim2real_real_only_kall_fold0.tsv", "sim2real_real_only"),
         ("sim2real_sim_real_k8_fold2.tsv", "sim2real_sim_real"),
         ("dataset_collected.tsv", "dataset_collected"),

@@ -26,7 +26,18 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     (root / "a/dataset/registration.json").write_text(
         json.dumps({"residual_px": 0.1, "error_px": 0.25, "touch_offset_mm": 0.05})
     )
-    (root / "a/stats/recommendation.txt").write_text("probe at least 60 points (...)\n")
+    (root / "a/stats/recommendation.txt").write_text(
+        "probe at least 60 points (...)\nlearning curve: ...\n"
+        "the readings differ: the TOST says 60 points (P = 5 %), the curve 40 (...)\n"
+    )
+    pd.DataFrame(
+        [
+            {"quantity": "points_within_margin", "value": 12, "low": 12, "high": 30}
+            | {"note": "at or below the smallest fraction"},
+            {"quantity": "level", "value": 0.9},
+        ]
+        + [{"quantity": "observed_mse", "P": p, "points": 12 * p} for p in (1, 5, 80)]
+    ).to_csv(root / "a/stats/learning_curve.csv", index=False)
     rows = []
     for protocol, shift in (("printer", 0.0), ("paper", -20.0)):
         for p, (overall, type1, type2) in ((80, (20.0, 5.0, 61.0)), (20, (30.0, 6.0, 90.0))):
@@ -83,7 +94,15 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
     assert "| all (35) | real-only | 0.100 [0.090, 0.110] | 100 [90, 110] |" in text
     assert "2.00 h (7200 s)" in text
     assert "0.100 px / 0.250 px" in text
-    assert "probe at least 60 points" in text
+    assert "| recommendation (equivalence test) | probe at least 60 points (...) |" in text
+    assert (
+        "| learning curve (stats/learning_curve.csv) | at or below 12 points (90 % interval at "
+        "or below 12 to 30) |"
+    ) in text
+    assert (
+        "| equivalence test against the curve | the readings differ: the TOST says 60 points "
+        "(P = 5 %), the curve 40 (...) |"
+    ) in text
     # P = 80 with its intervals, Type 2 at P = 20; the printer protocol first, then the paper's
     printer = "| printer | pill | 20 [16, 24] | 5 [1, 9] | 61 [57, 65] | 90 [86, 94] | 1.000 |"
     paper = "| paper | pill | 20 [16, 24] | 5 [1, 9] | 41 [37, 45] | 70 [66, 74] | 0.900 |"
@@ -218,18 +237,22 @@ def test_summary_states_the_convergence_check_per_fraction(tmp_path):
     pd.DataFrame(
         {
             "P": [1, 80],
-            "study_steps": [400, 2000],
-            "study_seconds": [5.0, 30.0],
-            "study_mse": [0.004, 0.002],
-            "twice_steps": [800, 4000],
-            "twice_seconds": [10.0, 60.0],
+            "replicates": [8, 8],
+            "steps": [2000, 2000],
+            "budget_mse": [0.004, 0.002],
+            "twice_steps": [4000, 4000],
             "twice_mse": [0.0041, 0.0019],
             "change": [0.025, -0.05],
+            "ci_low": [0.01, -0.07],
+            "ci_high": [0.04, -0.03],
         }
     ).to_csv(path, index=False)
     (line,) = [text for text in convergence_lines(path) if text]
-    assert "P = 1 % 0.00400 after 400 steps, 0.00410 after 800 (+2.5%)" in line
-    assert "P = 80 % 0.00200 after 2000 steps, 0.00190 after 4000 (-5.0%)" in line
+    assert "P = 1 % 0.00400 after 2000 steps, 0.00410 after 4000 (+2.5%, +1.0% to +4.0%)" in line
+    assert "P = 80 % 0.00200 after 2000 steps, 0.00190 after 4000 (-5.0%, -7.0% to -3.0%)" in line
+    (path.parent / "twice").mkdir()
+    (path.parent / "twice/recommendation.txt").write_text("probe at least 150 points: ...\n")
+    assert convergence_lines(path)[-1] == "At twice the budget: probe at least 150 points: ..."
 
 
 def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):

@@ -37,11 +37,11 @@ _RULE_OF_JOB = (
         re.compile(r"^train_P\d+(_r\d+)?$"),
         "train",
     ),  # train_P{p}_r{r} (train_P{p} before replicates)
-    (re.compile(r"^train_twice_P\d+$"), "train_twice"),  # the convergence check's twice-as-long run
+    (re.compile(r"^train_ablation_P\d+$"), "train_ablation"),  # a fraction's replicates together
     (re.compile(r"^pretrain_\w+$"), "pretrain"),  # pretrain_{sensor}
-    (re.compile(r"^cv_[a-z]+_fold\d+$"), "cv_train"),  # cv_{method}_fold{fold}
-    (re.compile(r"^sim2real_(simulate|pretrain)_fold\d+$"), r"sim2real_\1"),
-    (re.compile(r"^sim2real_[a-z_]+_k[^_]+_fold\d+$"), "sim2real_train"),  # _{condition}_k{k}_
+    (re.compile(r"^cv_train_fold\d+$"), "cv_train"),  # cv_train_fold{fold}
+    (re.compile(r"^sim2real_(simulate|pretrain)_folds\d+(-\d+)*$"), r"sim2real_\1"),
+    (re.compile(r"^sim2real_[a-z_]+_fold\d+$"), "sim2real_train"),  # _{condition}_fold{fold}
 )
 
 

@@ -12,7 +12,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", required=True, help="scene name in the config")
     parser.add_argument(
         "--out",
-        help="store path (default results/<scene>/raw.zarr); resumed if it has the same settings, "
+        help="store path (default results/<scene>/raw.zarr): resumed with the same settings, "
         "never overwritten",
     )
     parser.add_argument(

@@ -67,8 +67,8 @@ COMMANDS = [
     ),
     Command(
         ("config", "reference"),
-        "print every config key (allowed values, default, meaning) from the schema as a Markdown "
-        "table, or regenerate it in a page with --write",
+        "print every config key (allowed values, default, meaning) from the schema, or write "
+        "it into a page",
         _reference,
         _reference_args,
     ),

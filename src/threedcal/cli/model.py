@@ -442,8 +442,13 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
         "--drift-warn-dn",
         type=float,
         default=BACKGROUND_DRIFT_WARN_DN,
-        help="warn when the no-contact region drifts this far from the blank (grey levels RMS, "
-        "beyond a uniform shift)",
+        help="warn when the no-contact region drifts this far from the blank (RMS grey levels)",
+    )
+    parser.add_argument(
+        "--probe-radius-mm",
+        type=float,
+        default=None,
+        help="the pressing ball's radius: warn of a contact larger than it can make",
     )
     parser.add_argument(
         "--probe-radius-mm",

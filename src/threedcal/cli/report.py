@@ -51,8 +51,8 @@ def _cli_reference(args: argparse.Namespace) -> int:
 COMMANDS = [
     Command(
         ("report", "results-page"),
-        "write the results page from a finished study's results folder: each table with its "
-        "protocol and whether the simulator made its frames",
+        "write the results page from a finished study's results folder, each table with its "
+        "protocol",
         _results_page,
         _results_page_args,
     ),

@@ -17,12 +17,12 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--sensor",
         default="gelsight_mini",
-        help="sensor profile whose optics are rendered, at the dataset's frame size and scale",
+        help="sensor profile rendered at the dataset's frame size and scale",
     )
     parser.add_argument(
         "--gel-mechanics",
         choices=["geometric", "elastic"],
-        help="the simulated gel's mechanics, overriding the profile's gel.mechanics",
+        help="overrides the profile's gel.mechanics",
     )
     parser.add_argument("--seed", type=int, default=0, help="the renderer's seed")
     parser.add_argument(

@@ -34,6 +34,9 @@ DEFAULT_TOUCH_UNCERTAINTY_MM = 0.2
 # ~40,000 frames; a mistyped spacing must not allocate gigabytes or queue months of printer time.
 MAX_PLAN_POINTS = 100_000
 MAX_PLAN_FRAMES = 1_000_000
+# Fewest presses a place of a bisecting touch search takes: the deepest, one halving and two past
+# the onset to fit its growth (threedcal.dataset.touch.TouchBisection).
+TOUCH_BISECTION_MIN_PRESSES = 4
 
 
 def dome_sag_mm(sensor: Mapping, x_mm, y_mm) -> np.ndarray:
@@ -274,6 +277,19 @@ def quick_problems(plan_config: Mapping, sensor: Mapping) -> list[str]:
     problems = []
     per_round = int(plan_config.get("round_presses", 10))
     most = int(plan_config.get("max_presses", 50))
+    if pauses_to_register(plan_config):
+        registration = plan_config["registration"]
+        if float(registration.get("spacing_mm", 0.0)) > 0:
+            problems.append(
+                "plan.registration: each_press registers the rounds' presses; a lattice "
+                "(spacing_mm > 0) as well is not allowed"
+            )
+        if float(registration.get("depth_mm", 0.4)) >= float(plan_config["depth_mm"]):
+            problems.append(
+                f"plan.registration.depth_mm: {registration.get('depth_mm', 0.4)} must lie above "
+                f"plan.depth_mm ({plan_config['depth_mm']}): each press pauses there on its way "
+                "down"
+            )
     if per_round < MIN_ROUND_PRESSES:
         problems.append(
             f"plan.round_presses: {per_round} presses a round cannot cover the gel (at least "
@@ -324,23 +340,64 @@ def quick_plan(sensor: Mapping, plan_config: Mapping, run: int = 1) -> pd.DataFr
     seed = replicate_seed(int(plan_config.get("seed", 0)), run - 1)
     xy = halton_design(most, area, seed, per_round)
     xy = np.round(xy[round_order(xy, per_round, start=(area[0], area[1]))], 4)
-    depth = float(plan_config["depth_mm"]) + dome_sag_mm(sensor, xy[:, 0], xy[:, 1])
-    return pd.DataFrame(
+    sag = dome_sag_mm(sensor, xy[:, 0], xy[:, 1])
+    presses = pd.DataFrame(
         {
             "x_mm": xy[:, 0],
             "y_mm": xy[:, 1],
-            "depth_mm": np.round(depth, 4),
+            "depth_mm": np.round(float(plan_config["depth_mm"]) + sag, 4),
             "frames": int(plan_config["frames"]),
+            "phase": "grid",
         }
     )
+    if not pauses_to_register(plan_config):
+        return presses
+    # each press pauses on its way down: a "register" row, then its "grid" row at the same place
+    paused = presses.assign(
+        depth_mm=np.round(float(plan_config["registration"]["depth_mm"]) + sag, 4),
+        frames=int(plan_config["registration"].get("frames", 1)),
+        phase="register",
+    )
+    rows = pd.concat([paused, presses], keys=[0, 1]).swaplevel().sort_index(kind="stable")
+    return rows.reset_index(drop=True)
+
+
+def pauses_to_register(plan_config: Mapping) -> bool:
+    """Whether a quick plan's presses register on their way down (`registration.each_press`):
+    each pauses at the registration depth for its frames there, then goes on to its own depth."""
+    registration = plan_config.get("registration") or {}
+    return plan_config.get("pattern") == "quick" and bool(registration.get("each_press"))
+
+
+def rows_per_press(plan_config: Mapping) -> int:
+    """Plan rows a quick press takes: two when it pauses to register on its way down."""
+    return 2 if pauses_to_register(plan_config) else 1
 
 
 def quick_rounds(plan_config: Mapping, first_row: int) -> list[int]:
     """The plan rows at which each round of a quick plan ends (exclusive), its presses starting
-    at `first_row` (after the touch search and the registration presses)."""
+    at `first_row` (after the touch search and any registration lattice)."""
     most, per_round = int(plan_config["max_presses"]), int(plan_config["round_presses"])
     ends = list(range(per_round, most, per_round)) + [most]
-    return [first_row + end for end in ends]
+    return [first_row + end * rows_per_press(plan_config) for end in ends]
+
+
+def continued_presses(plan: pd.DataFrame) -> np.ndarray:
+    """Per plan row: whether it goes on with the row before as one press (the probe stays down
+    and goes deeper at the same place): a quick press's grid row after its pause to register."""
+    if "phase" not in plan or len(plan) < 2:
+        return np.zeros(len(plan), dtype=bool)
+    phase = plan["phase"].astype(str).to_numpy()
+    x, y, depth = (plan[c].to_numpy(float) for c in ("x_mm", "y_mm", "depth_mm"))
+    out = np.zeros(len(plan), dtype=bool)
+    out[1:] = (
+        (phase[:-1] == "register")
+        & (phase[1:] == "grid")
+        & (x[1:] == x[:-1])
+        & (y[1:] == y[:-1])
+        & (depth[1:] >= depth[:-1])
+    )
+    return out
 
 
 def touch_uncertainty_mm(sensor: Mapping) -> float:
@@ -361,10 +418,20 @@ def touch_search_depths(sensor: Mapping, search: Mapping) -> np.ndarray:
     return np.round(-uncertainty + step * np.arange(count), 6)
 
 
+def touch_search_range(sensor: Mapping, search: Mapping) -> tuple[float, float]:
+    """The commanded depths (below the nominal touch) a place's search may press between:
+    `touch_uncertainty_mm` above the nominal surface to `beyond_mm` past that much below it."""
+    depths = touch_search_depths(sensor, {**search, "step_mm": search.get("step_mm", 0.02)})
+    return float(depths[0]), float(touch_uncertainty_mm(sensor) + float(search["beyond_mm"]))
+
+
 def touch_search_plan(sensor: Mapping, search: Mapping) -> pd.DataFrame:
     """The first-contact search rows (phase "touch"): `points` places on a circle of `spread_mm`
-    about the probe area's centre (one place: the centre), each stepped down through the nominal
-    touch height in `step_mm` steps (`touch_search_depths`), `frames` frames a step.
+    about the probe area's centre (one place: the centre), `frames` frames a row. `method` steps:
+    each place stepped down through the nominal touch height in `step_mm` steps
+    (`touch_search_depths`). `method` bisect: `presses` rows a place, whose depths the collection
+    decides press by press (threedcal.dataset.touch.TouchBisection) within `touch_search_range`;
+    the plan holds the deepest, which no press passes.
 
     Near the centre: on a domed gel the apex sits there, where a seating error changes the sag
     least. Each step is its own press (the probe lifts between rows), approached from above."""
@@ -377,7 +444,22 @@ def touch_search_plan(sensor: Mapping, search: Mapping) -> pd.DataFrame:
     angles = 2 * np.pi * np.arange(points) / points
     cx = width / 2 + (spread * np.cos(angles) if points > 1 else np.zeros(1))
     cy = height / 2 + (spread * np.sin(angles) if points > 1 else np.zeros(1))
-    steps = touch_search_depths(sensor, search)
+    if search.get("method", "steps") == "bisect":
+        low, high = touch_search_range(sensor, search)
+        if int(search["presses"]) < TOUCH_BISECTION_MIN_PRESSES:
+            raise ConfigError(
+                f"plan.touch_search.presses: {search['presses']} (a bisecting search needs >= "
+                f"{TOUCH_BISECTION_MIN_PRESSES}: the deepest, one halving, two past the onset)"
+            )
+        if low <= -float(sensor["mount"]["z_clearance_mm"]):
+            raise ConfigError(
+                f"plan.touch_search: its shallowest press ({low:g} mm) lies at or above the "
+                f"clearance height ({sensor['mount']['z_clearance_mm']:g} mm over the touch): "
+                "lower probing.touch_uncertainty_mm"
+            )
+        steps = np.full(int(search["presses"]), high)
+    else:
+        steps = touch_search_depths(sensor, search)
     x = np.repeat(np.round(cx, 6), len(steps))
     y = np.repeat(np.round(cy, 6), len(steps))
     depth = np.tile(steps, points) + dome_sag_mm(sensor, x, y)
@@ -569,7 +651,8 @@ def plan_from_config(plan_config: Mapping, sensor: Mapping, run: int = 1) -> pd.
                 frames=plan_config["frames"],
                 depth_mode=mode,
             )
-    rows = rows.assign(phase="grid")
+            rows = _inside_area(rows, plan_config, sensor)
+    rows = rows if "phase" in rows else rows.assign(phase="grid")
     before = [p for p in _leading_phases(plan_config, sensor) if not p.empty]
     if not before:
         return rows
@@ -598,10 +681,32 @@ def registration_presses_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFra
     if sensor.get("type") != "vision":
         return registration_plan(sensor, {"spacing_mm": 0})
     rows = registration_plan(sensor, presses)
-    if plan_config.get("pattern") != "quick" or rows.empty:
+    if plan_config.get("pattern") == "quick" and not rows.empty:
+        x0, y0, x1, y1 = quick_area_mm(sensor, plan_config)
+        inside = rows["x_mm"].between(x0 - 1e-9, x1 + 1e-9) & rows["y_mm"].between(
+            y0 - 1e-9, y1 + 1e-9
+        )
+        return rows[inside].reset_index(drop=True)
+    return _inside_area(rows, plan_config, sensor)
+
+
+def _inside_area(rows: pd.DataFrame, plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
+    """A grid plan's rows (or its registration lattice) where they lie inside `area_mm` (x0, y0,
+    x1, y1 plan mm: the part of the probe area the camera sees, say), the lattice kept as the
+    whole area's (its points and depths); all of them without `area_mm`."""
+    if plan_config.get("area_mm") is None or plan_config.get("pattern", "grid") != "grid":
         return rows
-    x0, y0, x1, y1 = quick_area_mm(sensor, plan_config)
-    inside = rows["x_mm"].between(x0 - 1e-9, x1 + 1e-9) & rows["y_mm"].between(y0 - 1e-9, y1 + 1e-9)
+    x0, y0, x1, y1 = (float(v) for v in plan_config["area_mm"])
+    width, height = plan_area_mm(sensor)
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        raise ConfigError(
+            f"plan.area_mm: {[x0, y0, x1, y1]} must be x0 < x1, y0 < y1 inside the probe area "
+            f"(0..{width:g} x 0..{height:g} mm)"
+        )
+    tolerance = 1e-9
+    inside = rows["x_mm"].between(x0 - tolerance, x1 + tolerance) & rows["y_mm"].between(
+        y0 - tolerance, y1 + tolerance
+    )
     return rows[inside].reset_index(drop=True)
 
 
@@ -644,4 +749,7 @@ def plan_phases(stored_plan: Mapping, plan_config: Mapping, sensor: Mapping) -> 
                 f"rows from row {start}): was the store collected with another config?"
             )
         phases += [str(p) for p in rows["phase"]]
-    return np.array(phases + ["grid"] * (n_rows - len(phases)))
+    rest = n_rows - len(phases)
+    if pauses_to_register(plan_config):  # each quick press: its pause, then its own depth
+        return np.array(phases + ["register", "grid"] * (rest // 2) + ["register"] * (rest % 2))
+    return np.array(phases + ["grid"] * rest)

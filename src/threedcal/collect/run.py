@@ -30,8 +30,15 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_to_printer
+from threedcal.collect.plan import (
+    clearance_z,
+    continued_presses,
+    dome_sag_mm,
+    plan_area_mm,
+    plan_to_printer,
+)
 from threedcal.collect.store import PointRecord, RawStore, StoreError
+from threedcal.errors import ConfigError
 from threedcal.rig import Clock, WallClock
 
 # Captured points are written to the store together, once FLUSH_EVERY_S has passed since the last
@@ -51,6 +58,17 @@ class FrameSource(Protocol):
     def capture(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         """`count` fresh frames (count, H, W, 3) uint8 RGB and their time stamps (s)."""
         ...
+
+
+class TouchDecider(Protocol):
+    """Decides the depth of each touch row from the presses before it
+    (threedcal.dataset.touch.PlanTouchSearch): rows counted in plan order, from 0."""
+
+    def begin(self, blank_frames: np.ndarray) -> None: ...
+
+    def depth(self, k: int) -> float: ...
+
+    def observe(self, k: int, depth_mm: float, frames: np.ndarray) -> Any: ...
 
 
 class CollectionInterrupted(KeyboardInterrupt):
@@ -184,8 +202,19 @@ def collect(
     replay: bool = False,
     boundaries: Sequence[int] = (),
     at_boundary: Callable[[int], bool] | None = None,
+    on_row: Callable[[int, np.ndarray | None, tuple], None] | None = None,
+    touch_search: TouchDecider | None = None,
 ) -> RunResult:
     """Probe every point the store has not captured.
+
+    `on_row(rows, samples, xyz)` is called once each plan row's samples are taken (rows: how many
+    rows are done; samples: None for a row passed over on a replay; xyz: where the printer
+    reported the head), the lift already queued: a watcher's progress (`threedcal rig`). What it
+    raises stops the run as Ctrl-C does.
+
+    `touch_search` decides the depth of each `touch` row of the plan as the run reaches it, from
+    the frames of those before (a bisecting first-contact search); the plan's depth of such a row
+    is the deepest it may be given, and the depth chosen is stored with its frames.
 
     `at_boundary(n)` is called once the first n plan rows are stored, for every n in `boundaries`
     (a quick calibration's rounds), the probe held lifted over the gel: it returns whether to go
@@ -200,6 +229,8 @@ def collect(
     clock = clock or WallClock()
     run = _Run(store, sensor, printer, camera, settings, clock, hardware_clock or clock.now, replay)
     run.boundaries, run.at_boundary = set(int(b) for b in boundaries), at_boundary
+    run.on_row = on_row or (lambda rows, samples, xyz: None)
+    run.touch_search = touch_search
     if run.start is None:
         return RunResult(0, 0, 0.0, 0.0, len(store.plan))
     run.record(new=True)
@@ -218,6 +249,8 @@ def collect(
             if attach_probe is not None:
                 attach_probe()
             run.blank()
+            if touch_search is not None:
+                touch_search.begin(store.read_blank())
             run.probe(bar)
             printer.move_to(z=run.safe_z, feed_mm_s=settings.plunge_feed_mm_s)
             printer.wait_until_idle()
@@ -262,7 +295,9 @@ class _Run:
         self.flushed_at = time.monotonic()
         self.boundaries: set[int] = set()
         self.at_boundary: Callable[[int], bool] | None = None
+        self.on_row: Callable[[int, np.ndarray | None, tuple], None] = lambda *row: None
         self.stopped_at: int | None = None
+        self.touch_search: TouchDecider | None = None
 
     def record(self, new: bool = False, **extra: Any) -> None:
         """Keep this run's record in the store up to date (a killed run still counts)."""
@@ -322,13 +357,29 @@ class _Run:
         # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed
         # gel sits lower away from its apex), never above the clearance height.
         surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
+        touch_rows = {}
+        if self.touch_search is not None and "phase" in plan:
+            rows = np.flatnonzero(plan["phase"].to_numpy() == "touch")
+            touch_rows = {int(row): k for k, row in enumerate(rows)}
+            for row in rows[rows < first]:  # a resumed search goes on from what it pressed
+                self.touch_search.observe(
+                    touch_rows[int(row)], store.read_depth(row), store.read_point(row)
+                )
+        # a row that goes on with the one before as one press (a quick press after its pause to
+        # register): the probe stays down and goes deeper
+        continued = continued_presses(plan)
         for point in range(first, len(plan)):
             row = plan.iloc[point]
-            target = plan_to_printer(sensor, row.x_mm, row.y_mm, row.depth_mm)
-            previous = surface_z[point - 1] if point > first else np.inf
-            hop_z = min(self.safe_z, max(previous, surface_z[point]) + settings.hop_mm)
-            printer.move_to(z=hop_z, feed_mm_s=settings.plunge_feed_mm_s)
-            printer.move_to(x=target[0], y=target[1], feed_mm_s=settings.travel_feed_mm_s)
+            depth, chosen = row.depth_mm, touch_rows.get(point)
+            if chosen is not None:
+                depth = self._touch_depth(point, chosen, row.depth_mm)
+            target = plan_to_printer(sensor, row.x_mm, row.y_mm, depth)
+            going_on = bool(continued[point]) and point > first
+            if not going_on:
+                previous = surface_z[point - 1] if point > first else np.inf
+                hop_z = min(self.safe_z, max(previous, surface_z[point]) + settings.hop_mm)
+                printer.move_to(z=hop_z, feed_mm_s=settings.plunge_feed_mm_s)
+                printer.move_to(x=target[0], y=target[1], feed_mm_s=settings.travel_feed_mm_s)
             printer.move_to(z=target[2], feed_mm_s=settings.plunge_feed_mm_s)
             printer.wait_until_idle()
             self.clock.sleep(settings.settle_s)
@@ -340,9 +391,10 @@ class _Run:
             else:
                 frames, stamps = self.camera.capture(count)
             hw_now = self.hardware_clock() - self.started_hw
-            lift_to = surface_z[point + 1] if point + 1 < len(plan) else np.inf
-            lift_z = min(self.safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
-            printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift while we store
+            if point + 1 >= len(plan) or not continued[point + 1]:
+                lift_to = surface_z[point + 1] if point + 1 < len(plan) else np.inf
+                lift_z = min(self.safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
+                printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift, then store
             if self.done[point]:
                 self.flush(bar)  # what waits is contiguous: it ends before a replayed point
                 if samples is not None and not np.array_equal(samples, store.read_point(point)):
@@ -351,9 +403,14 @@ class _Run:
                         "give the samples stored for it (was the simulator changed since?); move "
                         "the store away to collect it anew"
                     )
+                if chosen is not None:  # the search goes on from what this press showed
+                    self.touch_search.observe(chosen, depth, store.read_point(point))
+                self.on_row(point + 1, None, reported)
                 if not self.round_done(point + 1, bar):
                     return
                 continue
+            if chosen is not None:
+                self.touch_search.observe(chosen, depth, frames)
             if not self.pending:
                 self.pending_from = point
             self.pending.append(
@@ -363,6 +420,7 @@ class _Run:
                     reported_xyz=reported,
                     t_s=np.asarray(stamps, dtype=float) - self.started_clock,
                     hardware_s=np.full(count, hw_now),
+                    depth_mm=None if chosen is None else float(depth),
                 )
             )
             if (
@@ -370,9 +428,23 @@ class _Run:
                 or time.monotonic() - self.flushed_at >= FLUSH_EVERY_S
             ):
                 self.flush(bar)
+            self.on_row(point + 1, frames, reported)
             if not self.round_done(point + 1, bar):
                 return
         self.flush(bar)
+
+    def _touch_depth(self, point: int, k: int, deepest: float) -> float:
+        """A searching row's depth: the one stored (a replayed press), or the search's next,
+        refused before any motion if it lies deeper than the plan allowed there."""
+        if self.done[point]:
+            return self.store.read_depth(point)
+        depth = float(self.touch_search.depth(k))
+        if not depth <= deepest + 1e-9:
+            raise ConfigError(
+                f"touch search row {point}: the search asked for {depth:g} mm, deeper than the "
+                f"plan's {deepest:g} mm there; not pressed"
+            )
+        return depth
 
     def round_done(self, rows: int, bar) -> bool:
         """At a boundary: store what waits, let the lift finish, ask `at_boundary` whether to go

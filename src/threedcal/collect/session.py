@@ -7,6 +7,7 @@ only when complete, so a failed run never deletes what it captured: the next run
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -37,8 +38,17 @@ from threedcal.collect.store import (
 )
 from threedcal.config import quick_run
 from threedcal.errors import ConfigError
+from threedcal.mount import scene_sensor
 from threedcal.profiles import load_profile
-from threedcal.rig import Ask, BenchClock, check_devices, is_magnetic, open_rig
+from threedcal.rig import (
+    Ask,
+    BenchClock,
+    Rig,
+    bench_sensor,
+    check_devices,
+    is_magnetic,
+    open_rig,
+)
 
 
 @dataclass
@@ -51,7 +61,7 @@ class ScenePlan:
 
 def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
     """Load the profiles and the plan and validate all of it; nothing moves yet."""
-    sensor = load_profile("sensor", scene["sensor"])
+    sensor = scene_sensor(scene, source)
     printer = load_profile("printer", scene["printer"])
     plan = plan_from_config(scene["plan"], sensor, quick_run(scene))
     plan_source = scene["plan"].get("csv") or f"{source} grid plan"
@@ -141,6 +151,8 @@ def collect_scene(
     truth_path: str | Path | None = None,
     progress: bool = True,
     ask: Ask | None = None,
+    rig: Rig | None = None,
+    on_row=None,
 ) -> dict[str, Any]:
     """Collect (or resume, or find already collected) a scene's store at `store_path`; its summary.
 
@@ -148,7 +160,8 @@ def collect_scene(
     store at `store_path` is never touched: if its recorded settings are the config's, its summary
     is returned; if not, a SettingsMismatch names the keys that differ. A partial store is resumed
     only with the settings it was started with. `ask`: how a real rig asks its user to attach
-    the probe (threedcal.rig).
+    the probe (threedcal.rig). `rig`: one opened already (`threedcal rig` holds its printer);
+    `on_row`: collect's watcher (threedcal.collect.run.collect).
     """
     source = f"scenes.{name}"
     prepared = prepare(scene, source=source)
@@ -168,7 +181,7 @@ def collect_scene(
     else:
         store = open_store(staging, name, scene, prepared, settings)
         if not store.complete:
-            collect_on_rig(scene, prepared, store, progress, ask)
+            collect_on_rig(scene, prepared, store, progress, ask, rig=rig, on_row=on_row)
             store.finalize({"summary": store_summary(store)})
         elif staging != store_path:  # completed, then killed before the rename: maybe before
             store.consolidate()  # finalize's last step too
@@ -240,7 +253,7 @@ def simulated_truth(scene: Mapping, prepared: ScenePlan):
         return draw_reskin_truth(scene["bench"], scene["seed"])
     from threedcal.sim.bench import draw_truth
 
-    return draw_truth(prepared.sensor, scene["bench"], scene["seed"])
+    return draw_truth(bench_sensor(scene, prepared.sensor), scene["bench"], scene["seed"])
 
 
 def _sample_layout(prepared: ScenePlan):
@@ -259,11 +272,23 @@ ATTACH_PROBE = "Attach the probe to the print head"
 
 
 def collect_on_rig(
-    scene, prepared: ScenePlan, store: RawStore, progress: bool, ask: Ask | None, **rounds
+    scene,
+    prepared: ScenePlan,
+    store: RawStore,
+    progress: bool,
+    ask: Ask | None,
+    rig: Rig | None = None,
+    **rounds,
 ) -> RunResult:
-    """The scene's rig (threedcal.rig): the simulated bench, or the printer and the sensor.
-    `rounds`: collect's `boundaries` and `at_boundary`, for a plan probed round by round."""
-    with open_rig(scene, prepared.sensor, prepared.printer, ask=ask) as rig:
+    """The scene's rig (threedcal.rig): the simulated bench, or the printer and the sensor; `rig`
+    when one is open already. `rounds`: collect's `boundaries` and `at_boundary`, for a plan
+    probed round by round, or its `on_row` watcher."""
+    opened = (
+        contextlib.nullcontext(rig)
+        if rig is not None
+        else open_rig(scene, prepared.sensor, prepared.printer, ask=ask)
+    )
+    with opened as rig:
         # Replay on the bench: a resumed run goes through the plan from the start, so the
         # simulated sensor sees an uninterrupted run's timeline and the store comes out
         # byte-identical.
@@ -278,8 +303,33 @@ def collect_on_rig(
             attach_probe=None if rig.simulated else lambda: rig.prompt(ATTACH_PROBE),
             progress=progress,
             replay=rig.simulated,
+            touch_search=live_touch_search(scene, prepared),
             **rounds,
         )
+
+
+def live_touch_search(scene: Mapping, prepared: ScenePlan):
+    """The decider of a plan's bisecting touch search (plan.touch_search.method: bisect), the
+    depth of each of its presses chosen from those before; None for a stepped search or none."""
+    from threedcal.collect.plan import touch_search_range
+    from threedcal.dataset.touch import planned_touch_search
+
+    search = scene["plan"].get("touch_search") or {}
+    plan = prepared.plan
+    if search.get("method", "steps") != "bisect" or "phase" not in plan:
+        return None
+    rows = plan[plan["phase"] == "touch"]
+    if rows.empty:
+        return None
+    low, high = touch_search_range(prepared.sensor, search)
+    return planned_touch_search(
+        rows[["x_mm", "y_mm"]].to_numpy(float),
+        rows["depth_mm"].to_numpy(float),
+        low,
+        high,
+        float(prepared.sensor["px_per_mm"]),
+        float(scene["probe"]["radius_mm"]),
+    )
 
 
 class _EstimateSink:

@@ -125,6 +125,8 @@ class PointRecord:
     hardware_s: (
         np.ndarray
     )  # (K,) printer clock at capture (the motion model's, on the simulated bench)
+    # the depth commanded when the run chose it (a bisecting touch search's); None: the plan's
+    depth_mm: float | None = None
 
 
 class StoreError(ThreedcalError):
@@ -389,6 +391,14 @@ class RawStore:
         }
         for name, per_point in measured.items():
             self._array(name)[start:stop] = np.repeat(np.asarray(per_point, dtype=float), counts)
+        chosen = [r.depth_mm is not None for r in records]
+        if any(chosen):  # depths the run chose: stored where the plan's placeholder was
+            depth = self._array("depth_mm")[start:stop]
+            for k, (record, count) in enumerate(zip(records, counts, strict=True)):
+                if record.depth_mm is not None:
+                    at = int(self.offsets[first + k]) - start
+                    depth[at : at + count] = record.depth_mm
+            self._array("depth_mm")[start:stop] = depth
         for name in ("t_s", "hardware_s"):
             per_frame = [
                 np.broadcast_to(np.asarray(getattr(r, name), dtype=float), (c,))
@@ -401,6 +411,13 @@ class RawStore:
         """The samples stored for one point (a replayed run compares against them)."""
         start, stop = int(self.offsets[point]), int(self.offsets[point + 1])
         return self._array(self.variable)[start:stop]
+
+    def read_depth(self, point: int) -> float:
+        """The depth stored for one point: the plan's, or the one the run chose for it."""
+        return float(self._array("depth_mm")[int(self.offsets[point])])
+
+    def read_blank(self) -> np.ndarray:
+        return self._array(self.blank_variable)[:]
 
     def finalize(
         self, extra_attrs: Mapping[str, Any] | None = None, rows: int | None = None

@@ -14,7 +14,7 @@ from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 from threedcal.errors import ConfigError
-from threedcal.lens import profile_focal_px, rectify_if
+from threedcal.lens import RadialLens, profile_focal_px, rectify_if
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -151,9 +151,9 @@ def register_store(
     changes, rather than located and fitted again (most of a round's labelling time)."""
     from threedcal.collect.plan import WHOLE_CONTACT_MARGIN_PX, dome_sag_at_px, plan_phases
     from threedcal.collect.store import open_checked
-    from threedcal.profiles import load_profile
+    from threedcal.mount import scene_sensor
 
-    sensor = load_profile("sensor", scene["sensor"])
+    sensor = scene_sensor(scene)
     raw = open_checked(store_path, expect_digest, rows=rows)
     height, width = raw["frames"].shape[1:3]
     point_of_frame = raw["point"].values
@@ -221,7 +221,7 @@ def _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress):
         accept=whole,
         flat_gel=sensor["gel"].get("dome") is None,
         progress=progress,
-        lens=bool(sensor.get("lens")),
+        lens=RadialLens.from_profile(sensor) or False,  # refitted as far as the contacts allow
         dome=dome,
     )
 
@@ -340,9 +340,9 @@ def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Lab
         # domed gel's edge is commanded deeper, not pressed deeper); measured sags would split
         # presses that sit at the limit
         from threedcal.collect.plan import dome_sag_mm
-        from threedcal.profiles import load_profile
+        from threedcal.mount import scene_sensor
 
-        sensor = load_profile("sensor", scene["sensor"])
+        sensor = scene_sensor(scene)
         as_written = raw["depth_mm"].values - dome_sag_mm(
             sensor, raw["x_mm"].values, raw["y_mm"].values
         )
@@ -442,6 +442,10 @@ def _registration_record(
         "affine_px_per_mm": fit.matrix.round(9).tolist(),
         "lens": None if fit.lens is None else fit.lens.record(),
         "residual_px": round(fit.residual_px, 4),
+        "lens_free": fit.lens_free,
+        "lens_cv_px": None
+        if fit.lens_cv_px is None
+        else {k: round(v, 4) for k, v in fit.lens_cv_px.items()},
         "px_per_mm": [round(v, 5) for v in fit.px_per_mm],
         "rotation_deg": round(float(np.degrees(np.arctan2(linear[1, 0], linear[0, 0]))), 4),
         "contacts_from": str(store.phase[store.registered_rows[0]]),
@@ -501,21 +505,24 @@ def touch_height(
         rows = store.first[touch]
         xy = np.column_stack([store.raw["x_mm"].values[rows], store.raw["y_mm"].values[rows]])
         places, place = np.unique(xy, axis=0, return_inverse=True)
-        # in the ideal frame, where the registration put the search's places (store.centres)
-        result = measure_touch_search(
-            [rectify_if(fit.lens, store.mean_frame(p)) for p in touch],
-            rectify_if(fit.lens, store.raw["blank_frames"].values),
-            store.nominal_depth[rows],
-            place.ravel(),
-            store.centres[rows],
-            store.px_per_mm,
-            reach_mm=radius_mm,
-            span_mm=TOUCH_FIT_SPAN_MM,
-            progress=progress,
-        )
+        search = store.plan_config.get("touch_search") or {}
+        if search.get("method", "steps") == "bisect":
+            result = _replayed_bisection(store, touch, xy, radius_mm, search)
+        else:  # in the ideal frame, where the registration put the search's places
+            result = measure_touch_search(
+                [rectify_if(fit.lens, store.mean_frame(p)) for p in touch],
+                rectify_if(fit.lens, store.raw["blank_frames"].values),
+                store.nominal_depth[rows],
+                place.ravel(),
+                store.centres[rows],
+                store.px_per_mm,
+                reach_mm=radius_mm,
+                span_mm=TOUCH_FIT_SPAN_MM,
+                progress=progress,
+            )
         return {
             "touch_offset_mm": result.offset_mm,
-            "touch_method": "search",
+            "touch_method": "bisect" if search.get("method") == "bisect" else "search",
             "rim_edge_offset_mm": None,
             "touch_search": {
                 "places_mm": places.round(4).tolist(),
@@ -541,3 +548,20 @@ def touch_height(
         "rim_edge_offset_mm": None if estimate.edge_mm is None else round(estimate.edge_mm, 4),
         "touch_search": None,
     }
+
+
+def _replayed_bisection(store: RegisteredStore, touch, xy, radius_mm: float, search):
+    """A bisecting search's answer from its stored presses, judged as the collection judged them
+    (camera frames, the profile's scale) at the depths below the gel the registration gives."""
+    from threedcal.collect.plan import touch_search_range
+    from threedcal.dataset.touch import planned_touch_search
+
+    low, high = touch_search_range(store.sensor, search)
+    replay = planned_touch_search(
+        xy, np.full(len(touch), high), low, high, float(store.sensor["px_per_mm"]), radius_mm
+    )
+    replay.begin(store.raw["blank_frames"].values)
+    for k, (first, last) in enumerate(zip(store.first[touch], store.last[touch], strict=True)):
+        frames = store.raw["frames"][int(first) : int(last)].values
+        replay.observe(k, float(store.nominal_depth[first]), frames)
+    return replay.result()

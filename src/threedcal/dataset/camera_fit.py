@@ -8,7 +8,7 @@ scale, no rotation); the affine has translation, rotation, per-axis scale and sh
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import optimize
@@ -25,6 +25,10 @@ class AffineFit:
     residual_px: float  # RMS residual over the inliers, camera pixels
     inliers: np.ndarray  # bool per input point
     lens: RadialLens | None = None
+    # from a profile's lens (fit_camera): which of its unknowns were refitted, and the
+    # cross-validated error (px) of each choice tried; None: no lens to start from
+    lens_free: str | None = None
+    lens_cv_px: dict[str, float] | None = None
 
     def ideal(self, xy_mm: np.ndarray) -> np.ndarray:
         """Where the points lie in the ideal (rectified) frame: the affine alone."""
@@ -90,9 +94,16 @@ def fit_affine(
     return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers)
 
 
-# Fewest contacts to fit the lens's extra unknowns (principal point, κ₁) next to the affine;
-# `register_camera` falls back to the affine alone below it (a small trial plan), with a warning.
+# Fewest contacts to fit the lens's extra unknowns (principal point, κ₁) next to the affine with
+# no lens to start from; `register_camera` falls back to the affine alone below it, with a warning.
 MIN_LENS_CONTACTS = 30
+# From a lens to start from: which of its unknowns a fit frees, and the fewest contacts that fit
+# takes (two equations each for the affine's 6 unknowns, with κ₁ 7, with the principal point 9,
+# and one contact to spare).
+LENS_FREEDOMS = {"none": 4, "kappa1": 5, "all": 6}
+# Whole contacts a quick plan's first round must be expected to give (the config check): the
+# affine through the profile's lens, and one to spare for a contact rejected as an outlier.
+MIN_FIRST_CONTACTS = LENS_FREEDOMS["none"] + 1
 
 
 def fit_lensed(
@@ -102,39 +113,60 @@ def fit_lensed(
     reject_sigma: float = 4.0,
     max_rounds: int = 10,
     kappa2: bool = False,
+    start: RadialLens | None = None,
+    free: str = "all",
 ) -> AffineFit:
     """Affine mm → ideal px and the lens's radial distortion (principal point, κ₁ and with
     `kappa2` κ₂) together, by Levenberg–Marquardt from the plain affine, with the same outlier
     rejection.
 
-    `shape` (H, W) of the frames: the principal point starts at their centre, κ is solved in
-    units of the half-diagonal (well scaled); the returned lens is in pixels. Contacts lie whole
-    inside the frame, so none is found in its outer band (a contact radius and a margin wide):
-    the fit extrapolates there. A free κ₂ follows the locator's error at the few outermost
-    contacts and bends it into that band by pixels: `register` fits κ₁ alone
-    (docs/explanation/registration.md, The lens)."""
+    `shape` (H, W) of the frames: the principal point starts at their centre and κ at 0, or at
+    `start`'s (a sensor profile's lens); `free` says which of them the fit moves: "all", "kappa1"
+    (the principal point stays `start`'s) or "none" (the lens is `start`, the affine alone is
+    fitted through it). κ is solved in units of the half-diagonal (well scaled); the returned lens
+    is in pixels. Contacts lie whole inside the frame, so none is found in its outer band (a
+    contact radius and a margin wide): the fit extrapolates there. A free κ₂ follows the locator's
+    error at the few outermost contacts and bends it into that band by pixels: `register` fits κ₁
+    alone (docs/explanation/registration.md, The lens)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     height, width = shape
+    if free not in LENS_FREEDOMS or (free != "all" and start is None):
+        raise RegistrationError(f"fit_lensed: free={free!r} needs a start lens to hold")
     centre0 = np.array([(width - 1) / 2, (height - 1) / 2])
     r0 = float(np.hypot(*centre0)) or 1.0
-    start = fit_affine(src, dst, reject_sigma, max_rounds)
+    lens0 = (
+        [*centre0, 0.0, 0.0]
+        if start is None
+        else [*start.centre_px, start.kappa1 * r0**2, start.kappa2 * r0**4]
+    )
+    # lens unknowns by index: principal point (0, 1), κ₁ (2), κ₂ (3)
+    moving = {"all": [0, 1, 2], "kappa1": [2], "none": []}[free] + ([3] if kappa2 else [])
+    fewest = MIN_LENS_CONTACTS if start is None else LENS_FREEDOMS[free]
+    first = (
+        fit_affine(src, dst, reject_sigma, max_rounds)
+        if start is None
+        else fit_affine(src, start.undistort(dst), reject_sigma, max_rounds)
+    )
 
     def model(params) -> AffineFit:
+        lens_params = np.array(lens0, dtype=float)
+        lens_params[moving] = params[6:]
         lens = RadialLens(
-            centre_px=(float(params[6]), float(params[7])),
-            kappa1=float(params[8]) / r0**2,
-            kappa2=float(params[9]) / r0**4 if kappa2 else 0.0,
+            centre_px=(float(lens_params[0]), float(lens_params[1])),
+            kappa1=float(lens_params[2]) / r0**2,
+            kappa2=float(lens_params[3]) / r0**4,
             shape=(int(height), int(width)),
         )
         return AffineFit(params[:6].reshape(2, 3), math.nan, np.zeros(0, bool), lens)
 
-    params = np.concatenate([start.matrix.ravel(), centre0, [0.0, 0.0][: 1 + kappa2]])
+    params = np.concatenate([first.matrix.ravel(), np.asarray(lens0, float)[moving]])
 
     def solve(inliers):
         nonlocal params
-        if inliers.sum() < MIN_LENS_CONTACTS:
+        if inliers.sum() < fewest:
             raise RegistrationError(
-                f"fitting the lens needs >= {MIN_LENS_CONTACTS} contacts; {int(inliers.sum())} usable"
+                f"fitting the lens ({free} free) needs >= {fewest} contacts; "
+                f"{int(inliers.sum())} usable"
             )
         a, b = src[inliers], dst[inliers]
 
@@ -147,3 +179,44 @@ def fit_lensed(
     fit, residuals, inliers = _robust(src, dst, solve, reject_sigma, max_rounds)
     rms = float(np.sqrt(np.mean(residuals[inliers] ** 2)))
     return AffineFit(matrix=fit.matrix, residual_px=rms, inliers=inliers, lens=fit.lens)
+
+
+# Folds of the cross-validation that chooses how much of the lens to fit.
+LENS_FOLDS = 10
+
+
+def fit_camera(
+    xy_mm: np.ndarray, xy_px: np.ndarray, shape: tuple[int, int], prior: RadialLens
+) -> AffineFit:
+    """The affine and the lens from contacts, starting from `prior` (the sensor profile's lens):
+    the profile's lens as it is, its κ₁ refitted, or its κ₁ and principal point refitted —
+    whichever predicts contacts left out best (LENS_FOLDS-fold cross-validation over the first
+    fit's inliers; a tie goes to the fewer unknowns), recorded in the fit's `lens_free` and
+    `lens_cv_px`. A few contacts cannot pin a lens down, and then the profile's is the better
+    guess; many can, and then the unit's own is."""
+    src, dst = _point_arrays(xy_mm, xy_px)
+    first = fit_lensed(src, dst, shape, start=prior, free="none")
+    inliers = np.flatnonzero(first.inliers)
+    folds = np.arange(len(inliers)) % min(LENS_FOLDS, len(inliers))
+    errors: dict[str, float] = {}
+    fits: dict[str, AffineFit] = {"none": first}
+    for free in LENS_FREEDOMS:
+        squared = []
+        try:
+            for fold in np.unique(folds):
+                train, test = inliers[folds != fold], inliers[folds == fold]
+                fit = fit_lensed(
+                    src[train], dst[train], shape, start=prior, free=free, max_rounds=1
+                )
+                squared.append(np.sum((fit.apply(src[test]) - dst[test]) ** 2, axis=1))
+            if free != "none":
+                fits[free] = fit_lensed(src, dst, shape, start=prior, free=free)
+        except RegistrationError:
+            continue
+        errors[free] = float(np.sqrt(np.mean(np.concatenate(squared))))
+    best = (
+        min(errors, key=lambda k: (round(errors[k], 6), list(LENS_FREEDOMS).index(k)))
+        if errors
+        else "none"
+    )
+    return replace(fits[best], lens_free=best, lens_cv_px=errors)

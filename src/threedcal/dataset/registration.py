@@ -15,11 +15,18 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from threedcal.dataset.camera_fit import MIN_LENS_CONTACTS, AffineFit, fit_affine, fit_lensed
+from threedcal.dataset.camera_fit import (
+    MIN_LENS_CONTACTS,
+    AffineFit,
+    fit_affine,
+    fit_camera,
+    fit_lensed,
+)
 from threedcal.dataset.contacts import Contact, locate_contact
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.symmetry import SymmetryRefinement, refine_by_symmetry
 from threedcal.errors import RegistrationError
+from threedcal.lens import RadialLens
 
 
 @dataclass(frozen=True)
@@ -43,11 +50,12 @@ def register_camera(
     accept=lambda contact: True,
     flat_gel: bool = True,
     progress: bool = False,
-    lens: bool = False,
+    lens: bool | RadialLens = False,
     dome: DomedContacts | None = None,
 ) -> Registration:
     """Locate the contact in every frame by rim and, on a flat gel, by symmetry; fit the affine
-    (and with `lens`, the camera lens's radial distortion with it: `fit_lensed`).
+    (and with `lens`, the camera lens's radial distortion with it: `fit_lensed`; given a
+    RadialLens, the sensor profile's, from it: `fit_camera` chooses how much of it to refit).
 
     The rim locator's bias drifts across the frame and the affine absorbs it as a scale. The
     symmetry locator has no such drift on a flat gel. On a domed gel every contact leans toward the
@@ -67,8 +75,10 @@ def register_camera(
     located again there, where they are round, mapped back through it, and the lens refitted to
     them (docs/explanation/registration.md, The lens).
     """
-    shape = np.shape(blank)[:2] if lens else None
-    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, dome=dome)
+    shape = np.shape(blank)[:2] if lens is not False else None
+    prior = lens if isinstance(lens, RadialLens) else None
+    fitting = (shape, prior)
+    located = _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, fitting, dome=dome)
     if not lens:
         return located
     first = located.fit.lens
@@ -81,14 +91,16 @@ def register_camera(
         accept,
         flat_gel,
         progress,
-        shape,
+        fitting,
         back=first,
         dome=dome,
     )
     return again
 
 
-def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, back=None, dome=None):
+def _locate_and_fit(
+    xy_mm, frames, blank, accept, flat_gel, progress, fitting, back=None, dome=None
+):
     """One pass of `register_camera`. `back`: the frames were rectified through this lens; the contacts
     are mapped back through it to camera pixels before the fit."""
 
@@ -114,7 +126,7 @@ def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, bac
 
     unmixing = None
     contacts = unbent(on_axis(rim, "area"))
-    candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, shape))}
+    candidates = {"rim": (contacts, _fit_contacts(xy_mm, contacts, *fitting))}
     symmetry_start = None
     # the symmetric centre of a contact on a dome: where an elastic layer's pressure is centred
     by_symmetry = flat_gel if dome is None else dome.elastic
@@ -124,14 +136,14 @@ def _locate_and_fit(xy_mm, frames, blank, accept, flat_gel, progress, shape, bac
         symmetric = [c if c is not None and accept(c) else None for c in refined.contacts]
         if sum(c is not None for c in symmetric) >= 3:
             contacts = unbent(on_axis(symmetric, "pressure"))
-            candidates["symmetry"] = (contacts, _fit_contacts(xy_mm, contacts, shape))
+            candidates["symmetry"] = (contacts, _fit_contacts(xy_mm, contacts, *fitting))
             symmetry_start = "rim"
             again = _symmetry_from_fit(
                 xy_mm, frames, blank, rim, candidates["symmetry"][1], accept, back, progress, dome
             )
             if sum(c is not None for c in again.contacts) >= 3:
                 contacts = unbent(on_axis(again.contacts, "pressure"))
-                fit = _fit_contacts(xy_mm, contacts, shape)
+                fit = _fit_contacts(xy_mm, contacts, *fitting)
                 if fit.residual_px < candidates["symmetry"][1].residual_px:
                     candidates["symmetry"] = (contacts, fit)
                     unmixing, symmetry_start = again.unmixing, "fit"
@@ -175,13 +187,18 @@ def _symmetry_from_fit(
     )
 
 
-def _fit_contacts(xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None) -> AffineFit:
-    """fit_affine (or, given the frames' `lens_shape`, fit_lensed) over all frames; a frame without
-    a contact is a non-finite point, never an inlier."""
+def _fit_contacts(
+    xy_mm: np.ndarray, contacts: list[Contact | None], lens_shape=None, prior=None
+) -> AffineFit:
+    """fit_affine (or, given the frames' `lens_shape`, fit_lensed; and a `prior` lens,
+    fit_camera) over all frames; a frame without a contact is a non-finite point, never an
+    inlier."""
     xy_px = np.array([(c.x_px, c.y_px) if c is not None else (np.nan, np.nan) for c in contacts])
     found = sum(c is not None for c in contacts)
     if lens_shape is not None:
         try:
+            if prior is not None:
+                return fit_camera(xy_mm, xy_px.reshape(-1, 2), lens_shape, prior)
             if found >= MIN_LENS_CONTACTS:
                 return fit_lensed(xy_mm, xy_px.reshape(-1, 2), lens_shape)
         except RegistrationError:  # outliers left too few: as too few found

@@ -3,13 +3,15 @@ first-contact search (one frame per small step down at a few places)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage, optimize
 from tqdm import tqdm
 
-from threedcal.dataset.contacts import SATURATED_DN
+from threedcal.collect.plan import TOUCH_BISECTION_MIN_PRESSES
+from threedcal.dataset.contacts import SATURATED_DN, find_contact
 from threedcal.errors import RegistrationError
 
 
@@ -345,3 +347,243 @@ def fit_touch_onset(
         signal=signal,
         exponent=float(exponent),
     )
+
+
+@dataclass(frozen=True)
+class TouchPress:
+    """One press of a first-contact search: its commanded depth and what the frame showed."""
+
+    depth_mm: float
+    signal: float  # the contact signal L (0 without contact is not implied: see `contact`)
+    contact: bool
+
+
+class TouchBisection:
+    """The first-contact search at one place, decided press by press: `next_depth()`, press there,
+    `observe(frame)`, until `next_depth()` is None; then `result()`.
+
+    `presses` presses in all, commanded depths (below the nominal touch) within [low_mm, high_mm]:
+    1. high_mm, the deepest: it must touch; its change from the blank is the template onto which
+       every later frame is projected (the contact signal L of `measure_touch_search`), and its
+       contact's centre is where the window is cut;
+    2. `bisections` halvings of [low_mm, high_mm] on whether L exceeds its noise level (`bisect`):
+       the onset to within (high − low) / 2^bisections;
+    3. the rest past the bracket's contact end, spread over `span_mm`, so that the growth
+       L = α (c + δ)^p can be fitted from the onset (`fit_touch_onset`, L less the mean L of the
+       presses without contact: the frames' drift since the blanks) and δ read where it starts;
+       the first of them at low_mm itself when every halving touched (the onset in the lowest
+       halving's cell, or the gel above the window).
+
+    A contact at every press (the gel higher than low_mm) or none at high_mm (lower than it) is a
+    RegistrationError naming the setting to change, as the stepped search's are."""
+
+    def __init__(
+        self,
+        blank_frames: np.ndarray,
+        low_mm: float,
+        high_mm: float,
+        presses: int,
+        px_per_mm: float,
+        reach_mm: float,
+        span_mm: float = TOUCH_FIT_SPAN_MM,
+        bisections: int | None = None,
+    ):
+        if presses < TOUCH_BISECTION_MIN_PRESSES:
+            raise RegistrationError(
+                f"a bisecting touch search needs >= {TOUCH_BISECTION_MIN_PRESSES} presses "
+                f"(the deepest, one halving, {TOUCH_BISECTION_MIN_PRESSES - 2} to fit), got {presses}"
+            )
+        if not (math.isfinite(low_mm) and math.isfinite(high_mm) and low_mm < high_mm):
+            raise RegistrationError(
+                f"touch search depths must rise from low to high, got {low_mm}, {high_mm}"
+            )
+        self.detector = ChangeDetector.from_blanks(blank_frames, smooth_px=TOUCH_SMOOTHING_PX)
+        self._blanks = np.asarray(blank_frames, dtype=np.float32)
+        self.low, self.high = float(low_mm), float(high_mm)
+        self.presses = int(presses)
+        fit = max(2, self.presses // 2 - 1)
+        self.bisections = int(bisections) if bisections is not None else self.presses - 1 - fit
+        self.span_mm = float(span_mm)
+        self.place_px: tuple[float, float] | None = None  # found at the deepest press
+        self.reach_px = TOUCH_WINDOW_RADII * float(reach_mm) * float(px_per_mm)
+        self.pressed: list[TouchPress] = []
+        self._template: np.ndarray | None = None
+        self._window = None
+        self.level = math.nan
+        self.bracket = (self.low, self.high)  # [no contact, contact] after the halvings so far
+
+    def next_depth(self) -> float | None:
+        """Where to press next (mm below the nominal touch); None when the search is done."""
+        k = len(self.pressed)
+        if k >= self.presses:
+            return None
+        if k == 0:
+            return self.high
+        if k <= self.bisections:
+            low, high = self.bracket
+            return (low + high) / 2
+        if not any(not p.contact for p in self.pressed) and self.low not in self._depths():
+            return self.low  # every halving touched: is the gel above the window, or just in?
+        rest = self.presses - 1 - self.bisections
+        top = min(self.bracket[1] + self.span_mm, self.high)  # never past the deepest press
+        step = (top - self.bracket[1]) / (rest + 1)
+        past = sum(d != self.low for d in self._depths()[self.bisections + 1 :])
+        return self.bracket[1] + step * (past + 1)
+
+    def _depths(self) -> list[float]:
+        return [p.depth_mm for p in self.pressed]
+
+    def observe(self, depth_mm: float, frame: np.ndarray) -> TouchPress:
+        """The frame (mean of the press's frames) pressed at `depth_mm`: its signal and verdict."""
+        frame = np.asarray(frame, dtype=np.float32)
+        if not self.pressed:
+            self._first(frame)
+        signal = self._signal(frame)
+        press = TouchPress(float(depth_mm), signal, bool(signal > self.level))
+        self.pressed.append(press)
+        if 1 < len(self.pressed) <= self.bisections + 1:
+            low, high = self.bracket
+            self.bracket = (low, depth_mm) if press.contact else (depth_mm, high)
+        return press
+
+    def _first(self, frame: np.ndarray) -> None:
+        """The deepest press: where its contact is, the window about it, the template, the level."""
+        detector = self.detector
+        contact = find_contact(frame, detector.blank)
+        if contact is None:
+            raise RegistrationError(
+                f"touch search: no contact even at the deepest press ({self.high:+.3f} mm): the "
+                "gel sits lower than the search reaches — raise probing.touch_uncertainty_mm or "
+                "plan.touch_search.beyond_mm"
+            )
+        self.place_px = (contact.x_px, contact.y_px)
+        height, width = detector.blank.shape[:2]
+        cx, cy, reach = *self.place_px, self.reach_px
+        self._window = (
+            max(int(cy - reach), 0),
+            min(int(cy + reach) + 1, height),
+            max(int(cx - reach), 0),
+            min(int(cx + reach) + 1, width),
+        )
+        self._template = self._change(frame, detector.blank, self._usable(frame))
+        norm = float((self._template * self._template).sum())
+        if not norm > 0:
+            raise RegistrationError("touch search: no change at the deepest press")
+        self._norm = norm
+        total = self._blanks.sum(axis=0)
+        quiet = [
+            self._project(self._change(f, (total - f) / (len(self._blanks) - 1), detector.usable))
+            for f in self._blanks
+        ]
+        self.level = max(
+            TOUCH_SIGNAL_SIGMAS * float(np.std(quiet, ddof=1)), 2 * max(map(abs, quiet))
+        )
+
+    def _usable(self, frame: np.ndarray) -> np.ndarray:
+        return self.detector.usable & (frame < SATURATED_DN) & (frame > DARK_DN)
+
+    def _change(self, frame, reference, usable) -> np.ndarray:
+        change = _smoothed_change(frame, reference, usable, TOUCH_SMOOTHING_PX, self._window)
+        return change / self.detector.sigma
+
+    def _project(self, change: np.ndarray) -> float:
+        return float((change * self._template).sum()) / self._norm
+
+    def _signal(self, frame: np.ndarray) -> float:
+        return self._project(self._change(frame, self.detector.blank, self._usable(frame)))
+
+    def result(self) -> TouchSearch:
+        """δ (true depth = commanded + δ) from the presses: the growth fitted from the onset."""
+        return bisection_result([self])
+
+    def fit_input(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(depth, signal, touching) of every press, the signal less the mean of the presses
+        without contact (the frames' drift since the blanks); checked complete and bracketed."""
+        if len(self.pressed) < self.presses:
+            raise RegistrationError(
+                f"touch search: {len(self.pressed)} of its {self.presses} presses were made"
+            )
+        depth = np.array([p.depth_mm for p in self.pressed])
+        touching = np.array([p.contact for p in self.pressed])
+        signal = np.array([p.signal for p in self.pressed])
+        if touching.all():
+            raise RegistrationError(
+                f"touch search: contact at every press, down to {depth.min():+.3f} mm: the gel "
+                "sits higher than the search starts — raise probing.touch_uncertainty_mm — or "
+                "the image drifted from the blank frames"
+            )
+        baseline = float(signal[~touching].mean())
+        return depth, np.where(touching, signal - baseline, 0.0), touching
+
+
+def bisection_result(searches, span_mm: float = TOUCH_FIT_SPAN_MM) -> TouchSearch:
+    """δ from the places' bisecting searches (`TouchBisection`, every press made): their presses
+    fitted together by `fit_touch_onset` (one exponent p, δ the median over places)."""
+    parts = [search.fit_input() for search in searches]
+    place = np.concatenate([np.full(len(d), k) for k, (d, _, _) in enumerate(parts)])
+    depth, signal, touching = (np.concatenate([p[i] for p in parts]) for i in range(3))
+    return fit_touch_onset(depth, place, signal, touching, span_mm)
+
+
+class PlanTouchSearch:
+    """A plan's bisecting touch search: its touch rows, each place's presses asked of its own
+    `TouchBisection` as the collection reaches them (`depth`, `observe`). `begin(blank_frames)`
+    once the blanks are taken.
+
+    `place` (per touch row, in plan order) groups the rows; `sag_mm` (per row) is added to the
+    search's depth below the nominal touch to give the depth commanded (a domed gel's sag at the
+    place, as the plan compensates it) and taken off what is observed."""
+
+    def __init__(
+        self,
+        place,
+        low_mm: float,
+        high_mm: float,
+        px_per_mm: float,
+        reach_mm: float,
+        sag_mm=None,
+    ):
+        self.place = np.asarray(place, dtype=int)
+        self.sag = np.zeros(len(self.place)) if sag_mm is None else np.asarray(sag_mm, float)
+        self.low, self.high = float(low_mm), float(high_mm)
+        self.px_per_mm, self.reach_mm = float(px_per_mm), float(reach_mm)
+        self.searches: dict[int, TouchBisection] = {}
+
+    def begin(self, blank_frames: np.ndarray) -> None:
+        counts = {int(p): int((self.place == p).sum()) for p in np.unique(self.place)}
+        self.searches = {
+            p: TouchBisection(blank_frames, self.low, self.high, n, self.px_per_mm, self.reach_mm)
+            for p, n in counts.items()
+        }
+
+    def depth(self, k: int) -> float:
+        """The commanded depth of touch row `k` (its place's next press)."""
+        depth = self.searches[int(self.place[k])].next_depth()
+        if depth is None:
+            raise RegistrationError(f"touch row {k}: its place has made all its presses")
+        return depth + float(self.sag[k])
+
+    def observe(self, k: int, depth_mm: float, frames: np.ndarray) -> TouchPress:
+        """Touch row `k`'s frames (their mean is judged), pressed at commanded `depth_mm`."""
+        frame = np.asarray(frames, dtype=np.float32).mean(axis=0)
+        return self.searches[int(self.place[k])].observe(depth_mm - float(self.sag[k]), frame)
+
+    def result(self) -> TouchSearch:
+        return bisection_result(list(self.searches.values()))
+
+
+def planned_touch_search(
+    xy_mm: np.ndarray,
+    planned_depth_mm: np.ndarray,
+    low_mm: float,
+    high_mm: float,
+    px_per_mm: float,
+    reach_mm: float,
+) -> PlanTouchSearch:
+    """The bisecting search of a plan's touch rows (plan x, y and depth per row, in plan order):
+    a place per distinct (x, y); each row's planned depth is the deepest its press may take, the
+    search's `high_mm` plus the dome's sag there, which the search adds to every press."""
+    xy = np.asarray(xy_mm, dtype=float).reshape(-1, 2)
+    _, place = np.unique(xy, axis=0, return_inverse=True)
+    sag = np.asarray(planned_depth_mm, dtype=float) - float(high_mm)
+    return PlanTouchSearch(place.ravel(), low_mm, high_mm, px_per_mm, reach_mm, sag_mm=sag)

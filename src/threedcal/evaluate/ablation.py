@@ -296,11 +296,22 @@ def independent_contrast(
     return float(u.mean()), math.sqrt(variance), float(df)
 
 
+# Below this share of the arms' own size, a contrast or its standard error is float rounding.
+ROUNDING = 1e-12
+
+
 def _t(sample, reference, theta, independent: bool = False):
     measure = independent_contrast if independent else contrast
     estimate, se, df = measure(sample, reference, theta)
+    scale = np.abs(np.mean(sample, axis=(-2, -1))) + np.abs(
+        np.asarray(theta, float) * np.mean(reference, axis=(-2, -1))
+    )
+    # no spread at all: a zero contrast is t = 0 (the data sit on the hypothesis), any other +-inf
+    estimate = np.where(np.abs(estimate) <= ROUNDING * scale, 0.0, estimate)
+    spread = np.asarray(se) > ROUNDING * scale
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(se > 0, estimate / np.where(se > 0, se, 1.0), np.sign(estimate) * np.inf)
+        exact = np.where(estimate == 0, 0.0, np.copysign(np.inf, estimate))
+        t = np.where(spread, estimate / np.where(spread, se, 1.0), exact)
     return t, df
 
 

@@ -143,11 +143,12 @@ def press_objects(
     Everything is checked before the printer moves.
     """
     from threedcal.collect.run import MotionSettings
+    from threedcal.mount import scene_sensor
     from threedcal.profiles import load_profile
     from threedcal.rig import check_devices
 
     source = f"scenes.{name}"
-    sensor = load_profile("sensor", scene["sensor"])
+    sensor = scene_sensor(scene, source)
     if sensor.get("type") != "vision":
         raise ConfigError(f"{source}: test objects need a vision sensor, not {sensor['name']!r}")
     printer = load_profile("printer", scene["printer"])

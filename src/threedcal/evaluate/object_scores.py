@@ -88,12 +88,12 @@ class _Scoring:
     """One objects stage: the presses and models it scores, and the rows and figures it gathers."""
 
     def __init__(self, scene, models, pressing_dir, registration_path, out_dir: Path, estimator):
-        from threedcal.profiles import load_profile
+        from threedcal.mount import scene_sensor
 
         self.out_dir = out_dir
         self.figures = out_dir / "figures"
         self.figures.mkdir(parents=True, exist_ok=True)
-        sensor = load_profile("sensor", scene["sensor"])
+        sensor = scene_sensor(scene)
         self.limit = float(sensor["gel"]["max_penetration_mm"])
         self.dome = sensor["gel"].get("dome")  # the truth is the depth below the undeformed gel
         registration = read_registration(registration_path)

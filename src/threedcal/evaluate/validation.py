@@ -10,7 +10,9 @@ figures show the mean over replicates and their spread (min to max).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,13 @@ import pandas as pd
 from threedcal.dataset.splits import subset_size
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
+from threedcal.evaluate.ablation import spatial_blocks
+from threedcal.evaluate.ablation_figure import tests_figure
+from threedcal.evaluate.ablation_reading import read_validation_errors
+from threedcal.evaluate.learning_curve import LearningCurve, curve_table
+from threedcal.evaluate.learning_curve_figure import learning_curve_figure
+from threedcal.evaluate.power import power_figure, power_table
+from threedcal.model.inference import DepthEstimator
 from threedcal.plotting import pyplot
 
 WINDOW_SCALE = 1.5
@@ -72,8 +81,6 @@ def ablation_table(
     splits: pd.DataFrame,
 ) -> pd.DataFrame:
     """validation_mse.csv: P, replicate, point, x_mm, y_mm, mse for every model and validation coordinate."""
-    from threedcal.model.inference import DepthEstimator
-
     tables = []
     coords = splits.set_index("point")[["x_mm", "y_mm"]]
     for (p, replicate), path in sorted(model_paths.items()):
@@ -320,6 +327,75 @@ def cost_figure(costs: pd.DataFrame, path: str | Path, title: str) -> None:
     plt.close(fig)
 
 
+@dataclass(frozen=True)
+class AblationReading:
+    """What one set of an ablation's models says: their validation errors, the spatial blocks
+    the paired tests use, the tests, the learning curve and the recommendation."""
+
+    table: pd.DataFrame  # validation_mse.csv
+    blocks: pd.Series
+    block_mm: float
+    tests: pd.DataFrame  # tests.csv
+    recommendation: str  # recommendation.txt: the TOST's line, the curve's, how the two compare
+    curve: LearningCurve  # learning_curve.csv and .png
+
+
+def read_ablation(
+    models: Mapping[tuple[int, int], str | Path],
+    trainset: TrainingSet,
+    splits: pd.DataFrame,
+    settings: Mapping,
+    seed: int,
+) -> AblationReading:
+    """Score every model (P, replicate) on the validation coordinates, test each P against P = 80,
+    fit the learning curve and say how many points to probe. `settings` is the config's `stats`
+    section; `seed` the learning curve's bootstrap's."""
+    table = ablation_table(models, trainset, splits)
+    block_mm = scoring_disc_mm(trainset)
+    blocks = spatial_blocks(table, block_mm)
+    points_by_p = {p: subset_size(len(splits), p) for p, _ in models}
+    readings = read_validation_errors(
+        table,
+        blocks,
+        points_by_p,
+        alpha=settings["alpha"],
+        margin=settings["equivalence_margin"],
+        equivalence_alpha=settings["equivalence_alpha"],
+        bootstrap=settings["curve_bootstrap"],
+        seed=seed,
+    )
+    return AblationReading(
+        table, blocks, block_mm, readings.tests, readings.text.rstrip("\n"), readings.curve
+    )
+
+
+def write_reading(reading: AblationReading, out: Mapping[str, str | Path], title: str) -> None:
+    """validation_mse.csv, tests.csv, recommendation.txt and the learning curve of a reading."""
+    reading.table.to_csv(out["validation_mse"], index=False)
+    reading.tests.to_csv(out["tests"], index=False, float_format="%.6g")
+    Path(out["recommendation"]).write_text(reading.recommendation + "\n")
+    curve_table(reading.curve).to_csv(out["learning_curve"], index=False, float_format="%.6g")
+    learning_curve_figure(reading.curve, out["learning_curve_figure"], title)
+
+
+def twice_stage(
+    scene_name: str,
+    models: Mapping[tuple[int, int], str | Path],
+    trainset_dir: str | Path,
+    splits_path: str | Path,
+    settings: Mapping,
+    seed: int,
+    out: Mapping[str, str | Path],
+) -> str:
+    """The `stats_twice` rule: the ablation read again on the models trained on to twice the
+    budget (stats/twice/)."""
+    reading = read_ablation(
+        models, TrainingSet.load(trainset_dir), pd.read_csv(splits_path), settings, seed
+    )
+    write_reading(reading, out, f"{scene_name}, twice the budget: error against points probed")
+    return reading.recommendation
+
+
 def stats_stage(
     scene_name: str,
     models: Mapping[tuple[int, int], str | Path],
@@ -331,38 +407,14 @@ def stats_stage(
     seed: int,
     out: Mapping[str, str | Path],
 ) -> str:
-    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the power
-    table (+ figure), costs and the Fig. 3B/4 figures. `settings` is the config's `stats` section."""
-    import json
-
-    from threedcal.evaluate.ablation import ablation_tests, spatial_blocks
-    from threedcal.evaluate.ablation_figure import tests_figure
-    from threedcal.evaluate.ablation_reading import recommend
-    from threedcal.evaluate.power import power_figure, power_table
-
+    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the learning
+    curve (+ figure), the power table (+ figure), costs and the Fig. 3B/4 figures. `settings` is
+    the config's `stats` section."""
     trainset = TrainingSet.load(trainset_dir)
     splits = pd.read_csv(splits_path)
-    table = ablation_table(models, trainset, splits)
-    table.to_csv(out["validation_mse"], index=False)
-    block_mm = scoring_disc_mm(trainset)
-    blocks = spatial_blocks(table, block_mm)
-    tests = ablation_tests(
-        table,
-        blocks,
-        alpha=settings["alpha"],
-        margin=settings["equivalence_margin"],
-        equivalence_alpha=settings["equivalence_alpha"],
-    )
-    tests.to_csv(out["tests"], index=False, float_format="%.6g")
-    n_points = len(splits)
-    points_by_p = {p: subset_size(n_points, p) for p, _ in models}
-    line = recommend(
-        tests,
-        points_by_p,
-        margin=settings["equivalence_margin"],
-        equivalence_alpha=settings["equivalence_alpha"],
-    )
-    Path(out["recommendation"]).write_text(line + "\n")
+    reading = read_ablation(models, trainset, splits, settings, seed)
+    write_reading(reading, out, f"{scene_name}: error against points probed")
+    table, tests = reading.table, reading.tests
     tests_figure(
         tests,
         out["tests_figure"],
@@ -371,7 +423,7 @@ def stats_stage(
     )
     power = power_table(
         table,
-        block_mm,
+        reading.block_mm,
         probe_spacing_mm(splits),
         margin=settings["equivalence_margin"],
         alpha=settings["alpha"],
@@ -385,10 +437,10 @@ def stats_stage(
     hardware_s = None
     if summary_path is not None and Path(summary_path).is_file():
         hardware_s = json.loads(Path(summary_path).read_text()).get("estimated_hardware_s")
-    costs = cost_table(table, loss_tables, n_points, hardware_s)
+    costs = cost_table(table, loss_tables, len(splits), hardware_s)
     costs.to_csv(out["costs"], index=False)
     loss_curves_figure(loss_tables, out["loss_figure"], f"{scene_name}: loss against epoch")
     mse_map_figure(table, splits, out["map_figure"], f"{scene_name}: validation MSE over the gel")
     kde_figure(table, out["kde_figure"], f"{scene_name}: validation MSE distributions")
     cost_figure(costs, out["cost_figure"], f"{scene_name}: error against cost")
-    return line
+    return reading.recommendation

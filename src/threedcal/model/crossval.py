@@ -344,26 +344,30 @@ def method_settings(scene: Mapping, method: str) -> dict:
 CV_METHODS = ("model", "lookup")
 
 
-def train_fold(
+def train_fold_methods(
     trainset_dir: str | Path,
     folds_path: str | Path,
     fold: int,
-    model: Mapping,
+    methods: Mapping[str, Mapping],
     seed: int,
     threads: int,
-    out_dir: str | Path,
-    n_train: int | None = None,
+    out_dirs: Mapping[str, str | Path],
     progress: bool = True,
-) -> dict:
-    """Train one fold's model (out_dir/model.pt, losses.csv) on the images outside the fold."""
+) -> dict[str, dict]:
+    """One fold's model of every method (name -> `model:` settings) into out_dirs[name]
+    (model.pt, losses.csv), each trained on the images outside the fold: one job for the fold, so
+    the set, its folds and the libraries are loaded once, not once a method."""
     from threedcal.model.train import TrainSettings, train
 
     ts = TrainingSet.load(trainset_dir)
-    folds = read_folds(folds_path, ts)
-    settings = TrainSettings.from_scene(
-        {"model": dict(model), "seed": seed, "torch_threads": threads}
-    )
-    return train(fold_trainset(ts, folds, fold, n_train, seed), out_dir, 80, settings, progress)
+    subset = fold_trainset(ts, read_folds(folds_path, ts), fold, None, seed)
+    out = {}
+    for name, model in methods.items():
+        settings = TrainSettings.from_scene(
+            {"model": dict(model), "seed": seed, "torch_threads": threads}
+        )
+        out[name] = train(subset, out_dirs[name], 80, settings, progress)
+    return out
 
 
 def predict_held_out(

@@ -2,7 +2,9 @@
 
 The report's "which preset when": each preset trains with the scene's `model:` settings (preset
 swapped) at P = 80 and is scored on the held-out images (threedcal.model.ball_eval.evaluate);
-the time is DepthEstimator.depth per frame on this machine, integration included.
+the time is DepthEstimator.depth per frame on this machine, integration included. The scene's own
+preset is the scene's model at P = 80 (replicate 0) where the study trains it: the same training,
+not done twice. `train_s` is each training's seconds as its losses.csv records them.
 """
 
 from __future__ import annotations
@@ -10,14 +12,16 @@ from __future__ import annotations
 import dataclasses
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.model.ball_eval import evaluate
+from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, train
 
@@ -49,22 +53,32 @@ def depth_ms_per_frame(estimator: DepthEstimator, frames: np.ndarray, repeats: i
 
 
 def compare_presets(
-    trainset: TrainingSet, settings: TrainSettings, presets: Sequence[str]
+    trainset: TrainingSet,
+    settings: TrainSettings,
+    presets: Sequence[str],
+    trained: Mapping[str, str | Path] | None = None,
 ) -> pd.DataFrame:
+    """One row per preset; `trained` maps a preset to a model.pt already trained with these
+    settings at P = 80 on this set (its losses.csv beside it), used instead of training again."""
     test = trainset.indices("val")
     frames = np.asarray(trainset.frames[test[: min(len(test), 4)]])
     rows = []
+    trained = dict(trained or {})
     with tempfile.TemporaryDirectory() as tmp:
-        for preset in presets:
-            began = time.perf_counter()
-            checkpoint = train(
-                trainset,
-                Path(tmp) / preset,
-                80,
-                dataclasses.replace(settings, preset=preset),
-                progress=False,
-            )
-            seconds = time.perf_counter() - began
+        for preset in tqdm(presets, desc="presets", unit="preset"):
+            if preset in trained:
+                model_dir = Path(trained[preset]).parent
+                checkpoint = read_checkpoint(model_dir / "model.pt")
+            else:
+                model_dir = Path(tmp) / preset
+                checkpoint = train(
+                    trainset,
+                    model_dir,
+                    80,
+                    dataclasses.replace(settings, preset=preset),
+                    progress=False,
+                )
+            seconds = float(pd.read_csv(model_dir / "losses.csv")["seconds"].sum())
             estimator = DepthEstimator(checkpoint, device="cpu", batch_size=1)
             figures = evaluate(estimator, trainset, test)
             rows.append(
@@ -114,9 +128,13 @@ def presets_stage(
     presets: Sequence[str],
     csv_path: str | Path,
     png_path: str | Path,
+    scene_model: str | Path | None = None,
 ) -> pd.DataFrame:
+    """presets.csv and presets.png; `scene_model`: the scene's own model at P = 80, replicate 0
+    (models/P80/r0/model.pt), which stands for the scene's preset."""
     settings = TrainSettings.from_scene({"model": model, "seed": seed, "torch_threads": threads})
-    table = compare_presets(TrainingSet.load(trainset_dir), settings, presets)
+    trained = {settings.preset: scene_model} if scene_model is not None else {}
+    table = compare_presets(TrainingSet.load(trainset_dir), settings, presets, trained)
     table.to_csv(csv_path, index=False)
     presets_figure(table, png_path, "presets: held-out depth error against inference time")
     return table

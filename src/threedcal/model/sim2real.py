@@ -2,13 +2,14 @@
 
 For an imported scene (docs/explanation/real-data.md, "Sim-to-real"):
 
-1. per chosen fold, :func:`fold_profile` fits the sensor profile's optics to the fold's training
-   frames and blank frame of the model-ready set (``profile: fitted``, the default; any import
-   format; never a test image of the fold),
-   and :func:`simulate_trainset` renders ``frames`` ball presses with it
+1. per group of chosen folds (:func:`pretraining_groups`: all of them when some folds are not
+   chosen, else each alone), :func:`fold_profile` fits the sensor profile's optics to the frames
+   outside the group's folds and the blank frame of the model-ready set (``profile: fitted``, the
+   default; any import format): every chosen fold trains on those frames, and none of its test
+   images is among them. :func:`simulate_trainset` renders ``frames`` ball presses with it
    (threedcal.sim.optics.GelSimulator) at the real set's image size, px/mm and ball radius, at
    seeded random centres (the whole contact inside the image) and depths, labelled exactly;
-2. :func:`pretrain` trains the scene's model preset on them, one model per fold;
+2. :func:`pretrain` trains the scene's model preset on them, one model per group;
 3. :func:`train_k` trains, for one cross-validation fold (cv/folds.csv) and one k, the model on a
    seeded nested subset of k of the fold's training images — fine-tuned from the pretrained
    network (``sim_real``) or from scratch (``real_only``) with the same settings and the same
@@ -28,10 +29,11 @@ For an imported scene (docs/explanation/real-data.md, "Sim-to-real"):
    there, so the same truth, discs and integrator score every row; errors.csv names the frame
    each condition predicted at (`predicted_at`).
 
-With ``profile: as_is`` the simulator sees no real image: the profile is used as it is. (The
-built-in GelSight Mini profile's optics were fitted, once, to the background and contacts of
-data/gelsight_ball_fots — all 42 frames — so on that set it is not independent of the test images:
-that is why the default fits per fold.)
+One job trains every k of a (condition, fold) (:func:`train_fold_ks`). With ``profile: as_is``
+the simulator sees no real image: the profile is used as it is, and one pretraining serves every
+fold. (The built-in GelSight Mini profile's optics were fitted, once, to the background and
+contacts of data/gelsight_ball_fots — all 42 frames — so on that set it is not independent of the
+test images: that is why the default fits on the training images.)
 """
 
 from __future__ import annotations
@@ -133,8 +135,8 @@ SIM2REAL_CONDITIONS = tuple(CONDITIONS)
 STAGE_KEYS = {
     "simulate": ("frames", "depth_mm", "profile"),
     "pretrain": ("pretrain_epochs",),
-    "train": ("finetune_epochs",),
-    "shipped": ("shipped_lr",),
+    "train": ("finetune_epochs", "k"),
+    "shipped": ("shipped_lr", "k"),
 }
 
 
@@ -157,29 +159,65 @@ def sensor_profile(scene: Mapping) -> dict:
     return profile
 
 
+def pretraining_groups(settings: SimToRealSettings, n_folds: int) -> list[tuple[int, ...]]:
+    """The chosen folds grouped by the simulated set and pretraining they share.
+
+    The simulator of a group is fitted to the frames outside its folds (``profile: fitted``):
+    when some folds are not chosen, those frames lie outside every chosen fold, so one fit and one
+    pretraining serve them all; when every fold is chosen, each is its own group (fitted to its
+    own training frames). With ``profile: as_is`` no real frame is seen: one group."""
+    chosen = chosen_folds(settings, n_folds)
+    if settings.profile == "as_is" or len(chosen) < n_folds:
+        return [tuple(chosen)]
+    return [(fold,) for fold in chosen]
+
+
+def group_name(group: Sequence[int]) -> str:
+    """A group's name in paths (its folds joined by '-': 0-1-2) and back (:func:`parse_group`)."""
+    return "-".join(str(int(f)) for f in group)
+
+
+def parse_group(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(f) for f in text.split("-"))
+    except ValueError:
+        raise ConfigError(f"sim2real: {text!r} is not a group of folds (like 0-1-2)") from None
+
+
+def group_of(scene: Mapping, fold: int) -> str:
+    """The name of the pretraining group that holds `fold`."""
+    settings = SimToRealSettings.from_scene(scene)
+    for group in pretraining_groups(settings, int(scene["cv"]["folds"])):
+        if fold in group:
+            return group_name(group)
+    raise ConfigError(f"sim_to_real.folds: fold {fold} is not evaluated")
+
+
 def sim2real_inputs(name: str, scene: Mapping) -> dict[str, list[str]]:
-    """The models sim2real_eval scores: "{condition}_k{k}" -> fold models, "scene" -> the scene's
-    cross-validated models (ball_eval's) of the same folds."""
-    from threedcal.scenes import CV_MODEL_DIR, SIM2REAL_MODEL_DIR, target
+    """The folders sim2real_eval scores: "{condition}" -> the condition's fold folders (each with
+    k{k}/model.pt), "scene" -> the scene's cross-validated models (ball_eval's) of the same folds."""
+    from threedcal.scenes import CV_MODEL_DIR, SIM2REAL_FOLD_DIR, target
 
     settings = SimToRealSettings.from_scene(scene)
     folds = chosen_folds(settings, int(scene["cv"]["folds"]))
 
-    def model(pattern: str, **wildcards) -> str:
-        path = target(f"{pattern}/model.pt", name)
+    def path(pattern: str, **wildcards) -> str:
+        path = target(pattern, name)
         for key, value in wildcards.items():
             path = path.replace(f"{{{key}}}", str(value))
         return path
 
     out = {
-        f"{condition}_k{k}": [
-            model(SIM2REAL_MODEL_DIR, condition=condition, k=k, fold=f) for f in folds
-        ]
+        condition: [path(SIM2REAL_FOLD_DIR, condition=condition, fold=f) for f in folds]
         for condition in settings.conditions
-        for k in settings.k
     }
-    out["scene"] = [model(CV_MODEL_DIR, method="model", fold=f) for f in folds]
+    out["scene"] = [path(f"{CV_MODEL_DIR}/model.pt", method="model", fold=f) for f in folds]
     return out
+
+
+def k_model(fold_dir: str | Path, k: int | str) -> Path:
+    """The model of k images in a (condition, fold) folder (:func:`train_fold_ks`)."""
+    return Path(fold_dir) / f"k{k}" / "model.pt"
 
 
 # ------------------------------------------------------------------------- simulated probing
@@ -277,15 +315,19 @@ class _SetImages:
         return self.ts.frames[self.names.index(name)]
 
 
-def fold_profile(profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, fold: int, where: str):
-    """`profile` with its optics fitted to the fold's training frames and the set's blank: the
-    simulator then never sees a test image of the fold."""
-    frames = folds.loc[folds["fold"] != fold, "frame"].to_numpy()
+def fold_profile(
+    profile: Mapping, ts: TrainingSet, folds: pd.DataFrame, held_out: Sequence[int], where: str
+):
+    """`profile` with its optics fitted to the frames outside the `held_out` folds and the set's
+    blank: the simulator then never sees a test image of those folds."""
+    held_out = sorted(int(f) for f in held_out)
+    frames = folds.loc[~folds["fold"].isin(held_out), "frame"].to_numpy()
     if len(frames) < MIN_FIT_IMAGES:
+        named = f"fold {held_out[0]}" if len(held_out) == 1 else f"folds {group_name(held_out)}"
         raise ConfigError(
-            f"{where}: fold {fold} has {len(frames)} training images; fitting the optics "
+            f"{where}: {len(frames)} training images lie outside {named}; fitting the optics "
             f"(sim_to_real.profile: fitted) needs at least {MIN_FIT_IMAGES} — add images, "
-            "lower cv.folds, or set profile: as_is"
+            "lower cv.folds, evaluate fewer sim_to_real.folds, or set profile: as_is"
         )
     return fitted_to_frames(profile, ts, frames, where)
 
@@ -317,20 +359,23 @@ def write_simulated(
     progress: bool = True,
     *,
     folds_path: str | Path | None = None,
-    fold: int | None = None,
+    held_out: Sequence[int] | None = None,
 ) -> TrainingSet:
-    """The simulated set of one fold in `out_dir`; with `profile: fitted` also the fitted profile
-    (profile.yaml, headed by the frames it was fitted on: frameNNNNN, the set's frame numbers)."""
+    """The simulated set of a group of test folds (`held_out`, :func:`pretraining_groups`) in
+    `out_dir`; with `profile: fitted` also the fitted profile (profile.yaml, headed by the frames
+    it was fitted on: frameNNNNN, the set's frame numbers, none of a held-out fold)."""
     from threedcal.model.folds import read_folds
 
     settings = SimToRealSettings.of(**sim_to_real)
     real = TrainingSet.load(real_dir)
     fit = None
     if settings.profile == "fitted":
-        if folds_path is None or fold is None:
-            raise ConfigError("sim_to_real.profile: fitted needs the scene's folds and a fold")
+        if folds_path is None or not held_out:
+            raise ConfigError(
+                "sim_to_real.profile: fitted needs the scene's folds and the folds held out"
+            )
         folds = read_folds(folds_path, real)
-        fit = fold_profile(profile, real, folds, fold, str(real_dir))
+        fit = fold_profile(profile, real, folds, held_out, str(real_dir))
         profile = fit.profile
     ts = simulate_trainset(real, profile, settings, seed, progress)
     ts.save(out_dir)
@@ -428,6 +473,43 @@ def train_k(
     changes = {"epochs_base": epochs, "init": None if pretrained is None else str(pretrained)}
     subset = fold_trainset(ts, folds, fold, None if k == "all" else n_train, seed)
     return train(subset, out_dir, 80, _train_settings(model, seed, threads, **changes), progress)
+
+
+def train_fold_ks(
+    trainset_dir: str | Path,
+    folds_path: str | Path,
+    fold: int,
+    condition: str,
+    model: Mapping,
+    sim_to_real: Mapping,
+    seed: int,
+    threads: int,
+    out_dir: str | Path,
+    pretrained: str | Path | None = None,
+    progress: bool = True,
+) -> dict[int | str, dict]:
+    """Every k of one (condition, fold) (:func:`train_k`) into out_dir/k{k}/: one job for them
+    all, so the libraries and the set load once and not once a k."""
+    from tqdm import tqdm
+
+    ks = SimToRealSettings.of(**sim_to_real).k
+    out = {}
+    for k in tqdm(ks, desc=f"{condition} fold {fold}", unit="k", disable=not progress):
+        out[k] = train_k(
+            trainset_dir,
+            folds_path,
+            fold,
+            k,
+            condition,
+            model,
+            sim_to_real,
+            seed,
+            threads,
+            k_model(out_dir, k).parent,
+            pretrained,
+            progress,
+        )
+    return out
 
 
 SHIPPED_KEY = "sim_to_real.shipped"
@@ -685,8 +767,9 @@ def sim2real_eval(
 ) -> pd.DataFrame:
     """errors.csv and error_vs_k.png of the chosen folds.
 
-    `models["{condition}_k{k}"]` lists that model's fold checkpoints in the order of the chosen
-    folds; `scene_models` the scene's cross-validated models (ball_eval's) of the same folds.
+    `models[condition]` lists that condition's fold folders (:func:`train_fold_ks`, k{k}/model.pt
+    inside) in the order of the chosen folds; `scene_models` the scene's cross-validated models
+    (ball_eval's) of the same folds.
     """
     from threedcal.model.folds import CVSettings, read_folds
 
@@ -697,14 +780,15 @@ def sim2real_eval(
     chosen = chosen_folds(settings, cv_settings.folds)
     by_model: dict[tuple[str, str], dict[int, str | Path]] = {}
     for condition in settings.conditions:
-        name = CONDITIONS[condition]
+        dirs = list(models[condition])
+        if len(dirs) != len(chosen):
+            raise ConfigError(f"sim2real: {len(dirs)} {condition} fold folders for folds {chosen}")
         for k in settings.k:
-            paths = list(models[f"{condition}_k{k}"])
-            if len(paths) != len(chosen):
-                raise ConfigError(
-                    f"sim2real: {len(paths)} {condition} k={k} models for folds {chosen}"
-                )
-            by_model[(name, str(k))] = dict(zip(chosen, paths, strict=True))
+            paths = {fold: k_model(d, k) for fold, d in zip(chosen, dirs, strict=True)}
+            missing = [str(p) for p in paths.values() if not p.is_file()]
+            if missing:
+                raise ConfigError(f"sim2real: no {condition} model of k = {k}: {missing[0]}")
+            by_model[(CONDITIONS[condition], str(k))] = paths
     if len(scene_models) != len(chosen):
         raise ConfigError(f"sim2real: {len(scene_models)} scene models for folds {chosen}")
     by_model[(SCENE_MODEL, "all")] = dict(zip(chosen, scene_models, strict=True))

@@ -26,6 +26,25 @@ import numpy as np
 from threedcal.errors import ConfigError
 
 RULES = ("epochs", "doubling")
+# The ablation's fixed budget (threedcal.model.lockstep) runs the doubling rule's cycles from a
+# quarter of it, with no stop: they end at 1/4, 1/2 and all of it.
+FIRST_CYCLE_SHARE = 4
+# In a training's folder: the weights at earlier cycle ends, and the model at twice the budget.
+SNAPSHOT_DIR = "snapshots"
+TWICE_DIR = "twice"
+
+
+def snapshot_name(steps: int) -> str:
+    return f"step{int(steps):07d}.pt"
+
+
+def cycle_ends(budget: int, twice: bool = False) -> list[int]:
+    """Steps at which the ablation's cycles end: budget/4, budget/2, budget (then 2 x budget)."""
+    if int(budget) < FIRST_CYCLE_SHARE:
+        raise ConfigError(f"ablation.steps: {budget} (at least {FIRST_CYCLE_SHARE})")
+    budget = int(budget)
+    ends = [budget // 4, budget // 2, budget]
+    return ends + [2 * budget] if twice else ends
 
 
 def holdout_split(

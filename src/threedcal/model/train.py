@@ -48,7 +48,13 @@ from threedcal.model.presets import (
     preferred_memory_format,
     preset_args,
 )
-from threedcal.model.stopping import Doubling, check_rule, holdout_split
+from threedcal.model.stopping import (
+    SNAPSHOT_DIR,
+    Doubling,
+    check_rule,
+    holdout_split,
+    snapshot_name,
+)
 from threedcal.schema import load_schema, section
 
 RESUME_NAME = "checkpoint.pt"
@@ -169,7 +175,7 @@ def sample_windows(
     return out
 
 
-class _Inputs:
+class ModelInputs:
     """Network inputs of a TrainingSet's frames or windows, with the frame's lighting drift removed.
 
     The drift offset is estimated once per frame on the full frame (as inference does), then
@@ -192,7 +198,7 @@ class _Inputs:
         return remove_drift(x, self.mode, self.offset(i)[None])[0]
 
 
-def _batches(ts, windows, batch_size, inputs: _Inputs):
+def input_batches(ts, windows, batch_size, inputs: ModelInputs):
     for start in range(0, len(windows), batch_size):
         chunk = windows[start : start + batch_size]
         x = torch.stack([inputs(i, w) for i, w in chunk])
@@ -233,7 +239,7 @@ def _cpu_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
 
 
-def _initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.Module, dict]:
+def initial_model(settings: TrainSettings, ts: TrainingSet) -> tuple[torch.nn.Module, dict]:
     torch.manual_seed(settings.seed)
     if settings.init is None:
         return build_model(settings.preset), {**OUR_NORMALISATION, "drift": settings.drift}
@@ -259,8 +265,8 @@ def save_initial(ts: TrainingSet, path: str | Path, settings: TrainSettings) -> 
     preset), saved as a usable model.pt of `ts` (its blank, registration and lens): what a quick
     calibration scores its first round's presses with."""
     configure_torch(settings)
-    model, normalisation = _initial_model(settings, ts)
-    checkpoint = _checkpoint(model, settings, ts, 80, 0, 0, normalisation)
+    model, normalisation = initial_model(settings, ts)
+    checkpoint = checkpoint_of(model, settings, ts, 80, 0, 0, normalisation)
     checkpoint["training"].update(steps=0, stopped="not trained: the weights it starts from")
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(path, checkpoint)
@@ -277,7 +283,7 @@ def init_path(init: str, ts: TrainingSet) -> str | Path:
     return shipped_weights((ts.meta or {}).get("sensor"), ts.image_shape)
 
 
-def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
+def windows_mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
     if not windows:
         return float("nan")
     model.eval()
@@ -285,7 +291,7 @@ def _mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
     sign = normalisation["gradient_sign"]
     layout = preferred_memory_format(model)
     with torch.no_grad():
-        for x, y in _batches(ts, windows, settings.batch_size, inputs):
+        for x, y in input_batches(ts, windows, settings.batch_size, inputs):
             x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
             x = x.contiguous(memory_format=layout)
             pred = model(x) * sign
@@ -306,7 +312,7 @@ class _Job:
     device: torch.device
     precision: str  # resolved: float32 or bfloat16
     name: str  # "P80 r0": what errors name
-    inputs: _Inputs | None = None
+    inputs: ModelInputs | None = None
     normalisation: dict | None = None
 
 
@@ -328,7 +334,7 @@ def _plan_job(ts, percent, replicate, settings, device, precision) -> _Job:
     else:
         fit_idx, check_idx = train_idx, ts.indices("val")
     check_rng = np.random.default_rng([settings.seed, 1 << 20])
-    windows = sample_windows(ts, check_idx, _val_settings(settings), check_rng)
+    windows = sample_windows(ts, check_idx, validation_settings(settings), check_rng)
     if len(windows) > VALIDATION_WINDOWS:  # a fixed, seeded subset: checks stay cheap
         keep = np.sort(check_rng.choice(len(windows), VALIDATION_WINDOWS, replace=False))
         windows = [windows[k] for k in keep]
@@ -370,9 +376,9 @@ def train(
         "training P=%d r%d on %s in %s", percent, replicate, device, precision
     )
     job = _plan_job(ts, percent, replicate, settings, device, precision)
-    model, job.normalisation = _initial_model(settings, ts)
+    model, job.normalisation = initial_model(settings, ts)
     model.to(device=device, memory_format=preferred_memory_format(model))
-    job.inputs = _Inputs(ts, job.normalisation["drift"])
+    job.inputs = ModelInputs(ts, job.normalisation["drift"])
     run = {"precision": precision, "budget_scale": budget_scale, "min_steps": min_steps}
     key = _resume_key(settings, percent, replicate, ts, run)
     if not is_learned(settings.preset):
@@ -387,7 +393,7 @@ def train(
         rows, stopped = _run_epochs(
             model, job, epochs, out_dir, key, progress, (percent, replicate), snapshot_every
         )
-    final = _checkpoint(
+    final = checkpoint_of(
         model, settings, ts, percent, replicate, stopped["epochs"], job.normalisation
     )
     final["training"].update(
@@ -414,12 +420,12 @@ def _fit_lookup(model, job: _Job) -> list[dict]:
     model.fit(_Pairs(job.ts, job.fit_idx, job.inputs))
     windows = sample_windows(job.ts, job.fit_idx, job.settings, rng)
     args = (job.ts, windows, job.settings, job.device, job.normalisation, job.inputs)
-    train_loss = _mse(model, *args)
-    val_loss = _mse(model, job.ts, job.check_windows, *args[2:])
-    return [_row(1, 0, train_loss, val_loss, _since(began), 0.0)]
+    train_loss = windows_mse(model, *args)
+    val_loss = windows_mse(model, job.ts, job.check_windows, *args[2:])
+    return [loss_row(1, 0, train_loss, val_loss, _since(began), 0.0)]
 
 
-def _row(epoch, step, train_loss, val_loss, seconds, lr) -> dict:
+def loss_row(epoch, step, train_loss, val_loss, seconds, lr) -> dict:
     return {
         "epoch": epoch,
         "step": int(step),
@@ -430,7 +436,7 @@ def _row(epoch, step, train_loss, val_loss, seconds, lr) -> dict:
     }
 
 
-def _optimizer(model, settings: TrainSettings):
+def make_optimizer(model, settings: TrainSettings):
     return torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
 
 
@@ -453,7 +459,7 @@ def _run_epochs(model, job: _Job, epochs, out_dir, key, progress, job_id, snapsh
     settings = job.settings
     percent, replicate = job_id
     checked = validation_epochs(epochs)
-    optimizer = _optimizer(model, settings)
+    optimizer = make_optimizer(model, settings)
     rows: list[dict] = []
     start, steps = 1, 0
     state = _resume(out_dir, key, model, optimizer)
@@ -475,7 +481,7 @@ def _run_epochs(model, job: _Job, epochs, out_dir, key, progress, job_id, snapsh
         steps += batches
         val_loss = _check_loss(model, job) if epoch in checked else float("nan")
         lr = scheduled_lr(settings, epoch, epochs, 0, 1)
-        rows.append(_row(epoch, steps, train_loss, val_loss, _since(began), lr))
+        rows.append(loss_row(epoch, steps, train_loss, val_loss, _since(began), lr))
         bar.set_postfix(train=f"{train_loss:.4g}", val=f"{val_loss:.4g}")
         if snapshot_every and epoch in checked:
             _snapshot(out_dir, job, model, _cpu_state(model), (job_id, epoch, steps))
@@ -504,7 +510,7 @@ def _stream(job: _Job, epoch: int, offset: int):
         batches = -(-len(windows) // size)
         for batch in range(offset, batches):
             chunk = windows[batch * size : (batch + 1) * size]
-            (x, y), *_ = _batches(job.ts, chunk, size, job.inputs)
+            (x, y), *_ = input_batches(job.ts, chunk, size, job.inputs)
             yield epoch, batch, batches, x, y
         epoch, offset = epoch + 1, 0
 
@@ -513,7 +519,7 @@ def _run_doubling(model, job: _Job, rule: Doubling, out_dir, key, progress, job_
     """Cosine cycles, each as long as all before it, until one no longer pays on the holdout;
     the best weights checked are the model."""
     percent, replicate = job_id
-    optimizer = _optimizer(model, job.settings)
+    optimizer = make_optimizer(model, job.settings)
     best = _cpu_state(model)
     epoch, offset = 1, 0
     state = _resume(out_dir, key, model, optimizer)
@@ -524,7 +530,7 @@ def _run_doubling(model, job: _Job, rule: Doubling, out_dir, key, progress, job_
         torch.set_rng_state(state["torch_rng"])
     else:  # where it starts: the initial (pretrained or fresh) weights' own holdout error
         rule.best = _check_loss(model, job)
-        rows = [_row(0, 0, float("nan"), rule.best, 0.0, rule.lr)]
+        rows = [loss_row(0, 0, float("nan"), rule.best, 0.0, rule.lr)]
     cap = max(rule.max_steps, rule.min_steps)
     bar = tqdm(
         total=cap, initial=rule.steps, desc=f"train {job.name}", unit="step", disable=not progress
@@ -543,7 +549,9 @@ def _run_doubling(model, job: _Job, rule: Doubling, out_dir, key, progress, job_
             best = _cpu_state(model)
         position = round(epoch - 1 + (batch + 1) / batches, 3)
         rows.append(
-            _row(position, rule.steps, total / count, rule.history[-1][1], _since(began), rule.lr)
+            loss_row(
+                position, rule.steps, total / count, rule.history[-1][1], _since(began), rule.lr
+            )
         )
         bar.set_postfix(check=f"{rule.history[-1][1]:.4g}", best=f"{rule.best:.4g}")
         if snapshot_every and rule.cycle % snapshot_every == 0:
@@ -574,7 +582,7 @@ def _since(began: float) -> float:
 
 def _check_loss(model, job: _Job) -> float:
     args = (job.ts, job.check_windows, job.settings, job.device, job.normalisation, job.inputs)
-    return _mse(model, *args)
+    return windows_mse(model, *args)
 
 
 def _guarded_epoch(model, job: _Job, rng, optimizer, position, epoch) -> tuple[float, int]:
@@ -601,7 +609,7 @@ def _guarded_step(model, job: _Job, optimizer, x, y, lr: float, epoch: int) -> f
     for group in optimizer.param_groups:
         group["lr"] = lr
     try:
-        value = _optimizer_step(
+        value = optimizer_step(
             model,
             job.ts,
             job.settings,
@@ -620,12 +628,12 @@ def _guarded_step(model, job: _Job, optimizer, x, y, lr: float, epoch: int) -> f
 def _job_error(job: _Job, epoch: int, exc: TrainingError) -> TrainingError:
     return TrainingError(
         f"training {job.name} ({job.settings.preset}), epoch {epoch}: {exc}; "
-        + _divergence_hint(job.precision)
+        + divergence_hint(job.precision)
     )
 
 
 def _save_resume(out_dir, model, optimizer, job, percent, replicate, rows, key, extra) -> None:
-    state = _checkpoint(
+    state = checkpoint_of(
         model, job.settings, job.ts, percent, replicate, extra["epoch"], job.normalisation
     )
     state.update(optimizer=optimizer.state_dict(), losses=rows, resume_key=key, **extra)
@@ -636,12 +644,12 @@ def _snapshot(out_dir: Path, job: _Job, model, weights: dict, position) -> None:
     """A usable checkpoint of `weights` (the best so far) after `steps`: one point of the
     error-against-time curve (losses.csv's row of that step says how long it took)."""
     (percent, replicate), epoch, steps = position
-    snapshot = _checkpoint(
+    snapshot = checkpoint_of(
         model, job.settings, job.ts, percent, replicate, epoch, job.normalisation
     )
     snapshot["state_dict"] = weights
     snapshot["training"]["steps"] = int(steps)
-    save_checkpoint(out_dir / "snapshots" / f"step{steps:07d}.pt", snapshot)
+    save_checkpoint(out_dir / SNAPSHOT_DIR / snapshot_name(steps), snapshot)
 
 
 # Validation runs on at most this many patches and at most this many epochs (spread evenly, the
@@ -659,7 +667,7 @@ def validation_epochs(epochs: int) -> set[int]:
     )
 
 
-def _val_settings(settings: TrainSettings) -> TrainSettings:
+def validation_settings(settings: TrainSettings) -> TrainSettings:
     return replace(settings, contact_patches=1, background_patches=1)
 
 
@@ -683,11 +691,11 @@ def _train_epoch(
     windows = [windows[k] for k in order]
     total, count = 0.0, 0
     batches = -(-len(windows) // settings.batch_size)
-    for batch, (x, y) in enumerate(_batches(ts, windows, settings.batch_size, inputs)):
+    for batch, (x, y) in enumerate(input_batches(ts, windows, settings.batch_size, inputs)):
         for group in optimizer.param_groups:
             group["lr"] = scheduled_lr(settings, *position, batch, batches)
         try:
-            value = _optimizer_step(
+            value = optimizer_step(
                 model, ts, settings, device, optimizer, normalisation, x, y, precision
             )
         except TrainingError as exc:
@@ -697,9 +705,7 @@ def _train_epoch(
     return total / count, batches
 
 
-def _optimizer_step(
-    model, ts, settings, device, optimizer, normalisation, x, y, precision
-) -> float:
+def optimizer_step(model, ts, settings, device, optimizer, normalisation, x, y, precision) -> float:
     """Forward, loss, backward and update on one batch; the loss (a TrainingError holding the
     value where it is not finite)."""
     model.train()
@@ -719,7 +725,7 @@ def _optimizer_step(
     return value
 
 
-def _divergence_hint(precision: str) -> str:
+def divergence_hint(precision: str) -> str:
     if precision == "bfloat16":
         return (
             "model.precision is bfloat16, whose gradients are not finite for some networks on "
@@ -739,7 +745,7 @@ def training_autocast(precision: str, device: torch.device):
 class _Pairs:
     """Re-iterable (inputs, labels) of full frames, read lazily (the lookup fit reads them twice)."""
 
-    def __init__(self, ts: TrainingSet, indices: np.ndarray, inputs: _Inputs):
+    def __init__(self, ts: TrainingSet, indices: np.ndarray, inputs: ModelInputs):
         self.ts, self.indices, self.inputs = ts, indices, inputs
 
     def __iter__(self):
@@ -747,7 +753,7 @@ class _Pairs:
             yield self.inputs(int(i)).numpy(), self.ts.labels(int(i))
 
 
-def _checkpoint(model, settings, ts, percent, replicate, epoch, normalisation) -> dict:
+def checkpoint_of(model, settings, ts, percent, replicate, epoch, normalisation) -> dict:
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,

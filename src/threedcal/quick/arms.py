@@ -4,9 +4,8 @@ A quick scene with `quick.compare_with: S` was calibrated on the same unit (sens
 seating, seed) as the collected scene S. Its arms of models are scored alike:
 
 quick    the quick flow's model after each round, results/{scene}/quick/rounds/r{k}/model.pt
-         (r0: the starting weights, `model.init`'s, before any press), one per run that reached
-         round k (the scene and its runs 2, 3, ...: `quick.run`, threedcal.config.runs_of);
-stopped  each run's model where its stop rule stopped;
+         (r0: the starting weights, `model.init`'s, before any press);
+stopped  the model where its stop rule stopped;
 scratch  for each round k ≥ 1, a model trained from fresh weights (the scene's preset, no init) on
          the same presses as round k, with the quick model's cumulative step budget by then (the
          steps its rounds' checkpoints record), in one cosine cycle at the scene's rate and seed;
@@ -20,12 +19,11 @@ blocks one scoring disc across; the two-way replicate + block model, Satterthwai
 freedom): an arm's mean MSE over blocks, and its relative change against `full` with Fieller's
 interval. (ii) pairs them on the presses: an arm's mean Type 2 MAE, and its difference from
 `full`'s, each with the crossed (replicate x press) interval of object_errors.crossed_mean_interval.
-An arm's runs and `full`'s replicates are independent trainings, paired only on blocks or presses
-(threedcal.evaluate.ablation.independent_contrast); with one quick run, its own training
-randomness is in no interval. The scratch arm retrains run 1's presses only.
+The quick run and `full`'s replicates are independent trainings, paired only on blocks or presses
+(threedcal.evaluate.ablation.independent_contrast); the quick run's own training randomness is in
+no interval (make quick-study measures over units: threedcal.quick.study).
 
-The issue's targets are judged on the `stopped` models (at the most presses and minutes a run
-took): its validation MSE within 10 % of `full`'s, its Type 2 MAE within 10 µm of `full`'s on every
+The issue's targets are judged on the `stopped` model: its validation MSE within 10 % of `full`'s, its Type 2 MAE within 10 µm of `full`'s on every
 object (both one-sided: better is within), at most 50 presses, at most 5 printer minutes (the
 motion model's estimate, registration and first-touch search included). A target judged on an
 interval is `met` when the whole interval lies within it, `not met` when the whole interval lies
@@ -118,34 +116,10 @@ def run_arm(rounds: pd.DataFrame, rounds_dir: str | Path, start_min: float) -> l
     return out
 
 
-def quick_arm(runs: Sequence[Sequence[ArmModel]]) -> list[ArmModel]:
-    """The runs' models pooled round by round: round k holds every run that reached it (one
-    model each), at its presses and the runs' mean printer minutes."""
-    out = []
-    for k in range(max(len(points) for points in runs)):
-        reached = [points[k] for points in runs if len(points) > k]
-        out.append(
-            replace(
-                reached[0],
-                printer_min=float(np.mean([p.printer_min for p in reached])),
-                paths=tuple(path for p in reached for path in p.paths),
-            )
-        )
-    return out
-
-
-def stopped_arm(runs: Sequence[Sequence[ArmModel]]) -> ArmModel:
-    """Each run's model where its stop rule stopped (what a user keeps), costed at the most
-    presses, minutes and steps a run took: the point the targets are judged on."""
-    last = [points[-1] for points in runs]
-    return ArmModel(
-        "stopped",
-        None,
-        max(p.presses for p in last),
-        max(p.printer_min for p in last),
-        max(p.steps for p in last),
-        tuple(path for p in last for path in p.paths),
-    )
+def stopped_arm(points: Sequence[ArmModel]) -> ArmModel:
+    """The run's model where its stop rule stopped (what a user keeps): the point the targets
+    are judged on."""
+    return replace(points[-1], arm="stopped", round=None)
 
 
 def scratch_arm(
@@ -234,7 +208,7 @@ def validation_scores(models: Sequence[ArmModel], trainset, splits: pd.DataFrame
     return pd.concat(tables, ignore_index=True)
 
 
-def _block_matrix(scores: pd.DataFrame, blocks: pd.Series) -> np.ndarray:
+def block_matrix(scores: pd.DataFrame, blocks: pd.Series) -> np.ndarray:
     """(replicates, blocks): each replicate's mean MSE over the coordinates of each block."""
     wide = scores.pivot(index="replicate", columns="point", values="mse").sort_index(axis=1)
     if not np.isfinite(wide.to_numpy()).all():
@@ -271,7 +245,7 @@ def validation_rows(
 ) -> list[dict]:
     """One validation_mse row per model point: the arm's mean MSE over blocks, and its relative
     change against `full` (which is its own reference: no change)."""
-    matrices = {key: _block_matrix(part, blocks) for key, part in scores.groupby(["arm", "round"])}
+    matrices = {key: block_matrix(part, blocks) for key, part in scores.groupby(["arm", "round"])}
     reference = matrices[("full", -1)]
     rows = []
     for model in models:
@@ -398,12 +372,12 @@ def verdicts(
     scene: str,
     full_scene: str,
     setup_presses: int = 0,
-    runs: Sequence[Mapping] = (),
+    stop: Mapping | None = None,
 ) -> dict:
-    """arms.json: each target's verdict on the runs' stopped models (arms.csv's `stopped` rows),
-    with run 1's scratch model of its stopped round beside it; `runs`: where each stopped and
-    why. The presses' target counts every press of the unit, at the most a run took: the
-    rounds' and the `setup_presses` (touch search and registration) before them."""
+    """arms.json: each target's verdict on the stopped model (arms.csv's `stopped` rows), with
+    the scratch model of its round beside it; `stop`: where the run stopped and why. The presses'
+    target counts every press of the unit: the rounds' and the `setup_presses` (touch search and
+    any registration lattice) before them."""
     final = table[table["arm"] == "stopped"]
     if final.empty:
         raise ValueError(f"{scene}: arms.csv has no `stopped` rows to judge")
@@ -455,7 +429,7 @@ def verdicts(
             "line": f"at most {MAX_PRESSES} presses: "
             f"{'met' if presses + setup_presses <= MAX_PRESSES else 'not met'} "
             f"({presses + setup_presses} in all: {presses} in rounds, {setup_presses} touch search "
-            "and registration)",
+            "and any registration lattice)",
         },
         "printer_minutes": {
             "verdict": "met" if minutes <= MAX_PRINTER_MINUTES else "not met",
@@ -465,11 +439,11 @@ def verdicts(
         },
     }
     scratch = table[(table["arm"] == "scratch") & (table["metric"] == "validation_mse")]
-    scratch = scratch[scratch["round"] == scratch["round"].max()]  # run 1's stopped round
+    scratch = scratch[scratch["round"] == scratch["round"].max()]  # the stopped round
     return {
         "scene": scene,
         "compare_with": full_scene,
-        "runs": list(runs),
+        "stop": None if stop is None else dict(stop),
         "presses": presses,
         "presses_in_all": presses + setup_presses,
         "printer_minutes": round(minutes, 2),
@@ -578,12 +552,9 @@ def arms_stage(
     pressing_dir: str | Path,
     registration: str | Path,
     out: Mapping[str, str | Path],
-    more_runs: Sequence[tuple[str, str | Path, str | Path]] = (),
     progress: bool = True,
 ) -> dict:
-    """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json. `more_runs`:
-    (scene, rounds.csv, rounds dir) of the calibration's runs 2, 3, ... (threedcal.config.runs_of),
-    pooled with this scene's (run 1) in the quick and stopped arms; scratch retrains run 1's."""
+    """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json."""
     from threedcal.collect.session import prepare
     from threedcal.dataset.trainset import TrainingSet
     from threedcal.evaluate.ablation import spatial_blocks
@@ -593,17 +564,15 @@ def arms_stage(
     prepared = prepare(scene, source=f"scenes.{name}")
     loop = QuickLoop(scene, prepared.plan, store, out["scratch"], prepared.sensor, prepared.printer)
     start_min = loop.printer_s(loop.first_row) / 60
-    runs = [(name, rounds, rounds_dir), *more_runs]
-    tables = [pd.read_csv(path) for _, path, _ in runs]
-    per_run = [run_arm(t, d, start_min) for t, (_, _, d) in zip(tables, runs, strict=True)]
-    quick = quick_arm(per_run)
-    scratch = scratch_arm(loop, per_run[0], out["scratch"], progress)
+    table = pd.read_csv(rounds)
+    quick = run_arm(table, rounds_dir, start_min)
+    scratch = scratch_arm(loop, quick, out["scratch"], progress)
     hardware_s = None
     if collect_summary is not None and Path(collect_summary).is_file():
         hardware_s = json.loads(Path(collect_summary).read_text()).get("estimated_hardware_s")
     split_table = pd.read_csv(splits)
     full = full_arm(full_models, len(split_table), hardware_s)
-    models = [*quick, stopped_arm(per_run), *scratch, full]
+    models = [*quick, stopped_arm(quick), *scratch, full]
     validation = TrainingSet.load(trainset)
     scores = validation_scores(models, validation, split_table)
     blocks = spatial_blocks(scores, scoring_disc_mm(validation))
@@ -613,17 +582,14 @@ def arms_stage(
     arms = arms_table(rows)
     arms.to_csv(out["table"], index=False, float_format="%.6g")
     arms_figure(arms, out["figure"], f"{name}: quick, scratch and {full_name}'s P = 80")
-    stops = [
-        {
-            "scene": run_name,
-            "round": int(t["round"].iloc[-1]),
-            "presses": int(t["presses"].iloc[-1]),
-            "printer_minutes": round(float(t["printer_s"].iloc[-1]) / 60, 2),
-            "decision": str(t["decision"].iloc[-1]),
-        }
-        for (run_name, _, _), t in zip(runs, tables, strict=True)
-    ]
-    record = verdicts(arms, name, full_name, setup_presses=loop.first_row, runs=stops)
+    stop = {
+        "scene": name,
+        "round": int(table["round"].iloc[-1]),
+        "presses": int(table["presses"].iloc[-1]),
+        "printer_minutes": round(float(table["printer_s"].iloc[-1]) / 60, 2),
+        "decision": str(table["decision"].iloc[-1]),
+    }
+    record = verdicts(arms, name, full_name, setup_presses=loop.first_row, stop=stop)
     Path(out["verdicts"]).write_text(json.dumps(record, indent=2) + "\n")
     for target in record["targets"].values():
         logging.getLogger("threedcal").info("%s", target["line"])

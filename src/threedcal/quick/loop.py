@@ -23,31 +23,16 @@ import os
 import shutil
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from threedcal.collect.plan import quick_rounds
+from threedcal.collect.plan import quick_rounds, rows_per_press
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.quick.stop_rule import Improvement, decide, mean_interval, rule_problems
-
-ROUND_COLUMNS = (
-    "round",
-    "presses",
-    "presses_scored",
-    "printer_s",
-    "mse",
-    "mse_low",
-    "mse_high",
-    "improvement",
-    "improvement_upper",
-    "decision",
-    "train_s",
-    "contact_area_ratio",
-)
 
 
 @dataclass(frozen=True)
@@ -90,6 +75,10 @@ class RoundRecord:
     contact_area_ratio: float
 
 
+# rounds.csv's columns: RoundRecord's fields, in order (a new figure per round is a new field)
+ROUND_COLUMNS = tuple(field.name for field in fields(RoundRecord))
+
+
 class QuickLoop:
     """The rounds of one scene's quick calibration: `round_done(rows)` at each round's end."""
 
@@ -111,7 +100,10 @@ class QuickLoop:
         self.store_path, self.work = Path(store_path), Path(work_dir)
         self.progress = progress
         self.settings = QuickSettings.from_scene(scene)
+        # the rounds' first row: after the touch search and any registration lattice
+        self.per_press = rows_per_press(scene["plan"])
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
+        self.first_row -= self.per_press - 1
         self.ends = quick_rounds(scene["plan"], self.first_row)
         base = TrainSettings.from_scene(scene)  # run r trains with the seed's replicate r − 1
         base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
@@ -171,7 +163,7 @@ class QuickLoop:
         self.records.append(
             RoundRecord(
                 round=k,
-                presses=rows - self.first_row,
+                presses=self.presses(rows),
                 presses_scored=len(after),
                 printer_s=round(self.printer_s(rows), 1),
                 mse=mse,
@@ -212,6 +204,10 @@ class QuickLoop:
         estimator = DepthEstimator.from_checkpoint(model_path, device="cpu")
         return coordinate_mse(estimator, view, split="score")["mse"].to_numpy(float)
 
+    def presses(self, rows: int) -> int:
+        """The rounds' presses in the plan's first `rows` rows."""
+        return (rows - self.first_row) // self.per_press
+
     def _contact_area_ratio(self, model_path: Path, trainset, start: int, stop: int, k: int):
         """The median contact area over the probe's disc of the round's presses (plan rows
         start..stop−1) under `model_path`; a median press over the bound is warned of."""
@@ -247,7 +243,8 @@ class QuickLoop:
             "round": last.round,
             "presses": last.presses,
             "presses_in_all": last.presses
-            + self.first_row,  # the touch search's and registration's too
+            + self.first_row,  # the touch search's and any registration lattice's too
+            "touch_presses": int(np.sum(self.plan["phase"].to_numpy() == "touch")),
             "printer_s": last.printer_s,
             "printer_minutes": round(last.printer_s / 60, 2),
             "mse": None if math.isnan(last.mse) else last.mse,
@@ -262,7 +259,16 @@ class QuickLoop:
             "round_presses": int(self.scene["plan"]["round_presses"]),
             "registration": {
                 k: self.registration.get(k)
-                for k in ("residual_px", "touch_offset_mm", "contact_z_mm", "touch_method")
+                for k in (
+                    "residual_px",
+                    "touch_offset_mm",
+                    "contact_z_mm",
+                    "touch_method",
+                    "contacts_used",
+                    "lens_free",
+                    "affine_px_per_mm",
+                    "lens",
+                )
             },
         }
 
@@ -315,7 +321,7 @@ def quick_stage(
         loop.round_done(held)
         if loop.stopped is None:
             raise StoreError(
-                f"{store}: holds {held - loop.first_row} quick presses, but the stop rule as "
+                f"{store}: holds {loop.presses(held)} quick presses, but the stop rule as "
                 "configured now asks for more; restore the settings it was collected with, or "
                 f"move it away to collect anew (e.g. `mv {store} {store}.old`)"
             )

@@ -24,17 +24,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.config import (
-    compared_with,
-    convergence_fractions,
-    is_quick,
-    quick_run,
-    runs_of,
-    training_fractions,
-)
+from threedcal.config import convergence_fractions, has_arms, is_quick, training_fractions
 from threedcal.config import is_imported as config_is_imported
+from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
-from threedcal.report.summary import read_json, sim2real_rows
+from threedcal.report.summary import read_json, reading_line, sim2real_rows
 from threedcal.scenes import has_ablation, has_objects, has_sim2real
 
 TITLE = "Results of the default study"
@@ -292,18 +286,15 @@ def reading_lines() -> list[str]:
 
 
 def scenes_section(scenes: Mapping[str, dict]) -> list[str]:
-    """One row a scene; a quick calibration's runs in the row of its first run here."""
-    configs = {"scenes": {name: _config(record) for name, record in scenes.items()}}
+    """One row a scene."""
     rows = [
         [
-            f"`{name}`" + (f" ({len(runs)} runs)" if len(runs) > 1 else ""),
+            f"`{name}`",
             str(_config(record).get("sensor", MISSING)),
             str(_config(record).get("printer") or MISSING),
             frames_of(record),
         ]
         for name, record in scenes.items()
-        for runs in [runs_of(configs, name) if is_quick(_config(record)) else [name]]
-        if runs[0] == name
     ]
     return [
         "## Scenes",
@@ -322,13 +313,9 @@ def _objects_of(scenes: Mapping[str, dict]) -> list[str]:
 
 
 def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
-    """Each compared quick calibration's stopped models against its unit's full calibration
-    (run 1's arms.json), and run 1's presses from scratch."""
-    chosen = [
-        n
-        for n, r in scenes.items()
-        if compared_with(_config(r)) and quick_run(_config(r)) == 1  # run 1 holds the runs' arms
-    ]
+    """Each compared quick calibration's stopped model against its unit's full calibration
+    (arms.json), and its presses from scratch."""
+    chosen = [n for n, r in scenes.items() if has_arms(_config(r))]
     if not chosen:
         return []
     rows = []
@@ -345,8 +332,7 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
         )
         rows.append(
             [
-                f"`{name}` vs `{arms['compare_with']}`"
-                + (f" ({len(arms['runs'])} runs)" if len(arms.get("runs") or []) > 1 else ""),
+                f"`{name}` vs `{arms['compare_with']}`",
                 f"{arms.get('presses_in_all', arms['presses'])}, {arms['printer_minutes']:.1f}",
                 f"{_pct(mse['change'])} {_interval(*mse['interval95'])} ({mse['verdict']})",
                 MISSING
@@ -360,9 +346,10 @@ def quick_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     return [
         "## Quick calibration",
         "",
-        "Each run's stopped model against the unit's P = 80 models; targets: "
-        "+10 %, +10 µm (printer protocol), 50 presses (touch search and registration included), "
-        "5 minutes.",
+        "The stopped model against the unit's P = 80 models; targets: "
+        "+10 %, +10 µm (printer protocol), 50 presses (touch search included), 5 minutes. "
+        "One unit a sensor; over units: `make quick-study` "
+        "([statistics](explanation/statistics.md#a-quick-calibration-against-a-full-one)).",
         "",
         *_table(
             ["scene", "presses, min", "MSE vs full", "scratch", "worst Δ Type 2 µm", "budget"],
@@ -501,6 +488,11 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             advice = text.split(":", 1)[0]
         else:
             advice = _missing(recommendation, results)
+        curve_path = stats / "learning_curve.csv"
+        if curve_path.is_file():
+            advice += f"; learning curve: {curve_summary(pd.read_csv(curve_path))}"
+            differ = recommendation.is_file() and "the readings differ" in text
+            advice += " (the two differ: why in `stats/recommendation.txt`)" if differ else ""
         placebo = _placebo(tests)
         notes.append(f"- `{name}`: {advice}" + (f"; placebo {placebo}." if placebo else "."))
     level = _recorded(r"(\d+(?:\.\d+)?) % interval, TOST", recommendations)
@@ -538,8 +530,10 @@ def ablation_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
             rows,
         ),
         "",
-        "Recommendation (reasons: `stats/recommendation.txt`) and placebo (the paper's tests "
-        "between two P = 80 % trainings):",
+        "Recommendation: the equivalence test's (reasons: `stats/recommendation.txt`) and the "
+        "learning curve's, fitted on every fraction: the fewest points whose predicted MSE is "
+        "within the margin of P = 80 %'s (`stats/learning_curve.csv`, `.png`); placebo (the "
+        "paper's tests between two P = 80 % trainings):",
         "",
         *notes,
         "",
@@ -550,12 +544,12 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
     chosen = {name: r for name, r in scenes.items() if convergence_fractions(_config(r))}
     if not chosen:
         return []
-    rows = []
+    rows, readings = [], []
     for name, record in chosen.items():
         path = results / name / "stats" / "convergence.csv"
         sim = simulated_cell(record)
         if not path.is_file():
-            rows.append([f"`{name}`", sim, MISSING, _missing(path, results)] + [MISSING] * 3)
+            rows.append([f"`{name}`", sim, MISSING, _missing(path, results)] + [MISSING] * 4)
             continue
         for row in pd.read_csv(path).itertuples():
             rows.append(
@@ -563,18 +557,28 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                     f"`{name}`",
                     sim,
                     str(row.P),
-                    str(row.study_steps),
-                    f"{row.study_mse:.5f}",
+                    f"{row.steps} / {row.twice_steps}",
+                    f"{row.budget_mse:.5f}",
                     f"{row.twice_mse:.5f}",
-                    _pct(row.change),
+                    f"{_pct(row.change)} [{_pct(row.ci_low)}, {_pct(row.ci_high)}]",
+                    str(row.replicates),
                 ]
             )
+        for label, leaf in (
+            ("the budget", "recommendation.txt"),
+            ("twice", "twice/recommendation.txt"),
+        ):
+            line = reading_line((results / name / "stats" / leaf).parent)
+            if line:
+                readings.append(f"- `{name}` at {label}: {line}")
     return [
         "## Has the training converged? Twice the budget",
         "",
-        "Protocol: replicate 0 of P = 80 % and of the smallest P retrained with twice the "
-        "stopping budget, scored by mean validation MSE (`stats/convergence.csv`); a large drop "
-        "at 2x means training stopped short.",
+        "Protocol: every model trains the same steps (the budget) in cycles ending at a quarter, "
+        "a half, all and twice the budget, scored by mean validation MSE "
+        "(`stats/error_vs_time.csv`); the change at twice pairs models by replicate and "
+        "block, 95 % interval (`stats/convergence.csv`); `stats/twice/` reads the "
+        "ablation there.",
         "",
         *_table(
             [
@@ -583,12 +587,18 @@ def convergence_section(scenes: Mapping[str, dict], results: Path) -> list[str]:
                 "P %",
                 "steps",
                 "validation MSE",
-                "MSE at 2x steps",
-                "change",
+                "at twice the steps",
+                "change [95 % interval]",
+                "replicates",
             ],
             rows,
         ),
         "",
+        *(
+            ["How many points to probe, read at the budget and at twice it:", "", *readings, ""]
+            if readings
+            else []
+        ),
     ]
 
 

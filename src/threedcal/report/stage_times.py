@@ -1,9 +1,10 @@
 """Where a study's time went: every job's `benchmark:` file (results/**/benchmarks/*.tsv) summed per
 stage, for the summary's stage-time table and `threedcal report stage-times`.
 
-A job's file is named after its rule and wildcards (train_P20_r0.tsv, cv_model_fold3.tsv,
-sim2real_real_only_k8_fold1.tsv); the stage is the name without the replicate, fraction, k and fold
-parts, so the jobs of one stage add up. Snakemake runs `--cores` jobs at once: the summed wall time
+A job's file is named after its rule and wildcards (train_P20_r0.tsv, train_ablation_P20.tsv,
+cv_train_fold3.tsv, sim2real_real_only_fold1.tsv, sim2real_pretrain_folds0-1-2.tsv); the stage is
+the name without the replicate, fraction, k and fold parts, so the jobs of one stage add up.
+Snakemake runs `--cores` jobs at once: the summed wall time
 is the work, not the run's duration (the Makefile prints that).
 """
 
@@ -15,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 # The wildcard tails that tell jobs of one stage apart.
-_JOB_PARTS = re.compile(r"(_P\d+_r\d+|_k[^_]+_fold\d+|_fold\d+)$")
+_JOB_PARTS = re.compile(r"(_P\d+(_r\d+)?|_k[^_]+_fold\d+|_fold\d+|_folds\d+(-\d+)*)$")
 
 
 def stage_of(benchmark: Path) -> str:

@@ -12,6 +12,7 @@ from typing import Any
 import pandas as pd
 
 from threedcal.config import is_imported
+from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times
 from threedcal.scenes import has_sim2real
 
@@ -83,9 +84,7 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
                 "; ".join(target["line"] for target in arms["targets"].values()),
             )
         )
-    recommendation = root / "stats" / "recommendation.txt"
-    if recommendation.is_file():
-        facts.append(("recommendation", recommendation.read_text().strip()))
+    facts += recommendation_facts(root / "stats")
     fps = read_json(root / "models" / "inference.json")
     if fps:
         facts.append(("depth inference (P=80 model, CPU)", f"{fps['frames_per_s']:.1f} frames/s"))
@@ -122,6 +121,24 @@ def scene_section(name: str, scene: Mapping, results: Path) -> list[str]:
     if errors.is_file():
         lines += object_table(pd.read_csv(errors))
     return lines
+
+
+def recommendation_facts(stats_dir: Path) -> list[tuple[str, str]]:
+    """The recommendation's rows: the TOST's answer, the learning curve's (with its interval) and
+    where the two differ, why (stats/recommendation.txt, one reading a line)."""
+    path = stats_dir / "recommendation.txt"
+    if not path.is_file():
+        return []
+    lines = path.read_text().strip().splitlines()
+    facts = [("recommendation (equivalence test)", lines[0])]
+    curve = stats_dir / "learning_curve.csv"
+    if curve.is_file():
+        facts.append(
+            ("learning curve (stats/learning_curve.csv)", curve_summary(pd.read_csv(curve)))
+        )
+    compared = [line for line in lines[1:] if "readings" in line.split(":", 1)[0]]
+    facts += [("equivalence test against the curve", line) for line in compared]
+    return facts
 
 
 def sim2real_section(errors: pd.DataFrame) -> list[str]:
@@ -195,20 +212,41 @@ def ablation_section(stats_dir: Path) -> list[str]:
 
 
 def convergence_lines(path: Path) -> list[str]:
-    """The convergence check in one sentence per P (stats/convergence.csv)."""
+    """The convergence check in one sentence per P (stats/convergence.csv), and the ablation read
+    again at twice the budget (stats/twice/recommendation.txt)."""
     if not path.is_file():
         return []
     table = pd.read_csv(path)
     parts = [
-        f"P = {row.P} % {row.study_mse:.5f} after {row.study_steps} steps, "
-        f"{row.twice_mse:.5f} after {row.twice_steps} ({row.change:+.1%})"
+        f"P = {row.P} % {row.budget_mse:.5f} after {row.steps} steps, {row.twice_mse:.5f} after "
+        f"{row.twice_steps} ({row.change:+.1%}, {row.ci_low:+.1%} to {row.ci_high:+.1%})"
         for row in table.itertuples()
     ]
-    return [
+    lines = [
         "",
-        "Convergence (replicate 0 trained again with twice its budget, mean validation MSE; "
+        "Convergence (every model trained on to twice the budget, mean validation MSE; "
         f"stats/convergence.csv): {'; '.join(parts)}.",
     ]
+    twice = reading_line(path.parent / "twice")
+    if twice:
+        lines += ["", f"At twice the budget: {twice}"]
+    return lines
+
+
+def reading_line(folder: Path) -> str | None:
+    """A reading's recommendation.txt in one line: the equivalence test's answer, then the
+    learning curve's (learning_curve.csv beside it) and whether the two differ; None without it."""
+    path = folder / "recommendation.txt"
+    if not path.is_file():
+        return None
+    lines = path.read_text().strip().splitlines()
+    text = lines[0]
+    curve = folder / "learning_curve.csv"
+    if curve.is_file():
+        text += f"; learning curve: {curve_summary(pd.read_csv(curve))}"
+        if any(line.startswith("the readings differ") for line in lines[1:]):
+            text += " (the two differ: why in recommendation.txt)"
+    return text
 
 
 def _ci(row, metric: str) -> str:

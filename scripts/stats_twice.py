@@ -1,0 +1,17 @@
+"""Rule `stats_twice`: the ablation's tests, learning curve and recommendation at twice the budget."""
+
+from threedcal.evaluate.validation import twice_stage
+from threedcal.logs import stage_log
+
+with stage_log(snakemake.log[0]) as log:
+    keys = [tuple(key) for key in snakemake.params.models]
+    line = twice_stage(
+        snakemake.wildcards.scene,
+        {(p, r): snakemake.input[f"P{p}_r{r}"] for p, r in keys},
+        snakemake.input.trainset,
+        snakemake.input.splits,
+        snakemake.params.settings,
+        snakemake.params.seed,
+        dict(snakemake.output.items()),
+    )
+    log.info("at twice the budget: %s", line)
