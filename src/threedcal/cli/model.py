@@ -450,13 +450,6 @@ def _configure_live(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="the pressing ball's radius: warn of a contact larger than it can make",
     )
-    parser.add_argument(
-        "--probe-radius-mm",
-        type=float,
-        default=None,
-        help="the pressing ball's radius: warn when the contact covers more than it can touch "
-        "(the model reads this unit's lighting as depth: calibrate the unit, or retake the blank)",
-    )
 
 
 def _configure_export(parser: argparse.ArgumentParser) -> None:
