@@ -10,6 +10,8 @@ Run them from the repository root:
 | real_cv_methods | real_cv_drawn.png, real_cv_refined.png; the methods table of the real ball folder under grouped cross-validation | `.venv/bin/python -m diagnostics.real_cv_methods [METHOD ...] --out docs/figures` |
 | perfect_model_objects | what each test-object protocol reports for a perfect model (the true surface's, or the pressed gel's, gradients), after `make all` | `.venv/bin/python -m diagnostics.perfect_model_objects digit_sim [--no-mount-errors] [--gel]` |
 | label_integration | exact labels integrate to the true depth; what a slope clamp (`dataset.max_slope_deg`) costs | `.venv/bin/python -m diagnostics.label_integration` |
+| pretrained_edges | the shipped weights on simulated units two sigma out in every measured spread: contact against the ball's disc, false contact, centroid, gradient MSE | `.venv/bin/python -m diagnostics.pretrained_edges [--weights DIR]` |
+| unit_spread | the real units of data/ measured against each other: the figures the sensor profiles' `unit_variation` is set from | `.venv/bin/python -m diagnostics.unit_spread` |
 
 Every module has `main(argv)` and a `--smoke` mode (tiny sizes, seconds, output to a temporary
 folder unless `--out` is given).

@@ -99,3 +99,29 @@ rule summary:
         code=code_digest("summary.py"),
     script:
         "../scripts/summary.py"
+
+
+rule real_check:
+    input:
+        real_check_files(config),
+    output:
+        table=report(
+            REAL_CHECK["table"],
+            caption="../workflow/report/real_check.rst",
+            category="study",
+            subcategory="shipped weights on real frames",
+        ),
+        frames=REAL_CHECK["frames"],
+    log:
+        "results/logs/real_check.log",
+    benchmark:
+        "results/benchmarks/real_check.tsv"
+    conda:
+        CONDA_ENV
+    threads: config["torch_threads"]
+    params:
+        settings=config.get("real_check", {}),
+        seed=config["seed"],
+        code=code_digest("real_check.py"),
+    script:
+        "../scripts/real_check.py"

@@ -111,3 +111,22 @@ def test_label_integration_smoke(tmp_path):
     clamped = table[(table["labels"] == "45deg") & (table["depth_mm"] == 2.0)]
     assert math.isfinite(float(clamped["volume_error_pct"].iloc[0]))
     assert float(clamped["volume_error_pct"].iloc[0]) < -10
+
+
+def test_unit_spread_smoke():
+    from diagnostics import unit_spread
+
+    spreads = unit_spread.main(["--smoke"])
+    assert set(spreads) == {"DIGIT", "Mini"}
+    for figures in spreads.values():
+        assert finite([figures[k] for k in figures if k.startswith("spread_")])
+        assert 1.0 < figures["spread_field_dn"] < 30.0  # two units' fields differ, by DN
+        assert 0.0 < figures["spread_azimuth_deg"] < 60.0
+
+
+def test_pretrained_edges_smoke():
+    from diagnostics import pretrained_edges
+
+    figures = pretrained_edges.main(["--smoke", "--sensor", "digit_fots"])["digit_fots"]
+    assert finite(list(figures.values()))
+    assert 0 <= figures["within_bound"] <= 1 and figures["gradient_mse"] > 0

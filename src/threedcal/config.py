@@ -74,11 +74,15 @@ def validate_config(
         if is_imported(scene):  # no printer, probe or plan: the data exists already
             for key in IMPORT_IRRELEVANT:
                 scene.pop(key, None)
-    problems = [
-        f"scenes.{name}.{msg}"
-        for name, scene in config["scenes"].items()
-        for msg in _run_problems(scene, check_files, new_mount)
-    ] + _realism_problems(config)
+    problems = (
+        [
+            f"scenes.{name}.{msg}"
+            for name, scene in config["scenes"].items()
+            for msg in _run_problems(scene, check_files, new_mount)
+        ]
+        + _realism_problems(config)
+        + _real_check_problems(config)
+    )
     problems += compare_problems(config)
     if problems:
         raise ConfigError(f"{source}: invalid config\n  " + "\n  ".join(problems))
@@ -110,6 +114,28 @@ def _realism_problems(config: Mapping) -> list[str]:
             load_profile("sensor", sensor)
         except ConfigError as exc:
             problems.append(f"{where}.sensor: {exc}")
+    return problems
+
+
+def real_check_sets(config: Mapping[str, Any]) -> list[dict]:
+    """The real_check stage's {real, sensor} sets; [] without a real_check section."""
+    return [dict(s) for s in (config.get("real_check") or {}).get("sets", [])]
+
+
+def _real_check_problems(config: Mapping) -> list[str]:
+    """The real_check stage's folders and sensors (with shipped weights), named now."""
+    from threedcal.pretrained import shipped_sensors
+
+    problems = []
+    for i, entry in enumerate(real_check_sets(config)):
+        where = f"real_check.sets[{i}]"
+        if not Path(entry["real"]).is_dir():
+            problems.append(f"{where}.real: {entry['real']} is not a folder (a ball-image dataset)")
+        if entry["sensor"] not in shipped_sensors():
+            problems.append(
+                f"{where}.sensor: no shipped weights for {entry['sensor']!r} (shipped: "
+                f"{', '.join(shipped_sensors())})"
+            )
     return problems
 
 

@@ -21,6 +21,7 @@ from threedcal.config import (
     is_quick,
     model_keys,
     normalise_ablation,
+    real_check_sets,
     realism_sets,
     training_fractions,
 )
@@ -169,6 +170,7 @@ INTEGRATION_STUDY = _files(
 INTEGRATION_STUDY_TARGETS = list(INTEGRATION_STUDY.values())
 STATS_OVERVIEW = f"{RESULTS}/stats/mse_std_vs_p.png"
 REALISM_TABLE = f"{RESULTS}/realism/table.txt"
+REAL_CHECK = _files(f"{RESULTS}/real_check", table="table.csv", frames="frames.csv")
 REALISM_HALO = _files(f"{RESULTS}/realism", csv="halo_2d.csv", png="halo_2d.png")
 ENVIRONMENT = f"{RESULTS}/environment.json"
 SUMMARY = f"{RESULTS}/summary.md"
@@ -386,6 +388,8 @@ def study_targets(config: Mapping) -> list[str]:
         targets += [STATS_OVERVIEW]
     if config.get("realism"):
         targets += [REALISM_TABLE, *REALISM_HALO.values()]
+    if config.get("real_check"):
+        targets += list(REAL_CHECK.values())
     targets += [ENVIRONMENT, SUMMARY]
     return targets
 
@@ -421,6 +425,16 @@ def write_scene_record(name: str, scene: Mapping, path: str | Path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(scene_record(name, scene), indent=2, sort_keys=True) + "\n")
+
+
+def real_check_files(config: Mapping[str, Any]) -> list[str]:
+    """The real_check stage's inputs: every file of its folders and the shipped weights it reads."""
+    from threedcal.pretrained import SHIPPED_DIR
+
+    sets = real_check_sets(config)
+    files = [str(p) for s in sets for p in sorted(Path(s["real"]).iterdir()) if p.is_file()]
+    sensors = sorted({s["sensor"] for s in sets})
+    return files + [str(SHIPPED_DIR / f"{s}.{ext}") for s in sensors for ext in ("pt", "json")]
 
 
 def realism_files(config: Mapping[str, Any]) -> list[str]:

@@ -6,6 +6,11 @@ that lens and pooled to the working resolution, as the dataset stage prepares a 
 frames. Presses fall uniformly over the whole frame (contacts may leave it at the edges) at depths
 uniform in `depth_mm`, measured below the undeformed gel under the ball (on a domed gel, the
 dome's), as the labels are. The result is one TrainingSet whose frames know their unit's blank.
+
+A real frame is never lit quite as its blank was (the blank is taken before or after, and the
+LEDs and exposure drift): each press gets a smooth field of the profile's
+`unit_variation.blank_drift_dn` rms added after rendering (threedcal.sim.units'
+smooth field, degree DRIFT_DEGREE), which the blank does not have.
 """
 
 from __future__ import annotations
@@ -21,6 +26,10 @@ from threedcal.errors import ConfigError
 
 # Blank frames averaged per unit (a calibration averages the profile's probing.n_blank).
 BLANK_FRAMES = 10
+# A frame's drift from its blank is smoother than a unit's field: degree 2 (the real frames' drift,
+# measured beside their blanks, is a tilt and a bowl: docs/explanation/simulator.md).
+DRIFT_DEGREE = 2
+_DRIFT_STREAM = 0xD21F
 
 
 def simulate_units(
@@ -106,6 +115,9 @@ def _unit_set(profile, unit, n, depth_mm, radius_mm, gel_mechanics) -> TrainingS
             for i, (c, d) in enumerate(zip(centres, depths, strict=True))
         ]
     )
+    drift_dn = float((profile.get("unit_variation") or {}).get("blank_drift_dn", 0) or 0)
+    if drift_dn > 0:
+        frames = drifted_frames(frames, drift_dn, unit)
     blanks = [gel.blank(frame_index=n + 1 + k).astype(np.float32) for k in range(BLANK_FRAMES)]
     blank = np.mean(blanks, axis=0)
     if lens is not None:
@@ -126,3 +138,19 @@ def _unit_set(profile, unit, n, depth_mm, radius_mm, gel_mechanics) -> TrainingS
         sphere_radius_mm=float(radius_mm),
         max_slope_deg=check_max_slope(None),
     )
+
+
+def drifted_frames(frames: np.ndarray, rms_dn: float, unit: int) -> np.ndarray:
+    """Unit `unit`'s uint8 frames (N, H, W, 3), each plus its own smooth field (degree
+    DRIFT_DEGREE) of `rms_dn` expected rms, rounded and clipped; seeded by the unit."""
+    from threedcal.sim.optics import background_field
+    from threedcal.sim.units import smooth_field_coefficients
+
+    rng = np.random.default_rng([int(unit), _DRIFT_STREAM])
+    height, width = frames.shape[1:3]
+    out = np.empty_like(frames)
+    for k, frame in enumerate(frames):
+        coefficients = smooth_field_coefficients(rng, rms_dn, DRIFT_DEGREE)
+        field = background_field(width, height, DRIFT_DEGREE, coefficients)
+        out[k] = np.clip(np.rint(frame.astype(np.float32) + field), 0, 255).astype(np.uint8)
+    return out
