@@ -157,7 +157,11 @@ def test_shadow_direction_follows_the_led_position():
     z = np.zeros((60, 60), np.float32)
     z[28:32, 28:32] = 2.0  # a thin post: its shadow is a narrow streak
     streaks = []
-    for contact_mm in [(-8.0, 0.0), (8.0, 0.0)]:
+    # two contacts 8 mm either side of the line from the centre to the LED: across it the
+    # direction to the LED turns most
+    px, py = light["P"][0], light["P"][1]
+    across = (-py / math.hypot(px, py), px / math.hypot(px, py))
+    for contact_mm in [(-8.0 * across[0], -8.0 * across[1]), (8.0 * across[0], 8.0 * across[1])]:
         shadow = np.argwhere(sim._lit(z, light, contact_mm) < 1) - 29.5  # (row, col) from the post
         streaks.append(math.atan2(shadow[:, 0].mean(), shadow[:, 1].mean()))
         expected = toward_led(light, contact_mm)
