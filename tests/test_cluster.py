@@ -79,6 +79,9 @@ def test_every_rule_writes_a_benchmark_file_beside_its_logs(tmp_path, tiny_study
     # and `make quick-study`'s summary over units (its own config)
     study = snakemake(tmp_path, REPO / "config/quick_study.yaml", "quick_study", "-n")
     blocks["quick_study"] = job_blocks(study.stdout)["quick_study"]
+    # and the shipped weights on real frames (the default study's real_check section)
+    real = snakemake(tmp_path, REPO / "config.yaml", "results/real_check/table.csv", "-n")
+    blocks["real_check"] = job_blocks(real.stdout)["real_check"]
     assert set(blocks) == set(listed)
     for rule, jobs in blocks.items():
         if rule in ("all", "pretrained"):  # targets that only gather other rules' outputs
