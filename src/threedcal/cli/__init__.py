@@ -73,9 +73,7 @@ def refuse_existing_outputs(
 
 
 def add_force_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--force", action="store_true", help="replace output files that exist already"
-    )
+    parser.add_argument("--force", action="store_true", help="replace existing output files")
 
 
 def shown_default(action: argparse.Action) -> str | None:
