@@ -44,11 +44,6 @@ def test_a_radially_symmetric_field_has_its_centre_found_to_a_fraction_of_a_pixe
     assert left < 0.01 and np.argmax(mean) * 0.5 == pytest.approx(12, abs=0.5)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known limit, issue 61: with the Mini's lights in its landscape frame one of the 12 "
-    "presses comes back 0.55 px from its centre (the bound is 0.5 px)",
-)
 def test_simulated_presses_get_their_true_centre_and_radius_back_from_noisy_labels(rendered):
     frames, blank, centres, _, contact = rendered
     rng = np.random.default_rng(0)

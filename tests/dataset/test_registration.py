@@ -173,12 +173,6 @@ def test_symmetry_finds_centres_the_rim_misses_and_unmixes_the_leds(mini_contact
     np.testing.assert_allclose(refined.unmixing, inverse / np.diag(inverse)[:, None], atol=0.03)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known limit, issue 61: with the Mini's lights in its landscape frame (red left) the "
-    "contact at the left edge clips so that the rim locator misses its centre by 10 px and the "
-    "symmetric fit keeps a centre 7 px off instead of dropping it",
-)
 def test_saturated_pixels_take_no_part_in_the_symmetric_centre(mini_contacts):
     sim, centres, frames, blank = mini_contacts
     # Overexposed by 20 %: about a third of every frame clips at 255, through the contacts too.
