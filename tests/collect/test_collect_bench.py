@@ -271,6 +271,7 @@ def assert_search_found_the_touch(record, folder, within_mm=0.01):
     assert record["frames_in_view"] <= raw.sizes["frame"] - record["touch_search"]["frames"]
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "calibration, within_mm",
     # the Mini's touch is found less closely: 8.8 um mean, 14.2 at worst over seeds 0-2 of
@@ -417,6 +418,7 @@ def touch_error_with_true_centres(tmp_path, sensor, seed):
     return result.offset_mm - truth["touch_offset_mm"]
 
 
+@pytest.mark.long
 @pytest.mark.parametrize(
     "sensor, change, seed",
     [("digit", "elastic", 11), ("gelsight_mini", "elastic", 12), ("gelsight_mini", "skirt", 13)],
@@ -436,6 +438,7 @@ def test_touch_search_does_not_assume_the_contact_law(tmp_path, monkeypatch, sen
     assert abs(touch_error_with_true_centres(tmp_path, str(sensor), seed)) <= 0.02
 
 
+@pytest.mark.long
 def test_touch_search_sees_through_a_blurred_camera(tmp_path):
     """The elastic DIGIT behind a 6 px camera blur (what the optics fit finds on the real DIGIT
     frames, profile digit_fots): a contact's half-peak size is then mostly blur, and a line through

@@ -12,6 +12,7 @@ from threedcal.quick.arms import run_arm, scratch_arm
 from threedcal.quick.loop import QuickLoop, quick_stage
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_scratch_models_train_on_each_rounds_presses_with_its_budget(tmp_path):
     settings = scene(margin=0.99)  # two rounds of six presses, 10 steps a round
