@@ -15,6 +15,7 @@ from threedcal.collect.plan import plan_from_config, validate_plan
 from threedcal.dataset.importers import check_import
 from threedcal.errors import ConfigError
 from threedcal.mount import scene_mount_values, with_mount
+from threedcal.pretrained import shipped_sensors
 from threedcal.profiles import ProfileNotFound, load_profile, resolve_profile
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
@@ -124,8 +125,6 @@ def real_check_sets(config: Mapping[str, Any]) -> list[dict]:
 
 def _real_check_problems(config: Mapping) -> list[str]:
     """The real_check stage's folders and sensors (with shipped weights), named now."""
-    from threedcal.pretrained import shipped_sensors
-
     problems = []
     for i, entry in enumerate(real_check_sets(config)):
         where = f"real_check.sets[{i}]"

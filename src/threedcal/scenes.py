@@ -27,6 +27,7 @@ from threedcal.config import (
 )
 from threedcal.errors import ConfigError
 from threedcal.mount import scene_mount_values
+from threedcal.pretrained import SHIPPED_DIR
 from threedcal.profiles import load_profile
 
 RESULTS = "results"
@@ -429,8 +430,6 @@ def write_scene_record(name: str, scene: Mapping, path: str | Path) -> None:
 
 def real_check_files(config: Mapping[str, Any]) -> list[str]:
     """The real_check stage's inputs: every file of its folders and the shipped weights it reads."""
-    from threedcal.pretrained import SHIPPED_DIR
-
     sets = real_check_sets(config)
     files = [str(p) for s in sets for p in sorted(Path(s["real"]).iterdir()) if p.is_file()]
     sensors = sorted({s["sensor"] for s in sets})

@@ -23,6 +23,12 @@ import pandas as pd
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet, downscale, samples_table
 from threedcal.errors import ConfigError
+from threedcal.profiles import with_gel_mechanics
+from threedcal.sim.bench import draw_lens
+from threedcal.sim.camera import make_gel
+from threedcal.sim.indenters import Sphere
+from threedcal.sim.optics import background_field
+from threedcal.sim.units import draw_unit, smooth_field_coefficients
 
 # Blank frames averaged per unit (a calibration averages the profile's probing.n_blank).
 BLANK_FRAMES = 10
@@ -94,11 +100,6 @@ def simulate_units(
 
 def _unit_set(profile, unit, n, depth_mm, radius_mm, gel_mechanics) -> TrainingSet:
     """One unit's presses at full resolution, rectified through its own lens."""
-    from threedcal.profiles import with_gel_mechanics
-    from threedcal.sim.bench import draw_lens
-    from threedcal.sim.camera import make_gel
-    from threedcal.sim.indenters import Sphere
-    from threedcal.sim.units import draw_unit
 
     sensor = draw_unit(with_gel_mechanics(profile, gel_mechanics), unit)
     lens = draw_lens(profile, unit)
@@ -143,8 +144,6 @@ def _unit_set(profile, unit, n, depth_mm, radius_mm, gel_mechanics) -> TrainingS
 def drifted_frames(frames: np.ndarray, rms_dn: float, unit: int) -> np.ndarray:
     """Unit `unit`'s uint8 frames (N, H, W, 3), each plus its own smooth field (degree
     DRIFT_DEGREE) of `rms_dn` expected rms, rounded and clipped; seeded by the unit."""
-    from threedcal.sim.optics import background_field
-    from threedcal.sim.units import smooth_field_coefficients
 
     rng = np.random.default_rng([int(unit), _DRIFT_STREAM])
     height, width = frames.shape[1:3]

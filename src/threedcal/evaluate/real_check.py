@@ -27,8 +27,23 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import torch
 
+from threedcal.dataset.contacts import locate_contact
+from threedcal.dataset.importers import load_ball_folder
+from threedcal.dataset.refine import refine_labels
+from threedcal.dataset.reframe import reframe
+from threedcal.dataset.trainset import TrainingSet, from_imported, samples_table
 from threedcal.errors import ConfigError
+from threedcal.images import read_rgb
+from threedcal.model.checkpoint import read_checkpoint
+from threedcal.model.contact_guard import contact_figures
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.sim2real import shipped_settings
+from threedcal.model.train import train
+from threedcal.pretrained import provenance, shipped_weights
+from threedcal.sim.fit import split_halves
+from threedcal.sim.realism import load_ball_dataset
 
 SPLIT_SEED = 0  # the realism check's split: the DIGIT optics were fitted on half 0
 FIT, CHECK = "fit", "check"
@@ -37,11 +52,6 @@ FIT, CHECK = "fit", "check"
 def load_real_set(folder: str | Path, seed: int = SPLIT_SEED) -> tuple:
     """(TrainingSet at the folder's own size, how its contacts were located): split 'train' is the
     fitting half, 'val' the other."""
-    from threedcal.dataset.importers import load_ball_folder
-    from threedcal.dataset.refine import refine_labels
-    from threedcal.dataset.trainset import from_imported
-    from threedcal.sim.fit import split_halves
-    from threedcal.sim.realism import load_ball_dataset
 
     folder = Path(folder)
     data = load_ball_dataset(folder)
@@ -69,9 +79,6 @@ def _located_set(folder: Path, data):
     """An unlabelled folder's frames, each contact where the dataset stage's locator finds a whole
     one (column `located`); elsewhere the realism check's (threedcal.sim.realism.locate_ball),
     for its radius only: such a frame's centroid is not scored."""
-    from threedcal.dataset.contacts import locate_contact
-    from threedcal.dataset.trainset import TrainingSet, samples_table
-    from threedcal.images import read_rgb
 
     blank = read_rgb(folder / "background.png")
     r_mm, px = data.ball_radius_mm, data.px_per_mm
@@ -105,11 +112,6 @@ def allowed_depth_mm(ts) -> np.ndarray:
 
 def read_frames(ts, model_path: str | Path, frames: Sequence[int], threads: int = 1):
     """Per frame: depth (mm) in the model's frame, the set brought there, and px/mm there."""
-    import torch
-
-    from threedcal.dataset.reframe import reframe
-    from threedcal.model.checkpoint import read_checkpoint
-    from threedcal.model.inference import DepthEstimator
 
     torch.set_num_threads(int(threads))
     checkpoint = read_checkpoint(model_path)
@@ -126,7 +128,6 @@ def read_frames(ts, model_path: str | Path, frames: Sequence[int], threads: int 
 def frame_rows(ts, model_path: str | Path, frames: Sequence[int], threads: int = 1) -> pd.DataFrame:
     """One row per frame: area_px, bound_px, area_ratio, within_bound, centroid_error_mm,
     peak_mm, allowed_mm, peak_within."""
-    from threedcal.model.contact_guard import contact_figures
 
     depth, framed = read_frames(ts, model_path, frames, threads)
     allowed = allowed_depth_mm(ts)
@@ -172,9 +173,6 @@ def quick_finetune(
 ) -> Path:
     """The weights fine-tuned on the fitting half ('train') in their own frame, as the quick
     calibration fine-tunes them: one cosine cycle of `steps` at `lr`, nothing held out."""
-    from threedcal.dataset.reframe import reframe
-    from threedcal.model.sim2real import shipped_settings
-    from threedcal.model.train import train
 
     if steps < 1:
         raise ConfigError(f"real_check.finetune_steps must be >= 1, got {steps}")
@@ -240,7 +238,6 @@ def check_sets(
     """(table, per-frame rows) of every {real, sensor} set: the shipped weights on all its frames
     and on the held-out half; where it has labels, those weights fine-tuned on its fitting half
     (`finetune_steps`; 0: none) on the held-out half."""
-    from threedcal.pretrained import provenance, shipped_weights
 
     table, frames = [], []
     for entry in sets:

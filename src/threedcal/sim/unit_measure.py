@@ -26,9 +26,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.sim.optics import field_terms
+from threedcal.sim.realism import halo_radii
 
 FIELD_DEGREE = 4
 
@@ -47,7 +50,6 @@ def _keep(shape: tuple[int, int], keep: np.ndarray | None) -> np.ndarray:
 def away_from_markers(image: np.ndarray, darkness: float = 0.6, grow_px: int = 3) -> np.ndarray:
     """(H, W) bool: the pixels that are not a dark marker (luminance under `darkness` times its
     sigma-15 px surroundings) nor within `grow_px` of one."""
-    import cv2
 
     lum = np.asarray(image, dtype=np.float32).mean(axis=2)
     dark = (lum < darkness * cv2.GaussianBlur(lum, (0, 0), 15)).astype(np.uint8)
@@ -60,7 +62,6 @@ def smooth_field(
 ) -> np.ndarray:
     """(H, W, C) float64: the image's polynomial field of `degree` per channel, fitted on the kept
     pixels (threedcal.sim.optics.field_terms) and evaluated everywhere."""
-    from threedcal.sim.optics import field_terms
 
     image = np.asarray(image, dtype=np.float64)
     if image.ndim != 3:
@@ -143,7 +144,6 @@ def contact_light_deg(
 def halo_over_radius(frame, blank, centre, ball_radius_px: float) -> tuple[float, float]:
     """(r50, r10) / ball radius: where the contact's radial magnitude falls to 50 % and 10 % of
     its peak (threedcal.sim.realism.halo_radii), in ball radii."""
-    from threedcal.sim.realism import halo_radii
 
     r50, r10 = halo_radii(
         np.asarray(frame, np.float32), np.asarray(blank, np.float32), centre, ball_radius_px

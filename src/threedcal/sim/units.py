@@ -22,6 +22,7 @@ import math
 from collections.abc import Mapping
 
 import numpy as np
+from numpy.polynomial import legendre
 
 from threedcal.errors import ConfigError
 
@@ -73,7 +74,6 @@ def smooth_field_coefficients(
     field per channel whose mean square over the frame (u, v uniform in -1..1) is rms_dn² in
     expectation and whose mean is zero: independent normal weights on the normalised Legendre
     products sqrt((2i+1)(2j+1)) P_i(u) P_j(v), each of which has mean 0 and mean square 1."""
-    from numpy.polynomial import legendre
 
     pairs = legendre_terms(degree)
     weights = rng.normal(0.0, float(rms_dn) / math.sqrt(len(pairs)), (3, len(pairs)))
