@@ -4,28 +4,23 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.config import (
-    FULL_TRAINING_P,
-    compared_with,
-    convergence_fractions,
-    is_imported,
-    model_keys,
-    validate_config,
-)
+from threedcal.dataset.fractions import FULL_TRAINING_P, convergence_fractions, model_keys
 from threedcal.evaluate.objects import check_object_files
+from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
 from threedcal.provenance import script_digest
 from threedcal.schema import canonical_json, load_yaml
-from threedcal.model.crossval import CV_METHODS, method_settings
-from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
-from threedcal.model.sim2real import (
+from threedcal.study.config import compared_with, is_imported, validate_config
+from threedcal.study.imported_jobs import (
+    CV_METHODS,
     SIM2REAL_CONDITIONS,
     group_of,
+    method_settings,
     sensor_profile,
     sim2real_inputs,
     sim2real_keys,
     train_keys,
 )
-from threedcal.scenes import (
+from threedcal.study.paths import (
     BALL_EVAL,
     BENCH_TRUTH,
     COLLECT,

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from threedcal.collect.plan import grid_plan, plan_to_printer
-from threedcal.collect.session import estimate_hardware_s
+from threedcal.study.session import estimate_hardware_s
 from threedcal.profiles import load_profile
 
 

@@ -13,7 +13,7 @@ disturbs less than a mean. The first lines name the CPU and its instruction sets
 
 With --accuracy FOLDER (a ball_folder dataset, e.g. data/gelsight_ball_fots) it also trains
 every CPU preset there with BALL_SETTINGS on the seeded 80/20 image split and prints the accuracy per
-millisecond table (held-out gradient RMSE and cap depth MAE, threedcal.model.ball_eval).
+millisecond table (held-out gradient RMSE and cap depth MAE, threedcal.evaluate.ball_eval).
 
 With --device cuda the same tables are timed on a GPU (the integration stays on the CPU).
 
@@ -36,7 +36,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
-from threedcal.model.presets_study import PATCH_BALL_SETTINGS
+from threedcal.evaluate.presets_study import PATCH_BALL_SETTINGS
 from threedcal.model.train import training_autocast
 
 HEIGHT, WIDTH = 240, 320
@@ -137,7 +137,7 @@ def training_samples_per_s(
 def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     """Held-out ball_eval figures of each preset trained with BALL_SETTINGS on `folder`."""
     from threedcal.dataset.build import build_imported
-    from threedcal.model.ball_eval import evaluate
+    from threedcal.evaluate.ball_eval import evaluate
     from threedcal.model.train import TrainSettings, train
 
     scene = {

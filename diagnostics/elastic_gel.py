@@ -360,8 +360,8 @@ def _mean(values: np.ndarray) -> float:
 
 def registration(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
     """tests/collect/test_collect_bench.py's two registration set-ups, with each gel."""
-    from threedcal.collect.session import collect_scene
-    from threedcal.config import validate_config
+    from threedcal.study.session import collect_scene
+    from threedcal.study.config import validate_config
     from threedcal.dataset.build import build_collected
 
     setups = {

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.config import validate_config
+from threedcal.study.config import validate_config
 from threedcal.depth import integrate
 from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
 from threedcal.evaluate.object_scores import evaluate_objects

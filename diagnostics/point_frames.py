@@ -23,8 +23,8 @@ import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
-from threedcal.collect.session import collect_scene
-from threedcal.config import validate_config
+from threedcal.study.session import collect_scene
+from threedcal.study.config import validate_config
 from threedcal.dataset.build import build_collected
 from threedcal.dataset.labels import local_dome, sphere_gradients
 from threedcal.dataset.trainset import TrainingSet

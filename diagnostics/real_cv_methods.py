@@ -8,7 +8,7 @@ defaults; with refined labels the folds follow the refined centres, as `make all
 `dataset.refine_labels`) and scored on every image once; the table gives gradient RMSE and cap
 depth MAE with 95 % intervals (bootstrap over press groups), the paired difference to `lookup`,
 the label-uncertainty spread, where the depth error comes from
-(threedcal.model.crossval.error_sources) and DepthEstimator.depth ms/frame with 2 torch threads on
+(threedcal.evaluate.crossval.error_sources) and DepthEstimator.depth ms/frame with 2 torch threads on
 this machine (median). Writes real_cv_{drawn,refined}.png into `--out` and CACHE/<folder>/table.csv;
 the refined-label methods are also scored against the drawn labels. Fold models and predictions
 are cached under `--cache` (default .cache/real_cv; a rerun trains only what is missing), 1 torch
@@ -30,10 +30,10 @@ import torch
 
 from threedcal.dataset.build import build_imported
 from threedcal.depth import integrate
-from threedcal.model import crossval
-from threedcal.model import folds as cv_folds
+from threedcal.evaluate import crossval
+from threedcal.dataset import folds as cv_folds
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.presets_study import PATCH_BALL_SETTINGS, depth_ms_per_frame
+from threedcal.evaluate.presets_study import PATCH_BALL_SETTINGS, depth_ms_per_frame
 from threedcal.model.train import TrainSettings, train
 
 # fots_ball's settings before this study (the models explanation, Choosing a preset).

@@ -1,6 +1,6 @@
 """How the real units in data/ differ: the figures the sensor profiles' `unit_variation` is set from.
 
-Per unit (threedcal.sim.unit_measure): the blank's smooth field (level and shape, DN), its brighter
+Per unit (threedcal.realism.unit_measure): the blank's smooth field (level and shape, DN), its brighter
 side per channel (deg, image frame), and where the unit has labelled or locatable contacts, on the
 fitting half of its frames only (threedcal.sim.fit.split_halves, seed 0: the half the check never
 scores): each light's direction, the halo (r50 and r10 over the ball's radius) and how far its
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from threedcal.images import read_rgb
-from threedcal.sim import unit_measure as um
+from threedcal.realism import unit_measure as um
 from threedcal.sim.fit import split_halves
-from threedcal.sim.realism import load_ball_dataset
+from threedcal.realism.check import load_ball_dataset
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MARKER_CONTACT_REACH_PX = 100  # the marker frames' contact and its colour, left out of their field

@@ -1,8 +1,8 @@
 """Rule `ball_eval`: cross-validated gradient RMSE and cap depth MAE (with intervals) of the scene's
 model and of the lookup baseline on the imported real images."""
 
+from threedcal.evaluate.ball_eval import ball_eval
 from threedcal.logs import stage_log
-from threedcal.model.ball_eval import ball_eval
 
 with stage_log(snakemake.log[0]):
     ball_eval(

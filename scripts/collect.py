@@ -3,8 +3,8 @@
 import json
 
 from threedcal.cli import ask_on_console
-from threedcal.collect.session import collect_stage
 from threedcal.logs import stage_log
+from threedcal.study.session import collect_stage
 
 with stage_log(snakemake.log[0]):
     collect_stage(

@@ -3,8 +3,8 @@ images."""
 
 from pathlib import Path
 
+from threedcal.evaluate.crossval import train_fold_methods
 from threedcal.logs import stage_log
-from threedcal.model.crossval import train_fold_methods
 
 with stage_log(snakemake.log[0]):
     methods = snakemake.params.methods  # in the order of the models' outputs

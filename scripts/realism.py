@@ -5,7 +5,7 @@ comparison of every pair (its table lines, a CSV and a figure)."""
 from pathlib import Path
 
 from threedcal.logs import stage_log
-from threedcal.sim import halo2d
+from threedcal.realism import halo2d
 from threedcal.sim.fit import realism_run
 
 with stage_log(snakemake.log[0]):

@@ -1,8 +1,8 @@
 """Rule `sim2real_eval`: held-out real-image errors of the sim+real, real-only (and shipped+real)
 models against k (errors.csv, images.csv, error_vs_k.png)."""
 
+from threedcal.evaluate.sim2real_scores import sim2real_eval
 from threedcal.logs import stage_log
-from threedcal.model.sim2real import sim2real_eval
 
 with stage_log(snakemake.log[0]):
     models = {

@@ -1,7 +1,7 @@
 """Rule `sim2real_pretrain`: the scene's model preset trained on the simulated presses."""
 
+from threedcal.evaluate.sim2real import pretrain
 from threedcal.logs import stage_log
-from threedcal.model.sim2real import pretrain
 
 with stage_log(snakemake.log[0]):
     pretrain(

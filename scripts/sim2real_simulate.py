@@ -2,8 +2,9 @@
 size, px/mm and ball radius, labelled exactly (a model-ready set), with the sensor profile's optics
 fitted to the images outside those folds (`sim_to_real.profile: fitted`) or as they are (`as_is`)."""
 
+from threedcal.evaluate.sim2real import write_simulated
+from threedcal.evaluate.sim2real_settings import parse_group
 from threedcal.logs import stage_log
-from threedcal.model.sim2real import parse_group, write_simulated
 
 with stage_log(snakemake.log[0]):
     write_simulated(

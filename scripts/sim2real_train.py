@@ -2,8 +2,8 @@
 sim_to_real.k: fine-tuned from the sim-pretrained model (sim_real) or from scratch (real_only) with
 the same budget, or the shipped weights fine-tuned at their frame size (shipped_real)."""
 
+from threedcal.evaluate.sim2real import train_fold_ks
 from threedcal.logs import stage_log
-from threedcal.model.sim2real import train_fold_ks
 
 with stage_log(snakemake.log[0]):
     train_fold_ks(

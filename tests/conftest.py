@@ -285,7 +285,7 @@ def _profile_variant(sensor: str, name: str, change) -> str:
 
 def bench_scene(sensor, plan, seed, bench=None, dataset=None):
     """A validated scene on the simulated bench (hidden touch height up to ±0.1 mm by default)."""
-    from threedcal.config import validate_config
+    from threedcal.study.config import validate_config
 
     scene = {"sensor": sensor, "printer": "ender3", "plan": plan}
     scene["bench"] = bench or {"touch_offset_mm": 0.1}
@@ -296,7 +296,7 @@ def bench_scene(sensor, plan, seed, bench=None, dataset=None):
 
 def collect_on_bench(folder, sensor, plan, seed, bench=None, dataset=None):
     """Collect a scene on the simulated bench into folder/raw.zarr (its truth beside it)."""
-    from threedcal.collect.session import collect_scene
+    from threedcal.study.session import collect_scene
 
     scene = bench_scene(sensor, plan, seed, bench, dataset)
     collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)

@@ -6,15 +6,10 @@ import numpy as np
 import pytest
 import yaml
 
-from threedcal.config import (
-    ablation_replicates,
-    load_config,
-    model_keys,
-    training_fractions,
-    validate_config,
-)
+from threedcal.dataset.fractions import ablation_replicates, model_keys, training_fractions
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
+from threedcal.study.config import load_config, validate_config
 
 REPO = Path(__file__).resolve().parents[1]
 SIM_SCENE = {"sensor": "digit", "printer": "ender3"}
@@ -331,7 +326,7 @@ def test_a_magnetic_sensor_names_its_board_as_reader_not_camera():
 def test_cv_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     import dataclasses
 
-    from threedcal.model.folds import CVSettings
+    from threedcal.dataset.folds import CVSettings
     from threedcal.schema import load_schema
 
     fields = dataclasses.fields(CVSettings)
@@ -390,9 +385,9 @@ def test_test_objects_are_checked_with_the_config_not_after_the_collection(tmp_p
     the pressing stage. Names and files are checked by validate_config, what an STL holds by
     check_object_files (the workflow and `config check` call both)."""
     from threedcal.cli import main
-    from threedcal.config import BUILTIN_OBJECTS
     from threedcal.evaluate.mesh import Mesh, write_stl
     from threedcal.evaluate.objects import PARAMS, check_object_files, make_object
+    from threedcal.object_refs import BUILTIN_OBJECTS
 
     assert set(BUILTIN_OBJECTS) == set(PARAMS)  # one list of the built-ins the stage can build
     mine = write_stl(make_object("pill"), tmp_path / "mine.STL")
@@ -456,7 +451,7 @@ def test_two_test_objects_of_one_name_are_refused_naming_both_keys(tmp_path):
 
 
 def test_scenes_that_share_a_yaml_alias_are_separate_after_validation(tmp_path):
-    from threedcal.config import load_config
+    from threedcal.study.config import load_config
 
     path = tmp_path / "c.yaml"
     path.write_text(
@@ -470,8 +465,8 @@ def test_scenes_that_share_a_yaml_alias_are_separate_after_validation(tmp_path):
 
 
 def test_config_check_refuses_pretrained_weights_for_a_sensor_without_them(tmp_path):
-    from threedcal.config import validate_config
     from threedcal.errors import ConfigError
+    from threedcal.study.config import validate_config
 
     scene = {"sensor": "digit", "printer": "ender3", "model": {"init": "pretrained"}}
     validate_config({"scenes": {"s": scene}})  # the workflow finds them when it plans a training

@@ -96,7 +96,7 @@ def test_config_yaml_is_short_with_one_line_comments():
 
 
 def test_the_outputs_page_lists_every_file_the_workflow_names():
-    from threedcal import scenes
+    from threedcal.study import paths as scenes
 
     page = (REPO / "docs/reference/outputs.md").read_text()
     normal = re.sub(r"\{[^}]*\}", "{}", page)

@@ -2,8 +2,13 @@
 imports another's private names: the spine is schema → profiles → config → stages."""
 
 import ast
+import re
+import subprocess
+import sys
 
 from threedcal.provenance import PACKAGE_ROOT, imported_modules, module_file
+
+SNAKEFILE = PACKAGE_ROOT.parents[1] / "Snakefile"
 
 
 def _modules() -> dict[str, object]:
@@ -78,8 +83,8 @@ def test_library_import_graph_has_no_cycle():
 
 def test_spine_order():
     graph = _graph()
-    assert "threedcal.config" not in graph["threedcal.schema"]
-    assert "threedcal.config" not in graph["threedcal.profiles"]
+    assert "threedcal.study.config" not in graph["threedcal.schema"]
+    assert "threedcal.study.config" not in graph["threedcal.profiles"]
     assert "threedcal.schema" in graph["threedcal.profiles"]
 
 
@@ -95,3 +100,30 @@ def test_no_module_imports_another_modules_private_names():
                     if private and node.module != name:
                         offenders.append(f"{name}: from {node.module} import {alias.name}")
     assert offenders == []
+
+
+# The study layer and what sits on it; the domain packages below never import them.
+UPPER = ("threedcal.study", "threedcal.quick", "threedcal.report", "threedcal.page", "threedcal.cli")
+
+
+def test_domain_packages_import_nothing_from_the_study_layer():
+    upward = [
+        f"{name} -> {target}"
+        for name, targets in _graph().items()
+        if not name.startswith(UPPER) and name != "threedcal.__main__"
+        for target in targets
+        if target.startswith(UPPER)
+    ]
+    assert upward == []
+
+
+def test_the_snakefile_parse_loads_no_model_or_solver_libraries():
+    """Every Snakemake run (and every cluster job) parses the Snakefile: what it imports from
+    threedcal stays free of torch, scipy, trimesh and OpenCV."""
+    modules = re.findall(r"^from (threedcal[\w.]*) import", SNAKEFILE.read_text(), re.MULTILINE)
+    assert len(modules) > 5
+    code = f"import sys\nfor m in {modules!r}: __import__(m)\n" + (
+        "print(sorted(k for k in ('torch', 'scipy', 'trimesh', 'cv2') if k in sys.modules))"
+    )
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "[]"

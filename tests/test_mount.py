@@ -6,12 +6,12 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from threedcal.collect.session import prepare, simulated_truth
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.mount import Mount, read_mount_file, scene_sensor, write_mount_file
 from threedcal.profiles import load_profile
-from threedcal.scenes import stage_config
+from threedcal.study.config import validate_config
+from threedcal.study.paths import stage_config
+from threedcal.study.session import prepare, simulated_truth
 
 
 def scene_with(mount, **extra) -> dict:

@@ -18,8 +18,7 @@ def _copy_package(tmp_path):
 
 def test_closure_follows_imports_inside_functions_and_through_packages():
     collect = _names(REPO / "scripts/collect.py")
-    # imported only inside collect.session's functions: a hand-kept list missed both
-    assert {"reskin/figures.py", "scenes.py", "collect/session.py"} <= collect
+    assert {"reskin/figures.py", "study/paths.py", "study/session.py"} <= collect
     assert {"__init__.py", "collect/__init__.py"} <= collect  # parents run on import
     summary = _names(REPO / "scripts/summary.py")
     assert any(n.startswith("dataset/") for n in summary)

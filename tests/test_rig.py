@@ -2,10 +2,10 @@
 
 import pytest
 
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.rig import BenchClock, Rig, RigError, WallClock, check_devices, open_rig
+from threedcal.study.config import validate_config
 
 
 def test_a_real_rig_asks_through_its_callback_and_refuses_without_one():

@@ -15,9 +15,9 @@ from conftest import (
     write_config,
 )
 
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
-from threedcal.scenes import realism_sets, scene_targets, study_targets
+from threedcal.study.config import validate_config
+from threedcal.study.paths import realism_sets, scene_targets, study_targets
 
 
 def test_dry_run_schedules_exactly_each_scenes_own_targets(tiny_study_dry_run):

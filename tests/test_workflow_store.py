@@ -18,9 +18,9 @@ import yaml
 import zarr
 from conftest import assert_same_array, snakemake, snakemake_command, snapshot
 
-from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
-from threedcal.config import validate_config
+from threedcal.study.config import validate_config
+from threedcal.study.session import collect_scene
 
 SUMMARY = "results/t/collect/summary.json"
 STORE = "results/t/raw.zarr"

@@ -189,7 +189,7 @@ def _closure(script: Path, root: Path) -> tuple[Path, ...]:
                 continue
             path, imports = _module_imports(name, root)
             if path is None:
-                continue  # an attribute (`from threedcal.config import load_yaml`), not a module
+                continue  # an attribute (`from threedcal.study.config import load_yaml`), not a module
             seen[name] = path
             todo.extend(imports - set(seen))
     return tuple(sorted(set(seen.values())))

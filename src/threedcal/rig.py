@@ -1,6 +1,6 @@
 """The rig: a printer and a tactile sensor, simulated or real, opened and closed together.
 
-Collection (threedcal.collect.session), the test objects' presses (threedcal.evaluate.object_presses)
+Collection (threedcal.study.session), the test objects' presses (threedcal.evaluate.object_presses)
 and `threedcal live` (its camera alone) open what they drive here. A scene whose `port` is `sim`
 gets the simulated bench: a fake Marlin behind a real serial path, and the gel camera or the ReSkin
 board coupled to its head. Any other port gets the Marlin printer there and the sensor's camera
@@ -20,6 +20,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from threedcal.errors import ConfigError, ThreedcalError
+from threedcal.hardware.camera import OpenCVCamera
+from threedcal.hardware.printer import MarlinHost
+from threedcal.profiles import load_profile
 
 # Asks a person to do what the message says and returns once they have (e.g. pressed Enter).
 Ask = Callable[[str], None]
@@ -116,15 +119,11 @@ def bench_sensor(scene: Mapping, sensor: Mapping) -> dict:
     """The sensor as the simulated bench seats it: in the base its profile describes (the
     profile's `mount`, give or take the bench's hidden seating). A scene's own `mount`
     (threedcal.mount) is what its user measured of the rig, not where the bench put the sensor."""
-    from threedcal.profiles import load_profile
-
     return {**sensor, "mount": load_profile("sensor", scene["sensor"])["mount"]}
 
 
 def open_camera(sensor: Mapping, device: int | str | None):
     """The sensor's camera (not yet opened: use it as a context manager)."""
-    from threedcal.hardware.camera import OpenCVCamera
-
     return OpenCVCamera(sensor, None if device is None else camera_device(device))
 
 
@@ -138,7 +137,6 @@ def open_rig(
         with _bench_rig(scene, sensor, printer) as rig:
             yield rig
         return
-    from threedcal.hardware.printer import MarlinHost
 
     if is_magnetic(sensor):
         from threedcal.hardware.reskin import ReSkinReader
@@ -155,8 +153,6 @@ def open_rig(
 def _bench_rig(scene: Mapping, sensor: Mapping, printer: Mapping) -> Iterator[Rig]:
     """The fake printer and the simulated sensor, coupled through the head pose: the gel camera,
     or the ReSkin board behind its own serial URL."""
-    from threedcal.hardware.printer import MarlinHost
-
     if is_magnetic(sensor):
         from threedcal.sim.reskin import ReSkinBench as Bench
     else:

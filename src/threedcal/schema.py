@@ -1,6 +1,6 @@
 """The bottom of the configuration spine: YAML reading, JSON-schema validation and defaults.
 
-Configs (`threedcal.config`) and profiles (`threedcal.profiles`) are both read through here, so
+Configs (`threedcal.study.config`) and profiles (`threedcal.profiles`) are both read through here, so
 neither imports the other for these basics and every module below them can read a validated file.
 """
 

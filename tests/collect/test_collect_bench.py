@@ -21,11 +21,11 @@ from conftest import (
     snapshot,
 )
 
-from threedcal.collect.session import collect_scene
 from threedcal.collect.store import open_raw
-from threedcal.config import validate_config
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
+from threedcal.study.config import validate_config
+from threedcal.study.session import collect_scene
 
 LABELS = (
     "point",

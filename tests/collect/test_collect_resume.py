@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from test_collect_bench import LABELS as BENCH_LABELS
 
-from threedcal.collect.session import collect_scene
 from threedcal.collect.store import RawStore, SettingsMismatch, StoreError, open_raw
-from threedcal.config import validate_config
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
+from threedcal.study.config import validate_config
+from threedcal.study.session import collect_scene
 
 LABELS = (*BENCH_LABELS, "t_s", "hardware_s")  # a replayed resume keeps the timeline too
 
@@ -85,7 +85,7 @@ def test_resume_is_byte_identical_and_the_summary_counts_every_run(
 
 
 def _plan(config):
-    from threedcal.collect.session import prepare
+    from threedcal.study.session import prepare
 
     return prepare(config).plan
 

@@ -20,9 +20,9 @@ from threedcal.collect.plan import (
     validate_plan,
     whole_contacts,
 )
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
+from threedcal.study.config import validate_config
 
 SENSOR = load_profile("sensor", "digit_fots")
 

@@ -3,11 +3,11 @@
 import pandas as pd
 import pytest
 
-from threedcal.config import validate_config
 from threedcal.depth.scenarios import SCENARIOS, make_scene
 from threedcal.depth.study import COLUMNS, pareto_front, run_study, write_study
 from threedcal.errors import ConfigError
-from threedcal.scenes import INTEGRATION_STUDY_TARGETS, study_targets
+from threedcal.study.config import validate_config
+from threedcal.study.paths import INTEGRATION_STUDY_TARGETS, study_targets
 
 
 def test_study_table_figure_and_reading(tmp_path):

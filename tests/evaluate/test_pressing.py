@@ -9,7 +9,6 @@ import pytest
 from conftest import _profile_variant, lens_free
 from scipy import ndimage
 
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import surface_height
 from threedcal.evaluate.mesh import write_stl
@@ -37,6 +36,7 @@ from threedcal.lens import RadialLens
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
+from threedcal.study.config import validate_config
 
 PRESSING = {"presses": 3, "tuning_presses": 2, "depth_mm": 1.0, "depth_jitter": 0.1}
 PRESSING["offset_fraction"] = 0.12

@@ -6,7 +6,6 @@ import pytest
 from test_model import TINY, synthetic_set
 
 from threedcal.cli import main
-from threedcal.config import load_config
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.train import TrainSettings, train
@@ -18,6 +17,7 @@ from threedcal.pretrained import (
     shipped_weights,
 )
 from threedcal.profiles import load_profile
+from threedcal.study.config import load_config
 
 
 def fake_shipped(directory, sensor="mini", shape=(40, 48)):

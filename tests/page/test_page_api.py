@@ -13,11 +13,11 @@ import yaml
 from simulated_rig import QUICK_PLAN, call, wait_idle, write_scene
 
 from threedcal.collect.plan import clearance_z
-from threedcal.config import load_config
 from threedcal.errors import ConfigError
 from threedcal.page.control import RigControl
 from threedcal.page.server import check_host, serving
 from threedcal.profiles import load_profile
+from threedcal.study.config import load_config
 
 
 @pytest.fixture

@@ -9,7 +9,6 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.quick.arms import (
     ArmModel,
@@ -23,7 +22,8 @@ from threedcal.quick.arms import (
     validation_rows,
     verdicts,
 )
-from threedcal.scenes import arms_scenes, scene_targets
+from threedcal.study.config import validate_config
+from threedcal.study.paths import arms_scenes, scene_targets
 
 
 def test_one_replicate_mean_interval_is_the_t_interval_over_blocks():
@@ -363,9 +363,9 @@ def with_runs(*runs: dict) -> dict:
 def test_a_run_presses_its_own_design_and_trains_with_its_own_seed(tmp_path):
     """Run 2 draws other quick presses after the same touch search and registration lattice, and
     fine-tunes with the seed's replicate 1; run 1 is the calibration as it always was."""
-    from threedcal.collect.session import prepare
     from threedcal.dataset.splits import replicate_seed
     from threedcal.quick.loop import QuickLoop
+    from threedcal.study.session import prepare
 
     scenes = validate_config(with_runs({"quick": {"run": 2}}))["scenes"]
     plans, seeds = [], []

@@ -6,10 +6,10 @@ import pytest
 import torch
 from test_quick_bench import scene
 
-from threedcal.collect.session import prepare
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.quick.arms import run_arm, scratch_arm
 from threedcal.quick.loop import QuickLoop, quick_stage
+from threedcal.study.session import prepare
 
 
 @pytest.mark.long

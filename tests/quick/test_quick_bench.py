@@ -9,11 +9,11 @@ import zarr
 from conftest import snapshot
 
 from threedcal.collect.store import StoreError, open_checked
-from threedcal.config import validate_config
 from threedcal.model.inference import DepthEstimator
 from threedcal.profiles import load_profile
 from threedcal.quick.loop import ROUND_COLUMNS, quick_stage
 from threedcal.sim.bench import draw_truth
+from threedcal.study.config import validate_config
 
 
 def scene(margin: float) -> dict:

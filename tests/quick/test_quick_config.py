@@ -4,10 +4,10 @@ import pytest
 from conftest import write_untrained_model
 
 from threedcal.cli import main
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.quick.loop import quick_stage
-from threedcal.scenes import scene_targets
+from threedcal.study.config import validate_config
+from threedcal.study.paths import scene_targets
 
 
 def quick_scene(**changes) -> dict:

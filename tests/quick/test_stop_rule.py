@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from threedcal.quick.stop_rule import (
+from threedcal.stop_rule import (
     Improvement,
     decide,
     mean_interval,
@@ -100,7 +100,7 @@ def test_infinite_or_missing_errors_are_refused_not_read_as_a_gain():
     import numpy as np
     import pytest
 
-    from threedcal.quick.stop_rule import paired_improvement
+    from threedcal.stop_rule import paired_improvement
 
     good = np.array([1.0, 2.0, 3.0])
     for bad in (np.array([1.0, np.inf, 3.0]), np.array([1.0, np.nan, 3.0])):

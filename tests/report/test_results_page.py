@@ -12,9 +12,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from threedcal.config import load_config, validate_config
 from threedcal.evaluate.ablation import TEST_COLUMNS
-from threedcal.model.sim2real import ERROR_COLUMNS
+from threedcal.evaluate.sim2real_settings import ERROR_COLUMNS
 from threedcal.report.results_page import (
     SIM_COLUMN,
     SIM_READINGS,
@@ -25,7 +24,8 @@ from threedcal.report.results_page import (
     write_results_page,
 )
 from threedcal.report.stage_times import study_span
-from threedcal.scenes import (
+from threedcal.study.config import load_config, validate_config
+from threedcal.study.paths import (
     has_ablation,
     has_objects,
     has_sim2real,

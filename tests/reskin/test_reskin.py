@@ -11,7 +11,6 @@ import serial
 
 from threedcal.collect.plan import cross_plan, plan_from_config, validate_plan
 from threedcal.collect.store import PointRecord, RawStore, open_raw, readings_layout
-from threedcal.config import validate_config
 from threedcal.errors import ConfigError
 from threedcal.hardware.printer import MarlinHost
 from threedcal.hardware.reskin import (
@@ -27,13 +26,14 @@ from threedcal.profiles import load_profile
 from threedcal.reskin.data import ReSkinSet, split_by_coordinate
 from threedcal.reskin.evaluate import localisation_errors
 from threedcal.reskin.model import ReSkinSettings, predict, read_reskin_model, train_mlp
-from threedcal.scenes import scene_targets
 from threedcal.sim.reskin import (
     MagneticSkin,
     ReSkinBench,
     dipole_field_ut,
     surface_deflection,
 )
+from threedcal.study.config import validate_config
+from threedcal.study.paths import scene_targets
 
 PROFILE = load_profile("sensor", "reskin")
 PRINTER = load_profile("printer", "ender3")
@@ -398,7 +398,7 @@ def test_cli_reads_the_simulated_board(capsys):
 
 
 def test_real_printer_with_the_simulated_board_is_refused_before_anything_opens(tmp_path):
-    from threedcal.collect.session import collect_scene
+    from threedcal.study.session import collect_scene
 
     real = {"scenes": {"rs": {"sensor": "reskin", "printer": "ender3", "port": "/dev/ttyUSB9"}}}
     with pytest.raises(ConfigError, match="set the scene's `reader` to the ReSkin board"):
@@ -417,8 +417,8 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
     # The hardware path (serial printer + ReSkin reader), with both serial ends simulated.
     from conftest import _profile_variant
 
-    from threedcal.collect.session import collect_scene
     from threedcal.collect.store import open_raw
+    from threedcal.study.session import collect_scene
 
     # A real rig waits probing.settle_s (0.3 s) at every press, on the wall clock; the simulated
     # printer's time is virtual (instant moves) and the board reads on it, so the wait only took

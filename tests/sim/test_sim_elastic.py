@@ -319,8 +319,8 @@ def test_profiles_keep_the_geometric_gel_and_carry_the_elastic_constants():
 def test_a_scenes_bench_picks_the_simulated_gels_mechanics():
     """`bench.gel_mechanics` overrides the profile's for the bench alone: the frames change, the
     profile the rest of the study reads does not."""
-    from threedcal.config import validate_config
     from threedcal.sim.bench import SimBench
+    from threedcal.study.config import validate_config
 
     sensor = load_profile("sensor", "gelsight_mini")
     frames = {}

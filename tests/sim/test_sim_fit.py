@@ -12,7 +12,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.fit import fit_optics, realism_report, split_halves
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator, background_field
-from threedcal.sim.realism import (
+from threedcal.realism.check import (
     BallLabel,
     halo_radii,
     image_groups,

@@ -25,8 +25,8 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     import json
 
-    from threedcal.collect.session import collect_scene, estimate_hardware_s, prepare
-    from threedcal.config import load_config, scene_config
+    from threedcal.study.config import load_config, scene_config
+    from threedcal.study.session import collect_scene, estimate_hardware_s, prepare
 
     config = load_config(args.config)
     scene = scene_config(config, args.scene)

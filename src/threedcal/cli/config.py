@@ -8,9 +8,9 @@ from threedcal.cli import Command
 
 
 def _check(args: argparse.Namespace) -> int:
-    from threedcal.config import load_config
     from threedcal.evaluate.objects import check_object_files
-    from threedcal.scenes import scene_targets
+    from threedcal.study.config import load_config
+    from threedcal.study.paths import scene_targets
 
     config = load_config(args.config, check_files=True)
     check_object_files(config, source=args.config)

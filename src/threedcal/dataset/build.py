@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -10,11 +11,35 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from threedcal.collect.plan import (
+    WHOLE_CONTACT_MARGIN_PX,
+    dome_sag_at_px,
+    dome_sag_mm,
+    plan_phases,
+    touch_search_range,
+)
+from threedcal.collect.store import open_checked
+from threedcal.dataset.dome_contacts import DomedContacts
+from threedcal.dataset.fractions import ablation_replicates, training_fractions
 from threedcal.dataset.importers import load_imported
-from threedcal.dataset.labels import check_max_slope
+from threedcal.dataset.labels import check_max_slope, contact_radius_mm
+from threedcal.dataset.refine import refine_labels
+from threedcal.dataset.registration import register_camera
+from threedcal.dataset.splits import in_field_of_view, min_p_column, split_points
+from threedcal.dataset.touch import (
+    TOUCH_FIT_SPAN_MM,
+    estimate_touch,
+    measure_touch_search,
+    planned_touch_search,
+)
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 from threedcal.errors import ConfigError
 from threedcal.lens import RadialLens, profile_focal_px, rectify_if
+from threedcal.mount import scene_sensor
+from threedcal.plotting import pyplot
+from threedcal.profiles import load_profile, with_gel_mechanics
+from threedcal.sim.bench import BenchTruth
+from threedcal.sim.elastic import GelMaterial
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -31,7 +56,6 @@ def build_imported(
     scene: Mapping, trainset_dir: str | Path, splits_path: str | Path
 ) -> TrainingSet:
     data = load_imported(scene["import"]["format"], scene["import"]["path"])
-    from threedcal.config import ablation_replicates, training_fractions
 
     trainset = from_imported(
         data,
@@ -41,12 +65,8 @@ def build_imported(
     )
     trainset.max_slope_deg = check_max_slope(scene["dataset"]["max_slope_deg"])
     if scene.get("sensor"):
-        from threedcal.profiles import load_profile
-
         trainset.meta["sensor"] = load_profile("sensor", scene["sensor"]).get("name")
     if scene["dataset"].get("refine_labels"):
-        from threedcal.dataset.refine import refine_labels
-
         trainset = refine_labels(trainset)
     trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
     trainset.save(trainset_dir)
@@ -59,8 +79,6 @@ def build_imported(
 def _registration_figure(
     trainset: TrainingSet, samples: list[int], path: str | Path, title: str
 ) -> None:
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
 
     fig, axes = plt.subplots(1, len(samples), figsize=(2.4 * len(samples), 3.4), dpi=110)
@@ -116,9 +134,6 @@ def contact_material(scene: Mapping, sensor: Mapping):
 
     A real gel is elastic. A simulated bench renders the gel its `bench.gel_mechanics` (else the
     profile's `gel.mechanics`) names, and the contacts the registration sees are that gel's."""
-    from threedcal.profiles import with_gel_mechanics
-    from threedcal.sim.elastic import GelMaterial
-
     if scene.get("port") == "sim":
         gel = with_gel_mechanics(sensor, (scene.get("bench") or {}).get("gel_mechanics"))["gel"]
         if gel.get("mechanics", "geometric") != "elastic":
@@ -149,10 +164,6 @@ def register_store(
     many plan rows, captured so far. `prior`: this store registered earlier (a quick calibration's
     last round); its fit is reused when it located the same rows, whose frames a store never
     changes, rather than located and fitted again (most of a round's labelling time)."""
-    from threedcal.collect.plan import WHOLE_CONTACT_MARGIN_PX, dome_sag_at_px, plan_phases
-    from threedcal.collect.store import open_checked
-    from threedcal.mount import scene_sensor
-
     sensor = scene_sensor(scene)
     raw = open_checked(store_path, expect_digest, rows=rows)
     height, width = raw["frames"].shape[1:3]
@@ -195,10 +206,6 @@ def register_store(
 
 def _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress):
     """register_camera on the contacts of plan rows `rows` (their mean frames)."""
-    from threedcal.collect.plan import dome_sag_mm
-    from threedcal.dataset.dome_contacts import DomedContacts
-    from threedcal.dataset.registration import register_camera
-
     height, width = raw["frames"].shape[1:3]
     dome = None
     if sensor["gel"].get("dome"):
@@ -247,8 +254,6 @@ def build_collected(
     whole and checked first (complete, every point captured, every chunk present and readable;
     `expect_digest`: the frame settings collect/summary.json recorded).
     """
-    import json
-
     radius_mm = float(scene["probe"]["radius_mm"])
     store = register_store(scene, store_path, progress, expect_digest)
     method = "search" if len(store.rows("touch")) else "rim"
@@ -319,8 +324,6 @@ class _Labels:
 
 def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Labels:
     """Labels for every grid frame whose probe centre the registration puts inside the image."""
-    from threedcal.dataset.splits import in_field_of_view
-
     raw, centres = store.raw, store.centres
     height, width = raw["frames"].shape[1:3]
     radius_mm = float(scene["probe"]["radius_mm"])
@@ -339,8 +342,6 @@ def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Lab
         # the plan's depth, as the user wrote it (its dome compensation undone: a 1 mm press near a
         # domed gel's edge is commanded deeper, not pressed deeper); measured sags would split
         # presses that sit at the limit
-        from threedcal.collect.plan import dome_sag_mm
-        from threedcal.mount import scene_sensor
 
         sensor = scene_sensor(scene)
         as_written = raw["depth_mm"].values - dome_sag_mm(
@@ -375,10 +376,6 @@ def _collected_trainset(
     """The kept frames, rectified through the fitted lens (one mm is one px_per_mm everywhere, as
     the labels are), with their labels and splits (`every_press_trains`: no validation split,
     every press in every subset)."""
-    from threedcal.config import ablation_replicates, training_fractions
-    from threedcal.dataset.labels import contact_radius_mm
-    from threedcal.dataset.splits import min_p_column, split_points
-
     radius_mm = float(scene["probe"]["radius_mm"])
     raw, sensor, fit = store.raw, store.sensor, store.registration.fit
     keep, coordinate_id, depth = labels.keep, labels.coordinate_id, labels.depth
@@ -470,9 +467,6 @@ def _registration_record(
 
 def _bench_errors(store: RegisteredStore, labels: _Labels, truth_path, offset: float) -> dict:
     """The registration's error against the simulated bench's hidden truth (reported, never used)."""
-    import json
-
-    from threedcal.sim.bench import BenchTruth
 
     truth = json.loads(Path(truth_path).read_text())
     if "affine_px_per_mm" not in truth:
@@ -495,8 +489,6 @@ def touch_height(
 ) -> dict:
     """registration.json's touch fields, by `method`: "search" (the plan's first-contact search,
     the default) or "rim" (the grid's contact radii; d < R only, see docs/explanation/registration.md)."""
-    from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, estimate_touch, measure_touch_search
-
     fit = store.registration.fit
     if method == "search":
         touch = store.rows("touch")
@@ -553,9 +545,6 @@ def touch_height(
 def _replayed_bisection(store: RegisteredStore, touch, xy, radius_mm: float, search):
     """A bisecting search's answer from its stored presses, judged as the collection judged them
     (camera frames, the profile's scale) at the depths below the gel the registration gives."""
-    from threedcal.collect.plan import touch_search_range
-    from threedcal.dataset.touch import planned_touch_search
-
     low, high = touch_search_range(store.sensor, search)
     replay = planned_touch_search(
         xy, np.full(len(touch), high), low, high, float(store.sensor["px_per_mm"]), radius_mm

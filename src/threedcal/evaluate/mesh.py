@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from threedcal.config import MESH_SUFFIXES
+from threedcal.object_refs import MESH_SUFFIXES
 from threedcal.errors import ConfigError
 
 
@@ -56,7 +56,7 @@ class Mesh:
 
     def trimesh(self):
         """The same mesh as a trimesh.Trimesh (vertices and faces as they are: not merged)."""
-        import trimesh
+        import trimesh  # local: the Snakefile's parse imports this module; trimesh loads with a mesh
 
         return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
 
@@ -151,7 +151,9 @@ def height_field_solid(
     Top and bottom share one triangulation; its boundary edges are extruded into side walls, so
     the result is watertight whatever the point set.
     """
-    from scipy.spatial import Delaunay
+    from scipy.spatial import (
+        Delaunay,
+    )  # local: kept out of the Snakefile's parse (check_object_files)
 
     points_xy = np.asarray(points_xy, dtype=np.float64)
     top_z = np.asarray(top_z, dtype=np.float64)
@@ -204,7 +206,7 @@ def read_mesh(path: str | Path, name: str | None = None) -> Mesh:
     """A mesh file (`MESH_SUFFIXES`) → Mesh; corners at identical coordinates become one vertex and
     faces that collapse to a line are dropped. A file trimesh cannot read, or a corner that is not
     a finite number, is an error naming the file (and the facet or line)."""
-    import trimesh
+    import trimesh  # local: the Snakefile's parse imports this module; trimesh loads with a mesh
 
     path = Path(path)
     if not path.is_file():

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from threedcal.config import BUILTIN_OBJECTS, object_problem
 from threedcal.errors import ConfigError
 from threedcal.evaluate.mesh import (
     Mesh,
@@ -24,6 +23,7 @@ from threedcal.evaluate.mesh import (
     rotation_x,
     rotation_y,
 )
+from threedcal.object_refs import BUILTIN_OBJECTS, object_problem
 
 OBJECT_NAMES = BUILTIN_OBJECTS
 

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from threedcal.config import mount_problem
 from threedcal.errors import ConfigError
 from threedcal.evaluate.objects import load_object, object_label
+from threedcal.object_refs import mount_problem
 
 SETS = ("tuning", "reporting")  # settings may be chosen on the first, never on the second
 # The simulated bench's default mount: the object's origin exactly where the ball's tip was.

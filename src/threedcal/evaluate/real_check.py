@@ -35,15 +35,15 @@ from threedcal.dataset.refine import refine_labels
 from threedcal.dataset.reframe import reframe
 from threedcal.dataset.trainset import TrainingSet, from_imported, samples_table
 from threedcal.errors import ConfigError
+from threedcal.evaluate.sim2real import shipped_settings
 from threedcal.images import read_rgb
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.contact_guard import contact_figures
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.sim2real import shipped_settings
 from threedcal.model.train import train
 from threedcal.pretrained import provenance, shipped_weights
+from threedcal.realism.check import load_ball_dataset
 from threedcal.sim.fit import split_halves
-from threedcal.sim.realism import load_ball_dataset
 
 SPLIT_SEED = 0  # the realism check's split: the DIGIT optics were fitted on half 0
 FIT, CHECK = "fit", "check"
@@ -77,7 +77,7 @@ def load_real_set(folder: str | Path, seed: int = SPLIT_SEED) -> tuple:
 
 def _located_set(folder: Path, data):
     """An unlabelled folder's frames, each contact where the dataset stage's locator finds a whole
-    one (column `located`); elsewhere the realism check's (threedcal.sim.realism.locate_ball),
+    one (column `located`); elsewhere the realism check's (threedcal.realism.check.locate_ball),
     for its radius only: such a frame's centroid is not scored."""
 
     blank = read_rgb(folder / "background.png")

@@ -10,23 +10,22 @@ figures show the mean over replicates and their spread (min to max).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.spatial import cKDTree
+from scipy.stats import gaussian_kde
 
 from threedcal.dataset.splits import subset_size
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
 from threedcal.evaluate.ablation import spatial_blocks
-from threedcal.evaluate.ablation_figure import tests_figure
 from threedcal.evaluate.ablation_reading import read_validation_errors
 from threedcal.evaluate.learning_curve import LearningCurve, curve_table
 from threedcal.evaluate.learning_curve_figure import learning_curve_figure
-from threedcal.evaluate.power import power_figure, power_table
 from threedcal.model.inference import DepthEstimator
 from threedcal.plotting import pyplot
 
@@ -66,8 +65,6 @@ def scoring_disc_mm(trainset: TrainingSet, split: str = "val") -> float:
 
 def probe_spacing_mm(splits: pd.DataFrame) -> float:
     """The probe grid's spacing: the median distance from each coordinate to its nearest one."""
-    from scipy.spatial import cKDTree
-
     xy = splits[["x_mm", "y_mm"]].to_numpy(float)
     if len(xy) < 2:
         raise ConfigError("the splits hold fewer than 2 probe coordinates")
@@ -200,8 +197,6 @@ def mse_map_figure(table: pd.DataFrame, splits: pd.DataFrame, path: str | Path, 
 def kde_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
     """Fig. 4B: Gaussian KDEs of each P's validation MSE distribution (mean over replicates, band
     from the lowest to the highest), the replicates' means dashed with their range shaded."""
-    from scipy.stats import gaussian_kde
-
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
     fractions = sorted(table["P"].unique())
@@ -267,8 +262,6 @@ def cost_table(
 ) -> pd.DataFrame:
     """Per P: mean validation MSE (mean over replicates, with their lowest and highest), probe
     points, estimated probing hours and measured training minutes per model (mean over replicates)."""
-    from threedcal.dataset.splits import subset_size
-
     spread = replicate_summary(table).set_index("P")
     rows = []
     for p in sorted(table["P"].unique()):
@@ -378,69 +371,3 @@ def write_reading(reading: AblationReading, out: Mapping[str, str | Path], title
     learning_curve_figure(reading.curve, out["learning_curve_figure"], title)
 
 
-def twice_stage(
-    scene_name: str,
-    models: Mapping[tuple[int, int], str | Path],
-    trainset_dir: str | Path,
-    splits_path: str | Path,
-    settings: Mapping,
-    seed: int,
-    out: Mapping[str, str | Path],
-) -> str:
-    """The `stats_twice` rule: the ablation read again on the models trained on to twice the
-    budget (stats/twice/)."""
-    reading = read_ablation(
-        models, TrainingSet.load(trainset_dir), pd.read_csv(splits_path), settings, seed
-    )
-    write_reading(reading, out, f"{scene_name}, twice the budget: error against points probed")
-    return reading.recommendation
-
-
-def stats_stage(
-    scene_name: str,
-    models: Mapping[tuple[int, int], str | Path],
-    losses: Mapping[tuple[int, int], str | Path],
-    trainset_dir: str | Path,
-    splits_path: str | Path,
-    summary_path: str | Path | None,
-    settings: Mapping,
-    seed: int,
-    out: Mapping[str, str | Path],
-) -> str:
-    """The `stats` rule: validation_mse.csv, tests.csv (+ figure), the recommendation, the learning
-    curve (+ figure), the power table (+ figure), costs and the Fig. 3B/4 figures. `settings` is
-    the config's `stats` section."""
-    trainset = TrainingSet.load(trainset_dir)
-    splits = pd.read_csv(splits_path)
-    reading = read_ablation(models, trainset, splits, settings, seed)
-    write_reading(reading, out, f"{scene_name}: error against points probed")
-    table, tests = reading.table, reading.tests
-    tests_figure(
-        tests,
-        out["tests_figure"],
-        f"{scene_name}: each P against P = 80 %",
-        margin=settings["equivalence_margin"],
-    )
-    power = power_table(
-        table,
-        reading.block_mm,
-        probe_spacing_mm(splits),
-        margin=settings["equivalence_margin"],
-        alpha=settings["alpha"],
-        equivalence_alpha=settings["equivalence_alpha"],
-        simulations=settings["power_simulations"],
-        seed=seed,
-    )
-    power.to_csv(out["power"], index=False, float_format="%.4g")
-    power_figure(power, out["power_figure"], f"{scene_name}: power of the design")
-    loss_tables = {key: pd.read_csv(path) for key, path in losses.items()}
-    hardware_s = None
-    if summary_path is not None and Path(summary_path).is_file():
-        hardware_s = json.loads(Path(summary_path).read_text()).get("estimated_hardware_s")
-    costs = cost_table(table, loss_tables, len(splits), hardware_s)
-    costs.to_csv(out["costs"], index=False)
-    loss_curves_figure(loss_tables, out["loss_figure"], f"{scene_name}: loss against epoch")
-    mse_map_figure(table, splits, out["map_figure"], f"{scene_name}: validation MSE over the gel")
-    kde_figure(table, out["kde_figure"], f"{scene_name}: validation MSE distributions")
-    cost_figure(costs, out["cost_figure"], f"{scene_name}: error against cost")
-    return reading.recommendation

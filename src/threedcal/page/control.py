@@ -2,7 +2,7 @@
 
 `RigControl` opens the scene's rig (threedcal.rig: the simulated bench or the printer and camera)
 and does what the page asks: home, jog, take the blank, find the gel (threedcal.page.gel), save
-the mount (threedcal.mount), collect (threedcal.collect.session), stop. The printer and camera
+the mount (threedcal.mount), collect (threedcal.study.session), stop. The printer and camera
 are used under one lock; the long jobs (finding the gel, a collection) run in a thread of their
 own and hold it throughout, so a jog meanwhile is refused, naming who owns the printer. The
 status is a snapshot the jobs update: reading it takes no lock and touches no device.
@@ -29,7 +29,6 @@ from typing import Any
 import numpy as np
 
 from threedcal.collect.run import MotionSettings, make_safe
-from threedcal.config import load_config, scene_config
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.mount import (
     Mount,
@@ -39,7 +38,11 @@ from threedcal.mount import (
     with_mount,
     write_mount_file,
 )
+from threedcal.page.gel import Presser, find_gel
 from threedcal.profiles import load_profile
+from threedcal.rig import open_rig
+from threedcal.study.config import load_config, scene_config
+from threedcal.study.session import collect_scene, prepare
 
 AXES = ("x", "y", "z")
 # The longest single jog the page accepts, mm.
@@ -98,8 +101,6 @@ class RigControl:
         store: str | Path | None = None,
         open_rig_: Callable | None = None,
     ):
-        from threedcal.rig import open_rig
-
         self.config_path = Path(config_path)
         self.name = scene_name
         self.scene = self._load_scene()
@@ -374,8 +375,6 @@ class RigControl:
 
     def find_gel(self, wait: bool = False) -> None:
         """Start finding the gel from where the probe is (over the gel, not touching it)."""
-        from threedcal.page.gel import Presser, find_gel
-
         def work(rig) -> None:
             printer = rig.printer
             if not printer.homed:
@@ -440,8 +439,6 @@ class RigControl:
 
     def collect(self, wait: bool = False) -> None:
         """Start the scene's collection on this rig (the config as it is on disk now)."""
-        from threedcal.collect.session import collect_scene, prepare
-
         scene = self._load_scene()
         if self.found is not None:
             given = scene_mount_values(scene, f"scenes.{self.name}")

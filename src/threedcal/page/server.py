@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from importlib.resources import files
 from pathlib import Path
 
+import cv2
 import numpy as np
 from aiohttp import WSMsgType, web
 
@@ -69,8 +70,6 @@ def is_loopback(host: str) -> bool:
 
 def view_jpeg(frame: np.ndarray | None, blank: np.ndarray | None, probe: tuple | None) -> bytes:
     """The live frame (the probe drawn where the found mount puts it) beside |frame − blank|."""
-    import cv2
-
     if frame is None:
         canvas = np.full((240, 320, 3), 40, np.uint8)
     else:

@@ -42,8 +42,27 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.special import stdtrit
 
+from threedcal.dataset.build import collected_so_far
+from threedcal.dataset.splits import subset_size
+from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
+from threedcal.evaluate.ablation import (
+    contrast,
+    independent_contrast,
+    ratio_interval,
+    spatial_blocks,
+)
+from threedcal.evaluate.object_errors import crossed_mean_interval
+from threedcal.evaluate.object_scores import evaluate_objects
+from threedcal.evaluate.validation import coordinate_mse, scoring_disc_mm
+from threedcal.model.checkpoint import read_checkpoint
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.train import train
+from threedcal.plotting import pyplot
+from threedcal.quick.loop import QuickLoop
+from threedcal.study.session import prepare
 
 LEVEL = 0.95
 # The issue's targets (issue 49): the quick flow against the same unit's full calibration.
@@ -91,8 +110,6 @@ class ArmModel:
 
 
 def _checkpoint_steps(path: str | Path) -> int:
-    from threedcal.model.checkpoint import read_checkpoint
-
     return int(read_checkpoint(path)["training"].get("steps") or 0)
 
 
@@ -131,9 +148,6 @@ def scratch_arm(
     """For every quick round k ≥ 1: fresh weights trained on round k's presses with its cumulative
     step budget, into out_dir/r{k}/. `loop`: a threedcal.quick.loop.QuickLoop over the quick
     scene's finished store (its rounds' plan rows and training settings)."""
-    from threedcal.dataset.build import collected_so_far
-    from threedcal.model.train import train
-
     out_dir = Path(out_dir)
     base = loop.train_settings
     models, registered = [], None
@@ -162,8 +176,6 @@ def scratch_arm(
 def full_arm(paths: Sequence[str | Path], n_points: int, hardware_s: float | None) -> ArmModel:
     """The compared scene's P = 80 models: the presses they trained on (80 % of its probe
     coordinates) and the printer's time for those presses (the stats stage's cost convention)."""
-    from threedcal.dataset.splits import subset_size
-
     points = subset_size(n_points, 80)
     minutes = math.nan if hardware_s is None else hardware_s * points / n_points / 60
     steps = int(np.mean([_checkpoint_steps(p) for p in paths]))
@@ -180,10 +192,6 @@ def validation_scores(models: Sequence[ArmModel], trainset, splits: pd.DataFrame
     frames were rectified with the compared scene's lens, and a blank rectified with another fit
     (the quick flow's own) leaves a shifted shading in every difference, an error no rig makes
     (there, frames and blank pass through one lens; the object presses are scored likewise)."""
-    from threedcal.evaluate.validation import coordinate_mse
-    from threedcal.model.checkpoint import read_checkpoint
-    from threedcal.model.inference import DepthEstimator
-
     coords = splits.set_index("point")[["x_mm", "y_mm"]]
     tables, scored = [], {}  # a run's stopped model is also its round's: scored once
     for model in models:
@@ -219,9 +227,6 @@ def block_matrix(scores: pd.DataFrame, blocks: pd.Series) -> np.ndarray:
 def mean_interval_blocks(matrix: np.ndarray, level: float = LEVEL) -> tuple[float, float, float]:
     """Mean of a (replicates, blocks) table and its `level` t interval, replicates and blocks
     random (threedcal.evaluate.ablation.contrast; one replicate: the blocks alone)."""
-    from scipy.special import stdtrit
-
-    from threedcal.evaluate.ablation import contrast
 
     mean, se, df = (float(v) for v in contrast(matrix, np.zeros_like(matrix), 0.0))
     half = float(stdtrit(df, 0.5 + level / 2)) * se
@@ -233,8 +238,6 @@ def relative_change(
 ) -> tuple[float, float, float]:
     """mean(sample) / mean(reference) − 1 and its Fieller interval, paired on blocks; the arms'
     runs are independent of each other (a quick run is no replicate of a full model)."""
-    from threedcal.evaluate.ablation import ratio_interval
-
     ratio = float(np.mean(sample) / np.mean(reference))
     low, high = ratio_interval(sample, reference, (1 - level) / 2, independent=True)
     return ratio - 1, low - 1, high - 1
@@ -265,8 +268,6 @@ def object_presses(
 ) -> pd.DataFrame:
     """Per reporting press, model and replicate: the printer protocol's errors (presses.csv's
     rows of the objects stage, `P` standing for the model point's position in `models`)."""
-    from threedcal.evaluate.object_scores import evaluate_objects
-
     unique = list(dict.fromkeys(path for model in models for path in model.paths))
     with tempfile.TemporaryDirectory() as scratch:
         evaluate_objects(
@@ -293,8 +294,6 @@ def object_presses(
 def object_rows(models: Sequence[ArmModel], presses: pd.DataFrame) -> list[dict]:
     """One type2_um row per model point and object: the mean Type 2 MAE over presses (and
     replicates) and its difference from `full`'s, paired on the presses."""
-    from threedcal.evaluate.object_errors import crossed_mean_interval
-
     full = next(i for i, m in enumerate(models) if m.arm == "full")
     rows = []
     for name, group in presses.groupby("object", sort=False):
@@ -318,9 +317,6 @@ def difference_interval(own: np.ndarray, reference: np.ndarray, level: float = L
     """mean(own) − mean(reference) of two (runs, presses) tables paired on the presses, the runs
     of each independent (threedcal.evaluate.ablation.independent_contrast), and its t interval.
     Presses with a NaN in either (no Type 2 pixel) are left out."""
-    from scipy.special import stdtrit
-
-    from threedcal.evaluate.ablation import independent_contrast
 
     keep = np.isfinite(own).all(axis=0) & np.isfinite(reference).all(axis=0)
     if keep.sum() < 2:
@@ -467,8 +463,6 @@ def arms_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
     """Error against presses (left) and against printer minutes (right): the quick and scratch
     arms round by round with their 95 % intervals, the full calibration as a band (its presses
     and minutes in the legend); one row for validation MSE, one per test object."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
     panels = [("validation_mse", "")] + [
         ("type2_um", name)
@@ -555,12 +549,6 @@ def arms_stage(
     progress: bool = True,
 ) -> dict:
     """The `quick_arms` rule: scratch/r{k}/, arms.csv, arms.png and arms.json."""
-    from threedcal.collect.session import prepare
-    from threedcal.dataset.trainset import TrainingSet
-    from threedcal.evaluate.ablation import spatial_blocks
-    from threedcal.evaluate.validation import scoring_disc_mm
-    from threedcal.quick.loop import QuickLoop
-
     prepared = prepare(scene, source=f"scenes.{name}")
     loop = QuickLoop(scene, prepared.plan, store, out["scratch"], prepared.sensor, prepared.printer)
     start_min = loop.printer_s(loop.first_row) / 60

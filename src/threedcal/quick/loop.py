@@ -6,7 +6,7 @@ held over the gel. There the rows captured so far are registered and labelled
 (threedcal.dataset.build.collected_so_far); the round's presses are scored by the model as it
 stood before them (prequential: no model has seen them) and by the one before that; the model is
 fine-tuned for a fixed number of steps on every press so far, from the last round's weights
-(round 1: `model.init`'s); and the stop rule (threedcal.quick.stop_rule) says whether to go on.
+(round 1: `model.init`'s); and the stop rule (threedcal.stop_rule) says whether to go on.
 
 The store is a source like any scene's raw.zarr: filled under a staging path, moved into place
 when the rule stops (marked with the rows it holds), never overwritten. A rerun with the store in
@@ -31,8 +31,32 @@ import numpy as np
 import pandas as pd
 
 from threedcal.collect.plan import quick_rounds, rows_per_press
+from threedcal.collect.store import StoreError
+from threedcal.dataset.build import collected_so_far
+from threedcal.dataset.splits import replicate_seed
+from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError, ThreedcalError
-from threedcal.quick.stop_rule import Improvement, decide, mean_interval, rule_problems
+from threedcal.evaluate.validation import coordinate_mse
+from threedcal.model.checkpoint import read_checkpoint
+from threedcal.model.contact_guard import contact_figures, median_press, warn_if_oversized
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.train import TrainSettings, save_initial, train
+from threedcal.stop_rule import (
+    Improvement,
+    decide,
+    mean_interval,
+    paired_improvement,
+    rule_problems,
+)
+from threedcal.study.config import quick_run, quick_scene_problems
+from threedcal.study.session import (
+    collect_on_rig,
+    estimate_hardware_s,
+    finished_store_summary,
+    frame_settings,
+    open_store,
+    prepare,
+)
 
 
 @dataclass(frozen=True)
@@ -92,10 +116,6 @@ class QuickLoop:
         printer: Mapping,
         progress: bool = False,
     ):
-        from threedcal.config import quick_run
-        from threedcal.dataset.splits import replicate_seed
-        from threedcal.model.train import TrainSettings
-
         self.scene, self.plan, self.sensor, self.printer = scene, plan, sensor, printer
         self.store_path, self.work = Path(store_path), Path(work_dir)
         self.progress = progress
@@ -132,9 +152,6 @@ class QuickLoop:
         return self.stopped is None
 
     def _round(self, rows: int) -> None:
-        from threedcal.dataset.build import collected_so_far
-        from threedcal.model.train import save_initial, train
-
         began = time.perf_counter()
         k = len(self.records) + 1
         trainset, self.registration, self._registered = collected_so_far(
@@ -183,10 +200,6 @@ class QuickLoop:
     def _press_mse(self, model_path: Path, trainset, start: int, stop: int) -> np.ndarray:
         """Per press of plan rows start..stop−1 (those labelled), the model's gradient MSE
         (the stats stage's: a disc of 1.5 contact radii about the probe)."""
-        from threedcal.dataset.trainset import TrainingSet
-        from threedcal.evaluate.validation import coordinate_mse
-        from threedcal.model.inference import DepthEstimator
-
         rows = trainset.samples["plan_row"].to_numpy()
         scored = (rows >= start) & (rows < stop)
         if not scored.any():
@@ -211,9 +224,6 @@ class QuickLoop:
     def _contact_area_ratio(self, model_path: Path, trainset, start: int, stop: int, k: int):
         """The median contact area over the probe's disc of the round's presses (plan rows
         start..stop−1) under `model_path`; a median press over the bound is warned of."""
-        from threedcal.model.contact_guard import contact_figures, median_press, warn_if_oversized
-        from threedcal.model.inference import DepthEstimator
-
         rows = trainset.samples["plan_row"].to_numpy()
         scored = np.flatnonzero((rows >= start) & (rows < stop))
         if not scored.size:
@@ -229,8 +239,6 @@ class QuickLoop:
     def printer_s(self, rows: int) -> float:
         """The printer's time for the plan's first `rows` rows, from the motion model (homing,
         moves, waits, settling, capture): what the user waits at the rig, training aside."""
-        from threedcal.collect.session import estimate_hardware_s
-
         return estimate_hardware_s(self.sensor, self.printer, self.plan.iloc[:rows])
 
     def table(self) -> pd.DataFrame:
@@ -274,8 +282,6 @@ class QuickLoop:
 
 
 def _paired(before: np.ndarray, after: np.ndarray, confidence: float) -> Improvement | None:
-    from threedcal.quick.stop_rule import paired_improvement
-
     if len(before) == 0:
         return None
     try:
@@ -299,9 +305,6 @@ def quick_stage(
 ) -> dict[str, Any]:
     """The `quick` rule: collect round by round until the stop rule or the cap (or replay the
     rounds from a store in place), then write model.pt, rounds.csv and stop.json."""
-    from threedcal.collect.session import frame_settings, open_store, prepare
-    from threedcal.collect.store import StoreError
-
     source = f"scenes.{name}"
     if scene["plan"].get("pattern") != "quick":
         raise ConfigError(f"{source}.plan.pattern: the quick stage needs `quick`")
@@ -354,9 +357,6 @@ def quick_stage(
 def _start_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """The config check's refusals of a quick scene, and a checkpoint `model.init` that does not
     fit the network or the frames: found before anything is pressed."""
-    from threedcal.config import quick_scene_problems
-    from threedcal.model.checkpoint import read_checkpoint
-
     problems = quick_scene_problems(scene, sensor)
     model = scene.get("model") or {}
     init = model.get("init")
@@ -386,7 +386,6 @@ def _finished_rows(path: Path, plan: pd.DataFrame, settings: Mapping) -> int:
     """The plan rows a finished quick store holds, after checking its settings are the config's."""
     import zarr
 
-    from threedcal.collect.session import finished_store_summary
 
     finished_store_summary(path, plan, settings)
     attrs = zarr.open_group(str(path), mode="r").attrs
@@ -395,8 +394,6 @@ def _finished_rows(path: Path, plan: pd.DataFrame, settings: Mapping) -> int:
 
 def _collect_rounds(scene, prepared, store, loop: QuickLoop, progress: bool, ask) -> None:
     """One collection run over the rig, stopping at the round the rule ends."""
-    from threedcal.collect.session import collect_on_rig
-
     collect_on_rig(
         scene, prepared, store, progress, ask, boundaries=loop.ends, at_boundary=loop.round_done
     )

@@ -19,6 +19,7 @@ The claim holds when the whole interval lies inside ±MSE_WITHIN.
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -26,7 +27,15 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
+from threedcal.dataset.camera_fit import AffineFit
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.evaluate.ablation import spatial_blocks
+from threedcal.evaluate.validation import scoring_disc_mm
+from threedcal.lens import RadialLens
+from threedcal.plotting import pyplot
+from threedcal.profiles import load_profile
 from threedcal.quick.arms import (
     LEVEL,
     MAX_PRESSES,
@@ -37,6 +46,7 @@ from threedcal.quick.arms import (
     relative_change,
     validation_scores,
 )
+from threedcal.sim.bench import BenchTruth
 
 COLUMNS = (
     "sensor",
@@ -77,10 +87,6 @@ class UnitPair:
 
 def unit_row(pair: UnitPair) -> dict:
     """One unit's line of units.csv: what the quick run cost and its MSE against the full one."""
-    from threedcal.dataset.trainset import TrainingSet
-    from threedcal.evaluate.ablation import spatial_blocks
-    from threedcal.evaluate.validation import scoring_disc_mm
-
     stop = json.loads(Path(pair.stop).read_text())
     models = [
         ArmModel("stopped", None, 0, math.nan, 0, (str(pair.quick_model),)),
@@ -121,11 +127,6 @@ def _bench_errors(registration: Mapping, truth_path, pair, splits) -> tuple[floa
     """The quick run's touch height and registration against the bench's hidden truth: the touch
     offset's error (mm) and the RMS distance (camera px) between where its fit and the truth image
     the full calibration's validation coordinates. NaN without a truth or a fit."""
-    from threedcal.dataset.camera_fit import AffineFit
-    from threedcal.lens import RadialLens
-    from threedcal.profiles import load_profile
-    from threedcal.sim.bench import BenchTruth
-
     if truth_path is None or not Path(truth_path).is_file():
         return math.nan, math.nan
     truth_record = json.loads(Path(truth_path).read_text())
@@ -153,8 +154,6 @@ def over_units(table: pd.DataFrame, level: float = LEVEL) -> dict:
     """The claim per sensor and over every unit: the mean relative change and its t interval over
     units, the presses and printer minutes at their most; `met` when the whole interval lies
     inside ±MSE_WITHIN, `not met` when it lies wholly outside, else `undecided`."""
-    from scipy import stats
-
     groups = {str(s): part for s, part in table.groupby("sensor", sort=False)}
     if len(groups) > 1:
         groups["all"] = table
@@ -198,8 +197,6 @@ def over_units(table: pd.DataFrame, level: float = LEVEL) -> dict:
 def study_figure(table: pd.DataFrame, summary: Mapping, path: str | Path) -> None:
     """Each unit's relative change with its within-unit interval, each sensor's interval over
     units and every unit's together, against the ±10 % band."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(1.0 + 0.8 * (len(table) + 3), 3.4), dpi=110)
 
@@ -240,8 +237,6 @@ def study_figure(table: pd.DataFrame, summary: Mapping, path: str | Path) -> Non
 
 def study_stage(pairs: Sequence[UnitPair], out: Mapping[str, str | Path]) -> dict:
     """The `quick_study` rule: units.csv, summary.json and units.png."""
-    import logging
-
     rows = [unit_row(pair) for pair in pairs]
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     summary = over_units(table)

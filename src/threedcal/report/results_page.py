@@ -24,12 +24,13 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.config import convergence_fractions, has_arms, is_quick, training_fractions
-from threedcal.config import is_imported as config_is_imported
+from threedcal.dataset.fractions import convergence_fractions, training_fractions
 from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, reading_line, sim2real_rows
-from threedcal.scenes import has_ablation, has_objects, has_sim2real
+from threedcal.study.config import has_arms, is_quick
+from threedcal.study.config import is_imported as config_is_imported
+from threedcal.study.paths import has_ablation, has_objects, has_sim2real
 
 TITLE = "Results of the default study"
 # The fraction whose test-object figures lead the page (the paper's Table II reports P = 20 %).
@@ -60,7 +61,7 @@ def load_scenes(results: str | Path) -> dict[str, dict]:
 
 
 def _config(record: Mapping) -> dict:
-    """The scene's config as the workflow's predicates read it (threedcal.scenes, .config); a
+    """The scene's config as the workflow's predicates read it (threedcal.study.paths, .config); a
     record that wrote `import: null` for a scene that imports nothing counts as not imported."""
     config = dict(record.get("config") or {})
     if not config.get("import"):

@@ -11,10 +11,10 @@ from typing import Any
 
 import pandas as pd
 
-from threedcal.config import is_imported
 from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times
-from threedcal.scenes import has_sim2real
+from threedcal.study.config import is_imported
+from threedcal.study.paths import has_sim2real
 
 
 def read_json(path: Path) -> dict | None:
@@ -331,7 +331,7 @@ def environment(config: Mapping) -> dict[str, Any]:
     import torch
 
     from threedcal.model.machine import cpu_capability, cpu_flags, isa_limits, native_bfloat16
-    from threedcal.scenes import package_versions
+    from threedcal.study.paths import package_versions
 
     cpu, flags = cpu_flags()
     return {

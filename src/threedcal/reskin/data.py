@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from threedcal.collect.store import open_checked
 from threedcal.errors import ConfigError
 
 
@@ -34,8 +35,6 @@ class ReSkinSet:
 
 def load_readings(store_path: str | Path) -> ReSkinSet:
     """The ReSkin readings of a complete collection store, baseline subtracted."""
-    from threedcal.collect.store import open_checked
-
     raw = open_checked(store_path)  # whole and checked: every record, every chunk
     if "readings" not in raw:
         raise ConfigError(

@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from threedcal.reskin.model import predict
+
 
 def localisation_errors(predicted: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Summary figures of (N, 3) predictions against (N, 3) truths (x_mm, y_mm, depth_mm)."""
@@ -51,8 +53,6 @@ def evaluate_split(
     checkpoint: Mapping[str, Any], data, test: np.ndarray
 ) -> tuple[dict[str, Any], pd.DataFrame]:
     """Errors of `checkpoint` on the held-out readings of `data` (a ReSkinSet), overall and per depth."""
-    from threedcal.reskin.model import predict
-
     held = data.subset(test)
     predicted = predict(checkpoint, held.inputs)
     truth = held.targets.astype(float)

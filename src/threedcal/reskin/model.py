@@ -17,8 +17,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
+import torch.nn as nn
+from tqdm import tqdm
 
 from threedcal.errors import ConfigError
+from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, RESKIN_PRESET, read_checkpoint
 
 TARGETS = ("x_mm", "y_mm", "depth_mm")
 
@@ -47,8 +51,6 @@ class ReSkinSettings:
 
 
 def build_mlp(n_inputs: int, hidden: tuple[int, ...], n_outputs: int = 3):
-    import torch.nn as nn
-
     layers: list[nn.Module] = []
     width = n_inputs
     for size in hidden:
@@ -78,9 +80,6 @@ def train_mlp(
     `monitor` (inputs, targets) is only scored each epoch (its MSE in mm² goes into the loss rows),
     never used to choose anything.
     """
-    import torch
-    from tqdm import tqdm
-
     if len(inputs) == 0:
         raise ConfigError("reskin: no training readings (is the plan or the split empty?)")
     torch.set_num_threads(int(torch_threads))
@@ -118,7 +117,6 @@ def train_mlp(
             row["test_mse_mm2"] = float(np.mean((guess - monitor[1]) ** 2))
         rows.append(row)
         bar.set_postfix(loss=f"{row['train_loss']:.4f}")
-    from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, RESKIN_PRESET
 
     checkpoint = {
         "format": FORMAT,
@@ -144,8 +142,6 @@ def train_mlp(
 
 
 def _predict(model, inputs, in_mean, in_std, out_mean, out_std, settings_or_scale) -> np.ndarray:
-    import torch
-
     scale = getattr(settings_or_scale, "input_scale_ut", settings_or_scale)
     x = (_features(inputs, scale) - in_mean) / in_std
     model.eval()
@@ -178,8 +174,6 @@ def predict(checkpoint: Mapping[str, Any], inputs: np.ndarray) -> np.ndarray:
 def read_reskin_model(path: str | Path) -> dict[str, Any]:
     """A ReSkin model's checkpoint (threedcal.model.checkpoint.read_checkpoint: read safely,
     checked); any other model is refused, naming the file."""
-    from threedcal.model.checkpoint import RESKIN_PRESET, read_checkpoint
-
     checkpoint = read_checkpoint(path)
     if checkpoint.get("preset") != RESKIN_PRESET:
         raise ConfigError(

@@ -46,7 +46,7 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.sim.optics import field_terms
-from threedcal.sim.realism import HALO_MAX_RADII
+from threedcal.realism.check import HALO_MAX_RADII
 
 FIELD_BLUR_PX = 4.0  # the background field is fitted at low frequency ...
 FIELD_STRIDE = 4  # ... on every 4th pixel
@@ -379,7 +379,7 @@ def _contact_bases(profile, data, labels) -> list[np.ndarray]:
     full frame (zeros outside the contact's window)."""
     from threedcal.sim.indenters import Sphere
     from threedcal.sim.optics import GelSimulator
-    from threedcal.sim.realism import simulated_depth_mm
+    from threedcal.realism.check import simulated_depth_mm
 
     n = len(profile["lights"])
     if n != 3:
@@ -457,7 +457,7 @@ def _bounded_lstsq(a: np.ndarray, b: np.ndarray, lower: np.ndarray) -> np.ndarra
 def _fit_noise(profile, data, frames, labels, ball_px, correlation_range_px) -> dict[str, Any]:
     """noise_dn and noise_correlation_px so that blank renders match the frames' fine residual."""
     from threedcal.sim.optics import GelSimulator
-    from threedcal.sim.realism import noise_figures
+    from threedcal.realism.check import noise_figures
 
     h, w = data.height_px, data.width_px
     yy, xx = np.mgrid[:h, :w]
@@ -524,7 +524,7 @@ def split_halves(labels: Sequence, seed: int, group_px: float = 4.0, *, where: s
             f"{where or 'dataset'}: {len(labels)} contact images; fitting on one half and "
             f"comparing on the other needs at least {MIN_IMAGES}"
         )
-    from threedcal.sim.realism import image_groups
+    from threedcal.realism.check import image_groups
 
     groups = image_groups(labels, group_px)
     if len(groups) < 2:
@@ -541,7 +541,7 @@ def split_halves(labels: Sequence, seed: int, group_px: float = 4.0, *, where: s
 @dataclass
 class RealismRun:
     """A realism check of one folder: the table as text, whether every figure passed, and the 2-D
-    halo comparison (threedcal.sim.halo2d; None in sample)."""
+    halo comparison (threedcal.realism.halo2d; None in sample)."""
 
     text: str
     ok: bool
@@ -577,14 +577,14 @@ def realism_run(
     `fit` (the default): the real images are split into two halves by press (`split_seed`), the
     profile's photometric constants are fitted to one half and background.png
     (threedcal.sim.fit), and the table compares the fitted optics with the *other* half only: out
-    of sample, the radial figures (threedcal.sim.realism) and the 2-D halo (threedcal.sim.halo2d,
+    of sample, the radial figures (threedcal.realism.check) and the 2-D halo (threedcal.realism.halo2d,
     the fitting half's real frames as its reference); `fitted_out` receives the fitted profile
     (YAML). `fit=False`: the profile as it is, against every image (and the background frame), no
     2-D halo (it needs two real halves). `gel_mechanics`: the gel's model in place of the profile's
     (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
     from threedcal.profiles import load_profile, with_gel_mechanics
-    from threedcal.sim.halo2d import folder_halos, format_halos
-    from threedcal.sim.realism import (
+    from threedcal.realism.halo2d import folder_halos, format_halos
+    from threedcal.realism.check import (
         LABELLED_ONLY,
         compare,
         format_table,

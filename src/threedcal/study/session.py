@@ -21,7 +21,8 @@ import numpy as np
 import pandas as pd
 import zarr
 
-from threedcal.collect.plan import plan_from_config, validate_plan
+from threedcal.collect.figures import coverage_figure, mosaic_figure
+from threedcal.collect.plan import plan_from_config, touch_search_range, validate_plan
 from threedcal.collect.run import MotionSettings, RunResult, collect
 from threedcal.collect.store import (
     IMAGE_LAYOUT,
@@ -31,15 +32,19 @@ from threedcal.collect.store import (
     canonical_json,
     check_settings,
     frame_offsets,
+    open_raw,
     plan_digest,
     readings_layout,
     settings_digest,
     store_summary,
 )
-from threedcal.config import quick_run
+from threedcal.dataset.touch import planned_touch_search
 from threedcal.errors import ConfigError
+from threedcal.hardware.printer import MarlinHost
+from threedcal.hardware.reskin import value_names
 from threedcal.mount import scene_sensor
 from threedcal.profiles import load_profile
+from threedcal.reskin.figures import readings_figure
 from threedcal.rig import (
     Ask,
     BenchClock,
@@ -49,6 +54,11 @@ from threedcal.rig import (
     is_magnetic,
     open_rig,
 )
+from threedcal.sim.bench import draw_truth
+from threedcal.sim.marlin import FIRMWARES, SimMarlin, parse_faults
+from threedcal.sim.reskin import draw_reskin_truth
+from threedcal.study.config import quick_run
+from threedcal.study.paths import package_versions
 
 
 @dataclass
@@ -67,8 +77,6 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
     plan_source = scene["plan"].get("csv") or f"{source} grid plan"
     validate_plan(plan, sensor, printer, source=str(plan_source))
     if scene["port"] == "sim":
-        from threedcal.sim.marlin import parse_faults
-
         try:
             parse_faults(scene.get("bench", {}).get("faults", ""))
         except ConfigError as exc:
@@ -78,8 +86,6 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
 
 
 def _store_attrs(name: str, scene: Mapping, prepared: ScenePlan) -> dict[str, Any]:
-    from threedcal.scenes import package_versions
-
     return {
         "scene": name,
         "config": dict(scene),
@@ -248,10 +254,7 @@ def simulated_truth(scene: Mapping, prepared: ScenePlan):
     """The simulated bench's hidden truth (seating, touch height): drawn from the seed alone, so
     it is the same whether or not this run collected the frames."""
     if is_magnetic(prepared.sensor):
-        from threedcal.sim.reskin import draw_reskin_truth
-
         return draw_reskin_truth(scene["bench"], scene["seed"])
-    from threedcal.sim.bench import draw_truth
 
     return draw_truth(bench_sensor(scene, prepared.sensor), scene["bench"], scene["seed"])
 
@@ -259,8 +262,6 @@ def simulated_truth(scene: Mapping, prepared: ScenePlan):
 def _sample_layout(prepared: ScenePlan):
     """Shape of one sample and how the store keeps it: an RGB frame, or a ReSkin reading."""
     if is_magnetic(prepared.sensor):
-        from threedcal.hardware.reskin import value_names
-
         names = value_names(prepared.sensor)
         return (len(names),), readings_layout(names, prepared.plan)
     image = prepared.sensor["image"]
@@ -311,9 +312,6 @@ def collect_on_rig(
 def live_touch_search(scene: Mapping, prepared: ScenePlan):
     """The decider of a plan's bisecting touch search (plan.touch_search.method: bisect), the
     depth of each of its presses chosen from those before; None for a stepped search or none."""
-    from threedcal.collect.plan import touch_search_range
-    from threedcal.dataset.touch import planned_touch_search
-
     search = scene["plan"].get("touch_search") or {}
     plan = prepared.plan
     if search.get("method", "steps") != "bisect" or "phase" not in plan:
@@ -382,9 +380,6 @@ def estimate_hardware_s(
 ) -> float:
     """Seconds the real printer needs for `plan`: the same loop, driven against the fake firmware's
     motion model (homing, trapezoidal moves, M400 waits, settling, capture at the camera's rate)."""
-    from threedcal.hardware.printer import MarlinHost
-    from threedcal.sim.marlin import FIRMWARES, SimMarlin
-
     firmware = SimMarlin(printer, speedup=math.inf)
     name = f"estimate-{id(firmware)}"
     FIRMWARES.serve(name, firmware)
@@ -432,9 +427,6 @@ def collect_stage(
     """The `collect` rule: store, summary.json, coverage and sample-frame figures, bench truth.
 
     For a magnetic sensor `mosaic` receives a figure of sample readings instead of frames."""
-    from threedcal.collect.figures import coverage_figure, mosaic_figure
-    from threedcal.collect.store import open_raw
-
     prepared = prepare(scene, source=f"scenes.{name}")
     result = collect_scene(
         name, scene, store, staging_path=staging, truth_path=truth, progress=progress, ask=ask
@@ -446,8 +438,6 @@ def collect_stage(
         prepared.plan, prepared.sensor, coverage, title=f"{name}: {len(prepared.plan)} probe points"
     )
     if is_magnetic(prepared.sensor):
-        from threedcal.reskin.figures import readings_figure
-
         readings_figure(open_raw(store), prepared.sensor, mosaic, title=f"{name}: sample readings")
     else:
         mosaic_figure(open_raw(store), mosaic, title=f"{name}: sample frames")

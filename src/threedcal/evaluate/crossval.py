@@ -16,7 +16,7 @@ Protocol (docs/explanation/real-data.md):
   recomputed against each perturbed truth with the same predictions: the spread says how far the
   figures could move with other, equally plausible labels.
 
-The folds are threedcal.model.folds'. Training subsets and variants plug in through its
+The folds are threedcal.dataset.folds'. Training subsets and variants plug in through its
 `fold_trainset` (``n_train``: the first n of a fixed shuffle of a fold's training images, nested: 4
 within 8 within 16) and the method settings (``init`` = a checkpoint to fine-tune from): the same
 folds score every variant.
@@ -31,17 +31,21 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import torch
 
-from threedcal.dataset.labels import sphere_depth, sphere_gradients
-from threedcal.dataset.trainset import TrainingSet
-from threedcal.errors import ConfigError
-from threedcal.model.folds import (
+from threedcal.dataset.folds import (
     CVSettings,
     contact_radius_px,
     fold_trainset,
     inner_folds,
     read_folds,
 )
+from threedcal.dataset.labels import sphere_depth, sphere_gradients
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.depth import integrate
+from threedcal.model.inference import DepthEstimator
+from threedcal.model.train import TrainSettings, train
+from threedcal.plotting import pyplot
 
 IMAGE_COLUMNS = (
     "method",
@@ -301,8 +305,6 @@ def cv_figure(
     tables: Mapping[str, pd.DataFrame], summary: Mapping, path: str | Path, title: str
 ) -> None:
     """Per-image errors of every method (dots) with the pooled figure and its 95 % interval (bar)."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
@@ -328,22 +330,6 @@ def cv_figure(
     plt.close(fig)
 
 
-def method_settings(scene: Mapping, method: str) -> dict:
-    """The `model:` settings a CV method trains with: `model` = the scene's own, `lookup` = the
-    baseline (the same settings, preset lookup). Item 3's variants add entries here."""
-    model = dict(scene.get("model") or {})
-    if method == "model":
-        return model
-    if method == "lookup":
-        return {**model, "preset": "lookup"}
-    raise ConfigError(
-        f"unknown cross-validation method {method!r} (allowed: {', '.join(CV_METHODS)})"
-    )
-
-
-CV_METHODS = ("model", "lookup")
-
-
 def train_fold_methods(
     trainset_dir: str | Path,
     folds_path: str | Path,
@@ -357,8 +343,6 @@ def train_fold_methods(
     """One fold's model of every method (name -> `model:` settings) into out_dirs[name]
     (model.pt, losses.csv), each trained on the images outside the fold: one job for the fold, so
     the set, its folds and the libraries are loaded once, not once a method."""
-    from threedcal.model.train import TrainSettings, train
-
     ts = TrainingSet.load(trainset_dir)
     subset = fold_trainset(ts, read_folds(folds_path, ts), fold, None, seed)
     out = {}
@@ -374,9 +358,6 @@ def predict_held_out(
     ts: TrainingSet, folds: pd.DataFrame, models: Sequence[str | Path], threads: int
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """frame -> (gradients, depth) from the model of the fold that held the frame out."""
-    import torch
-
-    from threedcal.model.inference import DepthEstimator
 
     torch.set_num_threads(threads)
     out = {}
@@ -390,8 +371,6 @@ def predict_held_out(
 
 
 def _integrate(grads: np.ndarray, px_per_mm: float) -> np.ndarray:
-    from threedcal.depth import integrate
-
     return integrate(grads[..., 0], grads[..., 1], px_per_mm=px_per_mm)
 
 
@@ -498,8 +477,6 @@ def nested_choice(
     the best candidate's, summed over gradient RMSE and cap depth MAE): lowest wins.
     Returns {"chosen": name, "inner": {name: pooled figures}}.
     """
-    from threedcal.model.train import TrainSettings, train
-
     inner = inner_folds(folds, fold, inner_k, seed)
     figures = {}
     for name, model in candidates.items():

@@ -1,4 +1,4 @@
-"""Sim-to-real stage (threedcal.model.sim2real): simulated presses, nested k subsets, same budget,
+"""Sim-to-real stage (threedcal.evaluate.sim2real): simulated presses, nested k subsets, same budget,
 errors against k, and clear errors for folders and settings that cannot support it."""
 
 import dataclasses
@@ -18,9 +18,10 @@ from test_crossval import (
 
 from threedcal.dataset.labels import contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet
+from threedcal.study import imported_jobs
 from threedcal.errors import ConfigError
-from threedcal.model import folds as cv_folds
-from threedcal.model import sim2real
+from threedcal.dataset import folds as cv_folds
+from threedcal.evaluate import sim2real, sim2real_scores, sim2real_settings
 from threedcal.model.checkpoint import read_checkpoint
 
 S2R = {
@@ -44,10 +45,10 @@ def real(tmp_path_factory):
 
 def test_simulated_presses_match_the_real_set_and_are_labelled_exactly(real):
     root, trainset = real
-    profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
+    profile = imported_jobs.sensor_profile({"sensor": "gelsight_mini"})
     sim = sim2real.write_simulated(trainset, profile, S2R, 3, root / "sim", progress=False)
     again = sim2real.simulate_trainset(
-        TrainingSet.load(trainset), profile, sim2real.SimToRealSettings.of(**S2R), 3, False
+        TrainingSet.load(trainset), profile, sim2real_settings.SimToRealSettings.of(**S2R), 3, False
     )
     ts = TrainingSet.load(root / "sim")
     real_ts = TrainingSet.load(trainset)
@@ -81,13 +82,13 @@ def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
     the blank: the fitted profile names them, and no test frame of those folds."""
     root, trainset = real
     folds = pd.read_csv(root / "folds.csv")
-    profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
+    profile = imported_jobs.sensor_profile({"sensor": "gelsight_mini"})
     fitted = {**S2R, "profile": "fitted"}
     with pytest.raises(ConfigError, match="needs the scene's folds"):
         sim2real.write_simulated(trainset, profile, fitted, 3, tmp_path / "none", False)
     sims = {}
     for group in ((0,), (1,), (0, 1)):
-        out = tmp_path / sim2real.group_name(group)
+        out = tmp_path / sim2real_settings.group_name(group)
         sims[group] = sim2real.write_simulated(
             trainset, profile, fitted, 3, out, False, folds_path=root / "folds.csv", held_out=group
         )
@@ -106,19 +107,19 @@ def test_folds_share_a_pretraining_when_their_fit_can_leave_them_all_out():
     """One simulated set and pretraining for the chosen folds when some folds are left out (fitted
     to those, on which every chosen fold trains); one per fold when all are chosen; one for all
     with profile: as_is (no real image seen)."""
-    of = sim2real.SimToRealSettings.of
-    assert sim2real.pretraining_groups(of(folds=[2, 0, 1]), 6) == [(0, 1, 2)]
-    assert sim2real.pretraining_groups(of(), 3) == [(0,), (1,), (2,)]
-    assert sim2real.pretraining_groups(of(profile="as_is"), 3) == [(0, 1, 2)]
-    assert sim2real.group_name((0, 1, 2)) == "0-1-2"
-    assert sim2real.parse_group("0-1-2") == (0, 1, 2)
+    of = sim2real_settings.SimToRealSettings.of
+    assert sim2real_settings.pretraining_groups(of(folds=[2, 0, 1]), 6) == [(0, 1, 2)]
+    assert sim2real_settings.pretraining_groups(of(), 3) == [(0,), (1,), (2,)]
+    assert sim2real_settings.pretraining_groups(of(profile="as_is"), 3) == [(0, 1, 2)]
+    assert sim2real_settings.group_name((0, 1, 2)) == "0-1-2"
+    assert sim2real_settings.parse_group("0-1-2") == (0, 1, 2)
     with pytest.raises(ConfigError, match="not a group of folds"):
-        sim2real.parse_group("a-b")
+        sim2real_settings.parse_group("a-b")
     scene = {"cv": {"folds": 6}, "sim_to_real": {"folds": [0, 1, 2]}}
-    assert sim2real.group_of(scene, 1) == "0-1-2"
-    assert sim2real.group_of({"cv": {"folds": 3}, "sim_to_real": {}}, 1) == "1"
+    assert imported_jobs.group_of(scene, 1) == "0-1-2"
+    assert imported_jobs.group_of({"cv": {"folds": 3}, "sim_to_real": {}}, 1) == "1"
     with pytest.raises(ConfigError, match="fold 4 is not evaluated"):
-        sim2real.group_of(scene, 4)
+        imported_jobs.group_of(scene, 4)
 
 
 def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_why(tmp_path):
@@ -127,7 +128,7 @@ def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_w
     folds = cv_folds.write_folds(
         trainset, {"folds": 3, "group_fraction": 0.0}, 0, tmp_path / "folds.csv"
     )
-    profile = sim2real.sensor_profile({"sensor": "gelsight_mini"})
+    profile = imported_jobs.sensor_profile({"sensor": "gelsight_mini"})
     fitted = {**S2R, "profile": "fitted"}
     out = tmp_path / "sim"
     sim2real.write_simulated(
@@ -171,7 +172,7 @@ def test_fine_tuning_starts_from_the_pretrained_model_with_the_same_steps(real, 
     root, trainset = real
     sim_dir = tmp_path / "sim"
     sim2real.write_simulated(
-        trainset, sim2real.sensor_profile({"sensor": "gelsight_mini"}), S2R, 0, sim_dir, False
+        trainset, imported_jobs.sensor_profile({"sensor": "gelsight_mini"}), S2R, 0, sim_dir, False
     )
     sim2real.pretrain(sim_dir, TINY, S2R, 0, 1, tmp_path / "pre", progress=False)
     pre = tmp_path / "pre" / "model.pt"
@@ -245,7 +246,7 @@ def test_errors_against_k_pool_folds_with_intervals_and_a_perfect_model_scores_z
                         "predicted_at": f"{condition} frame",
                     }
                 )
-    errors = sim2real.summarise_k(pd.DataFrame(rows), folds, 200, 0, scored_at="80x64 px")
+    errors = sim2real_scores.summarise_k(pd.DataFrame(rows), folds, 200, 0, scored_at="80x64 px")
     pooled = errors[errors["fold"] == "all"].set_index(["condition", "k"])
     assert pooled.loc[("sim+real", "2"), "gradient_rmse"] == 0
     assert pooled.loc[("real-only", "all"), "cap_depth_mae_um"] == pytest.approx(100)
@@ -255,7 +256,7 @@ def test_errors_against_k_pool_folds_with_intervals_and_a_perfect_model_scores_z
     # every row names the frame its model predicted in and the one it was scored at
     assert set(errors["scored_at"]) == {"80x64 px"}
     assert set(pooled.loc["real-only", "predicted_at"]) == {"real-only frame"}
-    sim2real.error_figure(errors, tmp_path / "e.png", "test")
+    sim2real_scores.error_figure(errors, tmp_path / "e.png", "test")
     assert (tmp_path / "e.png").stat().st_size > 0
 
 
@@ -264,7 +265,7 @@ def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
     with pytest.raises(ConfigError, match="deeper than the ball's radius"):
         sim2real.write_simulated(
             trainset,
-            sim2real.sensor_profile({"sensor": "gelsight_mini"}),
+            imported_jobs.sensor_profile({"sensor": "gelsight_mini"}),
             {"depth_mm": [0.5, 2.5], "profile": "as_is"},
             0,
             tmp_path / "a",
@@ -277,15 +278,15 @@ def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
     with pytest.raises(ConfigError, match="too wide for the 30 x 30 px images"):
         sim2real.simulate_trainset(
             small,
-            sim2real.sensor_profile({"sensor": "gelsight_mini"}),
-            sim2real.SimToRealSettings.of(depth_mm=[0.5, 1.9]),
+            imported_jobs.sensor_profile({"sensor": "gelsight_mini"}),
+            sim2real_settings.SimToRealSettings.of(depth_mm=[0.5, 1.9]),
             0,
             False,
         )
     with pytest.raises(ConfigError, match="sim_to_real.folds: \\[7\\] outside the 3"):
-        sim2real.chosen_folds(sim2real.SimToRealSettings.of(folds=[0, 7]), 3)
+        sim2real_settings.chosen_folds(sim2real_settings.SimToRealSettings.of(folds=[0, 7]), 3)
     with pytest.raises(ConfigError, match="sim_to_real"):
-        sim2real.SimToRealSettings.of(k=[0])
+        sim2real_settings.SimToRealSettings.of(k=[0])
     # a folder without a blank frame is refused by the import, before any simulation
     make_ball_folder(tmp_path / "nobg", n=4, background=False)
     with pytest.raises(ConfigError, match=r"background.png: missing \(blank frame\)"):
@@ -368,18 +369,18 @@ def test_shipped_weights_fine_tune_on_the_same_k_images_in_their_frame_and_score
     ts = TrainingSet.load(trainset)
     folds = cv_folds.read_folds(root / "folds.csv", ts)
     test = folds.loc[folds["fold"] == 1, "frame"]
-    frames, predicted_at = sim2real.predict_frames(ts, test, out / "model.pt", 1)
+    frames, predicted_at = sim2real_scores.predict_frames(ts, test, out / "model.pt", 1)
     assert predicted_at == "32x40 px (80x64 pooled 2x, turned a quarter)"
     grads, depth = frames[int(test.iloc[0])]
     assert grads.shape == (80, 64, 2) and depth.shape == (80, 64)
-    images = sim2real.score_models(ts, folds, {("shipped+real", "4"): {1: out / "model.pt"}}, 1)
+    images = sim2real_scores.score_models(ts, folds, {("shipped+real", "4"): {1: out / "model.pt"}}, 1)
     assert set(images["predicted_at"]) == {predicted_at} and len(images) == len(test)
     # another set's frames are not the ones it was trained on
     wide = dataclasses.replace(
         ts, frames=np.tile(ts.frames, (1, 2, 2, 1)), blank=np.tile(ts.blank, (2, 2, 1))
     )
     with pytest.raises(ConfigError, match="not the set it was trained on"):
-        sim2real.predict_frames(wide, test, out / "model.pt", 1)
+        sim2real_scores.predict_frames(wide, test, out / "model.pt", 1)
 
 
 def test_shipped_weights_are_refused_for_a_sensor_without_them_or_frames_that_cannot_reach_them(
@@ -411,7 +412,7 @@ def test_shipped_weights_are_refused_for_a_sensor_without_them_or_frames_that_ca
         )
     assert not (tmp_path / "x").exists()
     # the condition is trained and scored only when asked for
-    assert "shipped_real" not in sim2real.SimToRealSettings.of().conditions
+    assert "shipped_real" not in sim2real_settings.SimToRealSettings.of().conditions
     scene = {"cv": {"folds": 3}, "sim_to_real": {"shipped": True, "k": [4], "folds": [1]}}
-    inputs = sim2real.sim2real_inputs("balls", scene)
+    inputs = imported_jobs.sim2real_inputs("balls", scene)
     assert inputs["shipped_real"] == ["results/balls/sim2real/shipped_real/fold1"]

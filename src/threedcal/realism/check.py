@@ -42,10 +42,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
+from threedcal.dataset.folds import linked_groups
 from threedcal.errors import ConfigError
 from threedcal.images import read_rgb
+from threedcal.schema import load_yaml
+from threedcal.sim.indenters import Sphere
+from threedcal.sim.optics import GelSimulator
 
 CHANNELS = "RGB"
 TOLERANCE = {
@@ -100,8 +105,6 @@ class BallDataset:
 
 
 def load_ball_dataset(root: str | Path) -> BallDataset:
-    from threedcal.schema import load_yaml
-
     root = Path(root)
     meta_path = root / "dataset.yaml"
     if not meta_path.is_file():
@@ -150,8 +153,6 @@ def image_figures(
     img: np.ndarray, background: np.ndarray, label: BallLabel, ball_radius_px: float
 ) -> dict[str, float]:
     """Every figure of one contact image against its background."""
-    import cv2
-
     img = img.astype(np.float32)
     bg = background.astype(np.float32)
     h, w = img.shape[:2]
@@ -197,8 +198,6 @@ def noise_figures(img: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, float]
     """Per-channel std (DN) of the frame minus its sigma-1 px blur where `keep`, and the residual's
     correlation between horizontal and vertical neighbours (both kept): 0 for white noise filtered
     so, larger where the camera spreads noise over neighbours (a one-number noise spectrum)."""
-    import cv2
-
     img = img.astype(np.float32)
     hf = img - cv2.GaussianBlur(img, (0, 0), 1.0)
     std = hf[keep].std(axis=0)
@@ -224,8 +223,6 @@ def contact_change(img: np.ndarray, background: np.ndarray) -> np.ndarray:
 
 def contact_magnitude(img: np.ndarray, background: np.ndarray) -> np.ndarray:
     """|contact_change| summed over channels (DN), smoothed by sigma 2 px."""
-    import cv2
-
     return cv2.GaussianBlur(np.abs(contact_change(img, background)).sum(axis=2), (0, 0), 2.0)
 
 
@@ -266,8 +263,6 @@ def locate_ball(img, background, ball_radius_px: float, name: str = "") -> BallL
     Not the registration's locator (threedcal.dataset.contacts): this one works on the change less
     the frame's lighting drift (real frames drift from their background shot) and is what the
     realism table and the optics fit were measured with; the registration's refines the rim."""
-    import cv2
-
     m = contact_magnitude(img, background)
     peak = float(np.percentile(m, 99.9))
     floor = float(np.median(m))
@@ -311,8 +306,6 @@ def simulated_depth_mm(label: BallLabel, data: BallDataset, radii=None) -> float
 def elastic_contact_radii(sim, radius_mm: float, center_px, depths=None):
     """(depths, contact radii) mm of a ball of `radius_mm` pressed at `center_px` into an elastic gel:
     the radius of the disc with the contact's area, on the simulator's own lattice."""
-    from threedcal.sim.indenters import Sphere
-
     ball = Sphere(radius_mm)
     if depths is None:
         depths = np.linspace(0.05, min(0.9 * radius_mm, sim.max_penetration_mm), 24)
@@ -332,9 +325,6 @@ def render_presses(
     """The simulator's blank frame and its render of each press of `labels` (frame_index i + 1): the
     ball at the label's centre, pressed until its contact has the label's radius
     (`simulated_depth_mm`; an elastic gel's own contact radii)."""
-    from threedcal.sim.indenters import Sphere
-    from threedcal.sim.optics import GelSimulator
-
     sim = GelSimulator(
         profile, seed, image_size=(data.width_px, data.height_px), px_per_mm=data.px_per_mm
     )
@@ -432,9 +422,7 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 def image_groups(labels: Sequence, group_px: float = 4.0) -> list[list[int]]:
     """Indices of images grouped by press: images whose contact centres lie within `group_px` of
     each other (the same place pressed again, or the same frame twice) share a group (transitively,
-    threedcal.model.folds.linked_groups), groups in the order of their first image."""
-    from threedcal.model.folds import linked_groups
-
+    threedcal.dataset.folds.linked_groups), groups in the order of their first image."""
     if not len(labels):
         return []
     centres = np.array([label.center_px for label in labels], dtype=float)

@@ -11,17 +11,27 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from threedcal.collect.plan import plan_from_config, validate_plan
-from threedcal.dataset.importers import check_import
+from threedcal.collect.plan import (
+    plan_from_config,
+    quick_plan,
+    quick_problems,
+    registration_presses_of,
+    rows_per_press,
+    validate_plan,
+    whole_contacts,
+)
+from threedcal.dataset.fractions import FULL_TRAINING_P, normalise_ablation, training_fractions
+from threedcal.dataset.importers import check_import, load_imported
+from threedcal.dataset.reframe import reframe_problem
 from threedcal.errors import ConfigError
 from threedcal.mount import scene_mount_values, with_mount
-from threedcal.pretrained import shipped_sensors
+from threedcal.object_refs import mount_problem, object_problem
+from threedcal.pretrained import provenance, shipped_sensors, shipped_weights
 from threedcal.profiles import ProfileNotFound, load_profile, resolve_profile
+from threedcal.rig import check_devices
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
 
-# The one fraction trained when a scene asks for no ablation: all training coordinates (80 % of all).
-FULL_TRAINING_P = 80
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
 IMPORT_IRRELEVANT = (
     "printer",
@@ -34,8 +44,6 @@ IMPORT_IRRELEVANT = (
     "bench",
     "pressing",
 )
-# The built-in test objects (threedcal.evaluate.objects builds them); any other is an STL path.
-BUILTIN_OBJECTS = ("hemispheres", "pill", "pawn")
 
 
 def validate_config(
@@ -151,7 +159,6 @@ def _run_problems(scene: Mapping, check_files: bool, new_mount: bool = False) ->
         return [str(exc)]
     if check_files and (scene.get("model") or {}).get("init") == "pretrained":
         # (the workflow finds them when it plans a training: `make pretrained` builds them)
-        from threedcal.pretrained import shipped_weights
 
         try:
             shipped_weights(sensor.get("name"))
@@ -175,8 +182,6 @@ def _run_problems(scene: Mapping, check_files: bool, new_mount: bool = False) ->
         return _shipped_problems(scene, sensor, frames=True)
     problems = []
     try:  # a real printer with the simulated camera: refused by collect, so named here first
-        from threedcal.rig import check_devices
-
         check_devices(scene, sensor, source="scene")
     except ConfigError as exc:
         problems.append(str(exc).removeprefix("scene."))
@@ -204,7 +209,6 @@ def _shipped_problems(scene: Mapping, sensor: Mapping, frames: bool = False) -> 
     values = scene.get("sim_to_real") or {}
     if not (values.get("enabled") and values.get("shipped")):
         return []
-    from threedcal.pretrained import provenance, shipped_sensors
 
     if sensor.get("name") not in shipped_sensors():
         return [
@@ -213,8 +217,6 @@ def _shipped_problems(scene: Mapping, sensor: Mapping, frames: bool = False) -> 
         ]
     if not frames:
         return []
-    from threedcal.dataset.importers import load_imported
-    from threedcal.dataset.reframe import reframe_problem
 
     blank = load_imported(scene["import"]["format"], scene["import"]["path"]).blank
     factor = int((scene.get("dataset") or {}).get("downscale", 1))
@@ -227,8 +229,9 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """What a quick calibration (plan.pattern: quick) would refuse once its printer had moved:
     rounds that cannot cover the gel, a stop rule out of range, shipped weights made for another
     sensor, network or frame size, and stages it does not run."""
-    from threedcal.collect.plan import quick_problems
-    from threedcal.quick.stop_rule import rule_problems
+    from threedcal.stop_rule import (
+        rule_problems,
+    )  # local: scipy stays out of the Snakefile's parse
 
     quick = scene["quick"]
     problems = quick_problems(scene["plan"], sensor)
@@ -254,13 +257,7 @@ def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """A quick plan whose registration presses (or, with none, its first round's) leave too few
     whole contacts for the first round's registration: the affine through the profile's lens, its
     contacts to spare for the outliers (threedcal.dataset.camera_fit.fit_camera)."""
-    from threedcal.collect.plan import (
-        quick_plan,
-        registration_presses_of,
-        rows_per_press,
-        whole_contacts,
-    )
-    from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS
+    from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS  # local: as rule_problems (scipy)
 
     plan = scene["plan"]
     rows = registration_presses_of(plan, sensor)
@@ -371,8 +368,6 @@ def quick_run(scene: Mapping) -> int:
 
 def _pretrained_problems(sensor: Mapping, model: Mapping, downscale: int) -> list[str]:
     """The shipped weights against the frames and network a scene would fine-tune them on."""
-    from threedcal.pretrained import provenance, shipped_weights
-
     image = sensor["image"]
     shape = (int(image["height_px"]) // downscale, int(image["width_px"]) // downscale)
     try:
@@ -406,25 +401,6 @@ def _object_problems(scene: Mapping) -> list[str]:
     ]
 
 
-# The mesh files a test object may come in (read by trimesh: threedcal.evaluate.mesh).
-MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off")
-
-
-def object_problem(ref: str | Path) -> str | None:
-    """What is wrong with a test object reference (a built-in name or a mesh file), or None."""
-    text = str(ref)
-    if text in BUILTIN_OBJECTS:
-        return None
-    if Path(text).suffix.lower() not in MESH_SUFFIXES:
-        return (
-            f"test object {text!r} is neither a built-in ({', '.join(BUILTIN_OBJECTS)}) "
-            f"nor a mesh file ({', '.join(MESH_SUFFIXES)})"
-        )
-    if not Path(text).is_file():
-        return f"mesh file {text!r} does not exist"
-    return None
-
-
 def _scene_problems(scene: Mapping) -> list[str]:
     problems = []
     imported = "import" in scene
@@ -447,17 +423,6 @@ def _scene_problems(scene: Mapping) -> list[str]:
     if not imported and scene.get("objects"):
         problems += [p for p in [mount_problem(scene)] if p]
     return problems
-
-
-def mount_problem(scene: Mapping) -> str | None:
-    """What is wrong with a scene's mount (as `pressing.mount: ...`), or None."""
-    if scene.get("pressing", {}).get("mount") is None and scene.get("port", "sim") != "sim":
-        return (
-            "pressing.mount: required when the printer presses the test objects on a real rig "
-            f"(port {scene.get('port')!r}): give x_mm, y_mm, z_mm of the object's press-frame "
-            "origin relative to the probe tip and its rotation_deg as mounted"
-        )
-    return None
 
 
 def _magnetic_problems(scene: Mapping) -> list[str]:
@@ -495,53 +460,6 @@ def scene_config(config: Mapping, scene: str) -> dict:
     except KeyError:
         names = ", ".join(config.get("scenes", {}))
         raise ConfigError(f"no scene {scene!r} in the config (scenes: {names})") from None
-
-
-def normalise_ablation(ablation: Any) -> dict:
-    """`ablation` in its full form {fractions, replicates, steps, convergence, batching}.
-
-    The plain list form [1, 5, ..., 80] (and no `ablation` at all) means one replicate; the
-    schema's defaults fill what a mapping leaves out.
-    """
-    defaults = load_schema("config")["$defs"]["ablation"]["oneOf"][1]["properties"]
-    full = {key: spec["default"] for key, spec in defaults.items() if "default" in spec}
-    if not ablation:
-        return {**full, "fractions": []}
-    if isinstance(ablation, Mapping):
-        full.update({k: v for k, v in ablation.items() if v is not None})
-        return {
-            **full,
-            "fractions": list(full.get("fractions") or []),
-            "replicates": int(full["replicates"]),
-            "steps": int(full["steps"]),
-            "convergence": bool(full["convergence"]),
-        }
-    return {**full, "fractions": list(ablation)}
-
-
-def training_fractions(scene: Mapping) -> list[int]:
-    """The fractions P (percent) for which a scene trains models, ascending."""
-    return sorted(normalise_ablation(scene.get("ablation"))["fractions"] or [FULL_TRAINING_P])
-
-
-def ablation_replicates(scene: Mapping) -> int:
-    """R: models per fraction, each a fresh nested subset draw and a fresh initialisation."""
-    return normalise_ablation(scene.get("ablation"))["replicates"]
-
-
-def convergence_fractions(scene: Mapping) -> list[int]:
-    """The fractions whose models train on to twice the budget (ablation.convergence): every
-    fraction of an ablation with the option; none without it or an ablation."""
-    ablation = normalise_ablation(scene.get("ablation"))
-    fractions = training_fractions(scene)
-    if not ablation["convergence"] or len(fractions) < 2 or FULL_TRAINING_P not in fractions:
-        return []
-    return fractions
-
-
-def model_keys(scene: Mapping) -> list[tuple[int, int]]:
-    """Every (P, replicate) a scene trains: one training job each."""
-    return [(p, r) for p in training_fractions(scene) for r in range(ablation_replicates(scene))]
 
 
 def is_imported(scene: Mapping) -> bool:

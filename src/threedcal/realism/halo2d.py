@@ -319,7 +319,7 @@ def folder_halos(
     of `test_labels`, the real frames of `other_labels` as the reference. Each press is cut out
     around its label (centre and radius) in real and render alike; presses are grouped by place
     (`realism.image_groups`) for the bootstrap."""
-    from threedcal.sim.realism import contact_change, image_groups
+    from threedcal.realism.check import contact_change, image_groups
 
     sim_bg, frames = renders
     if len(frames) != len(test_labels):

@@ -1,4 +1,4 @@
-"""The realism check's 2-D halo figures (threedcal.sim.halo2d) against synthetic halos with known
+"""The realism check's 2-D halo figures (threedcal.realism.halo2d) against synthetic halos with known
 answers, and its tolerance logic."""
 
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from threedcal.errors import ConfigError
-from threedcal.sim import halo2d
-from threedcal.sim.halo2d import (
+from threedcal.realism import halo2d
+from threedcal.realism.halo2d import (
     annulus,
     compare_halos,
     cutout,

@@ -14,7 +14,7 @@ and from its contacts (frame, blank, contact centre and radius):
 - each channel's light direction: the direction in which that channel's change grows with the
   sphere's normal inside the contact (least squares on nx, ny, nz, 1), as the optics fit reads it;
 - the halo: where the radial contact magnitude falls to 50 % and 10 % of its peak
-  (threedcal.sim.realism.halo_radii), over the ball's radius.
+  (threedcal.realism.check.halo_radii), over the ball's radius.
 
 Between units, a spread (1 sigma of one unit about the model's mean) is what two units differ by
 over √2: two independent draws about one mean differ by √2 sigma. Angles are differenced on the
@@ -31,7 +31,7 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.sim.optics import field_terms
-from threedcal.sim.realism import halo_radii
+from threedcal.realism.check import halo_radii
 
 FIELD_DEGREE = 4
 
@@ -143,7 +143,7 @@ def contact_light_deg(
 
 def halo_over_radius(frame, blank, centre, ball_radius_px: float) -> tuple[float, float]:
     """(r50, r10) / ball radius: where the contact's radial magnitude falls to 50 % and 10 % of
-    its peak (threedcal.sim.realism.halo_radii), in ball radii."""
+    its peak (threedcal.realism.check.halo_radii), in ball radii."""
 
     r50, r10 = halo_radii(
         np.asarray(frame, np.float32), np.asarray(blank, np.float32), centre, ball_radius_px

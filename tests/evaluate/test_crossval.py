@@ -1,4 +1,4 @@
-"""Cross-validated real-data evaluation (threedcal.model.crossval, ball_eval): folds, scoring, intervals."""
+"""Cross-validated real-data evaluation (threedcal.evaluate.crossval, ball_eval): folds, scoring, intervals."""
 
 import json
 import math
@@ -9,15 +9,16 @@ import pandas as pd
 import pytest
 import yaml
 
+from threedcal.dataset import folds as cv_folds
 from threedcal.dataset.build import build_imported
 from threedcal.dataset.labels import sphere_depth, sphere_gradients
 from threedcal.errors import ConfigError
-from threedcal.model import crossval
-from threedcal.model import folds as cv_folds
-from threedcal.model.ball_eval import ball_eval
+from threedcal.evaluate import crossval
+from threedcal.evaluate.ball_eval import ball_eval
 from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
+from threedcal.study import imported_jobs
 
 PX_PER_MM, BALL_MM, SIZE = 10.0, 2.0, (64, 80)  # (width, height) of the rendered frames
 TINY = {"preset": "compact", "epochs_base": 1, "patch_px": 24, "contact_patches": 2}
@@ -261,7 +262,7 @@ def test_duplicate_presses_bound_the_label_noise():
 def run_cv(trainset, tmp_path, folds=3):
     cv = {"folds": folds, "bootstrap": 200, "label_draws": 3}
     cv_folds.write_folds(trainset, cv, 0, tmp_path / "folds.csv", where="the folder")
-    methods = {m: crossval.method_settings({"model": TINY}, m) for m in crossval.CV_METHODS}
+    methods = {m: imported_jobs.method_settings({"model": TINY}, m) for m in imported_jobs.CV_METHODS}
     for fold in range(folds):
         out = {m: tmp_path / m / f"fold{fold}" for m in methods}
         crossval.train_fold_methods(

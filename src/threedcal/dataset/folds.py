@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.sparse.csgraph import connected_components
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
@@ -78,8 +79,6 @@ def press_groups(
 def linked_groups(linked: np.ndarray) -> np.ndarray:
     """(N,) group id of each of N items, given which pairs are linked ((N, N) bool, symmetric):
     linked items share a group, transitively. Ids are numbered by first item."""
-    from scipy.sparse.csgraph import connected_components
-
     _, labels = connected_components(linked, directed=False)
     # Renumber by first appearance, so ids do not depend on scipy's traversal order.
     _, first = np.unique(labels, return_index=True)

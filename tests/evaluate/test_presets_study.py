@@ -1,4 +1,4 @@
-"""The presets stage (threedcal.model.presets_study): every preset trained alike, the scene's own
+"""The presets stage (threedcal.evaluate.presets_study): every preset trained alike, the scene's own
 preset read from the study's model instead of trained twice."""
 
 import pandas as pd
@@ -6,7 +6,7 @@ import pytest
 from test_crossval import TINY, make_ball_folder, trainset_of
 
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.model.presets_study import COLUMNS, compare_presets
+from threedcal.evaluate.presets_study import COLUMNS, compare_presets
 from threedcal.model.train import TrainSettings, train
 
 

@@ -3,7 +3,7 @@
 Both figures are computed per held-out image over the pixels whose label is trusted (eval_mask: a
 shrunk contact circle) and averaged over images, so each image weighs the same. Depth is integrated
 from the full predicted gradient field and compared with the exact sphere cap (µm). `ball_eval`
-pools them over the grouped cross-validation folds (threedcal.model.crossval).
+pools them over the grouped cross-validation folds (threedcal.evaluate.crossval).
 """
 
 from __future__ import annotations
@@ -15,10 +15,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from threedcal.dataset import folds as cv_folds
 from threedcal.dataset.labels import sphere_depth
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.depth import integrate
 from threedcal.errors import ConfigError
+from threedcal.evaluate import crossval
 from threedcal.model.inference import DepthEstimator
 
 
@@ -64,11 +66,8 @@ def ball_eval(
     `models[method]` lists the fold models in fold order. The top level keeps the keys of the
     single-split evaluation (gradient_rmse, cap_depth_mae_um, n_test_images, lookup) and adds the
     interval, the per-fold figures, the label-uncertainty spread and the protocol
-    (threedcal.model.crossval).
+    (threedcal.evaluate.crossval).
     """
-    from threedcal.model import crossval
-    from threedcal.model import folds as cv_folds
-
     settings = cv_folds.CVSettings.of(**cv)
     ts = TrainingSet.load(trainset_dir)
     folds = cv_folds.read_folds(folds_path, ts)

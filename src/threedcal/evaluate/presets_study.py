@@ -1,7 +1,7 @@
 """Depth error against inference time for every CPU preset, trained alike on one imported scene.
 
 The report's "which preset when": each preset trains with the scene's `model:` settings (preset
-swapped) at P = 80 and is scored on the held-out images (threedcal.model.ball_eval.evaluate);
+swapped) at P = 80 and is scored on the held-out images (threedcal.evaluate.ball_eval.evaluate);
 the time is DepthEstimator.depth per frame on this machine, integration included. The scene's own
 preset is the scene's model at P = 80 (replicate 0) where the study trains it: the same training,
 not done twice. `train_s` is each training's seconds as its losses.csv records them.
@@ -20,10 +20,11 @@ import pandas as pd
 from tqdm import tqdm
 
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.model.ball_eval import evaluate
+from threedcal.evaluate.ball_eval import evaluate
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, train
+from threedcal.plotting import pyplot
 
 COLUMNS = ["preset", "ms_per_frame", "gradient_rmse", "cap_depth_mae_um", "train_s"]
 # Patch training on imported ball images, as fots_ball's `model:` section set it before its
@@ -94,8 +95,6 @@ def compare_presets(
 
 
 def presets_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.4), dpi=120, layout="constrained")
@@ -120,21 +119,3 @@ def presets_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
     plt.close(fig)
 
 
-def presets_stage(
-    trainset_dir: str | Path,
-    model: dict,
-    seed: int,
-    threads: int,
-    presets: Sequence[str],
-    csv_path: str | Path,
-    png_path: str | Path,
-    scene_model: str | Path | None = None,
-) -> pd.DataFrame:
-    """presets.csv and presets.png; `scene_model`: the scene's own model at P = 80, replicate 0
-    (models/P80/r0/model.pt), which stands for the scene's preset."""
-    settings = TrainSettings.from_scene({"model": model, "seed": seed, "torch_threads": threads})
-    trained = {settings.preset: scene_model} if scene_model is not None else {}
-    table = compare_presets(TrainingSet.load(trainset_dir), settings, presets, trained)
-    table.to_csv(csv_path, index=False)
-    presets_figure(table, png_path, "presets: held-out depth error against inference time")
-    return table

@@ -13,22 +13,18 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from threedcal.config import (
+from threedcal.dataset.fractions import (
     FULL_TRAINING_P,
     convergence_fractions,
-    has_arms,
-    is_imported,
-    is_quick,
     model_keys,
     normalise_ablation,
-    real_check_sets,
-    realism_sets,
     training_fractions,
 )
 from threedcal.errors import ConfigError
 from threedcal.mount import scene_mount_values
 from threedcal.pretrained import SHIPPED_DIR
 from threedcal.profiles import load_profile
+from threedcal.study.config import has_arms, is_imported, is_quick, real_check_sets, realism_sets
 
 RESULTS = "results"
 # Every file the workflow writes that something else names (a rule's input, a scene's targets), as
@@ -139,7 +135,7 @@ RESKIN_MODEL = _files(
 )
 RESKIN_EVAL = {"metrics": f"{SCENE}/reskin_eval.json", "figure": f"{SCENE}/reskin_eval.png"}
 # Imported scenes (rules/ball.smk, rules/presets.smk): the cross-validated evaluation, the presets
-# and the sim-to-real stage (threedcal.model.sim2real).
+# and the sim-to-real stage (threedcal.evaluate.sim2real).
 CV_FOLDS = f"{SCENE}/cv/folds.csv"
 CV_MODEL_DIR = f"{SCENE}/cv/{{method}}/fold{{fold}}"
 # One simulated set and pretraining per group of test folds (`{folds}`: 0-1-2), one folder of

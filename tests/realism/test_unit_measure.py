@@ -1,4 +1,4 @@
-"""How real units differ (threedcal.sim.unit_measure), against synthetic frames with known answers."""
+"""How real units differ (threedcal.realism.unit_measure), against synthetic frames with known answers."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from threedcal.errors import ConfigError
-from threedcal.sim import unit_measure as um
+from threedcal.realism import unit_measure as um
 from threedcal.sim.optics import field_terms
 
 
