@@ -14,8 +14,8 @@ import time
 import numpy as np
 
 from threedcal.collect.plan import grid_plan, plan_to_printer
-from threedcal.study.session import estimate_hardware_s
 from threedcal.profiles import load_profile
+from threedcal.study.session import estimate_hardware_s
 
 
 def authors_open_loop_s(plan, sensor) -> float:

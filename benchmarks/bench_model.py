@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from threedcal.evaluate.presets_study import PATCH_BALL_SETTINGS
 from threedcal.model import DEFAULT_PRESET, PRESET_NAMES
 from threedcal.model.checkpoint import FORMAT, FORMAT_VERSION, OUR_NORMALISATION
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
-from threedcal.evaluate.presets_study import PATCH_BALL_SETTINGS
 from threedcal.model.train import training_autocast
 
 HEIGHT, WIDTH = 240, 320
@@ -139,6 +139,7 @@ def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     from threedcal.dataset.build import build_imported
     from threedcal.evaluate.ball_eval import evaluate
     from threedcal.model.train import TrainSettings, train
+    from threedcal.study.scene import dataset_settings
 
     scene = {
         "import": {"format": "ball_folder", "path": str(folder)},
@@ -147,7 +148,13 @@ def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     }
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
-        ts = build_imported(scene, Path(tmp) / "trainset", Path(tmp) / "splits.csv")
+        ts = build_imported(
+            scene["import"]["format"],
+            scene["import"]["path"],
+            dataset_settings(scene),
+            Path(tmp) / "trainset",
+            Path(tmp) / "splits.csv",
+        )
         test = ts.indices("val")
         for preset in presets:
             settings = TrainSettings.of(preset=preset, torch_threads=threads, **BALL_SETTINGS)

@@ -360,9 +360,10 @@ def _mean(values: np.ndarray) -> float:
 
 def registration(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
     """tests/collect/test_collect_bench.py's two registration set-ups, with each gel."""
-    from threedcal.study.session import collect_scene
-    from threedcal.study.config import validate_config
     from threedcal.dataset.build import build_collected
+    from threedcal.study.config import validate_config
+    from threedcal.study.scene import dataset_settings
+    from threedcal.study.session import collect_scene
 
     setups = {
         "gelsight_mini, 1 mm, seating 0.5 mm / 2 deg, touch +0.1 mm": (
@@ -409,7 +410,9 @@ def registration(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
                     "s", scene, tmp / "raw.zarr", truth_path=tmp / "truth.json", progress=False
                 )
                 paths = [tmp / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
-                record = build_collected(scene, tmp / "raw.zarr", *paths, progress=False)
+                record = build_collected(
+                    dataset_settings(scene), tmp / "raw.zarr", *paths, progress=False
+                )
                 truth = json.loads((tmp / "truth.json").read_text())
             measured[f"{name}_{mechanics}_error_px"] = float(record["error_px"])
             rot = record.get("rotation_deg", math.nan) - truth.get("seating_rotation_deg", 0.0)

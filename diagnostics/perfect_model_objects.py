@@ -34,7 +34,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.study.config import validate_config
 from threedcal.depth import integrate
 from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
 from threedcal.evaluate.object_scores import evaluate_objects
@@ -45,6 +44,7 @@ from threedcal.lens import RadialLens, rectify_if
 from threedcal.profiles import load_profile, with_gel_mechanics
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
+from threedcal.study.config import validate_config
 
 
 class GelGradients:

@@ -23,8 +23,6 @@ import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
-from threedcal.study.session import collect_scene
-from threedcal.study.config import validate_config
 from threedcal.dataset.build import build_collected
 from threedcal.dataset.labels import local_dome, sphere_gradients
 from threedcal.dataset.trainset import TrainingSet
@@ -33,6 +31,9 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, train
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench, plan_centre_printer_mm
+from threedcal.study.config import validate_config
+from threedcal.study.scene import dataset_settings
+from threedcal.study.session import collect_scene
 
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
 RADIUS = 2.0  # the probe's ball, mm
@@ -61,7 +62,7 @@ def calibrate(folder: Path, scene: dict, epochs_base: int) -> DepthEstimator:
     """Collect the scene on the bench, run the dataset stage and train a `lookup` model."""
     collect_scene("s", scene, folder / "raw.zarr", truth_path=folder / "truth.json", progress=False)
     paths = [folder / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
-    build_collected(scene, folder / "raw.zarr", *paths, progress=False)
+    build_collected(dataset_settings(scene), folder / "raw.zarr", *paths, progress=False)
     settings = TrainSettings.of(preset="lookup", epochs_base=epochs_base, torch_threads=2)
     train(TrainingSet.load(folder / "ts"), folder / "model", 80, settings, progress=False)
     return DepthEstimator.from_checkpoint(folder / "model" / "model.pt", device="cpu")

@@ -28,13 +28,14 @@ import numpy as np
 import pandas as pd
 import torch
 
+from threedcal.dataset import folds as cv_folds
 from threedcal.dataset.build import build_imported
 from threedcal.depth import integrate
 from threedcal.evaluate import crossval
-from threedcal.dataset import folds as cv_folds
-from threedcal.model.inference import DepthEstimator
 from threedcal.evaluate.presets_study import PATCH_BALL_SETTINGS, depth_ms_per_frame
+from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, train
+from threedcal.study.scene import dataset_settings
 
 # fots_ball's settings before this study (the models explanation, Choosing a preset).
 BALL = PATCH_BALL_SETTINGS
@@ -171,7 +172,13 @@ class Run:
             "dataset": {"downscale": self.downscale, "max_slope_deg": 75, "refine_labels": refined},
         }
         with tempfile.TemporaryDirectory() as tmp:
-            ts = build_imported(scene, Path(tmp) / "trainset", Path(tmp) / "splits.csv")
+            ts = build_imported(
+                scene["import"]["format"],
+                scene["import"]["path"],
+                dataset_settings(scene),
+                Path(tmp) / "trainset",
+                Path(tmp) / "splits.csv",
+            )
             ts.frames = np.asarray(ts.frames)
         return ts, cv_folds.make_folds(ts, self.settings, seed=0, where=self.folder)
 

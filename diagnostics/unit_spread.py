@@ -25,8 +25,8 @@ import numpy as np
 
 from threedcal.images import read_rgb
 from threedcal.realism import unit_measure as um
-from threedcal.sim.fit import split_halves
 from threedcal.realism.check import load_ball_dataset
+from threedcal.sim.fit import split_halves
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MARKER_CONTACT_REACH_PX = 100  # the marker frames' contact and its colour, left out of their field

@@ -3,11 +3,12 @@
 from threedcal.collect.store import collected_store
 from threedcal.dataset.build import build_collected
 from threedcal.logs import stage_log
+from threedcal.study.scene import dataset_settings
 
 with stage_log(snakemake.log[0]):
     store, digest = collected_store(snakemake.input.collected)
     build_collected(
-        snakemake.params.scene,
+        dataset_settings(snakemake.params.scene),
         store,
         snakemake.output.trainset,
         snakemake.output.splits,

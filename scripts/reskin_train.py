@@ -1,8 +1,9 @@
 """Rule `reskin_train`: split a ReSkin store by coordinate and train the MLP → model.pt, losses, splits."""
 
+from threedcal.reskin.stage import train_stage
+
 from threedcal.collect.store import collected_store
 from threedcal.logs import stage_log
-from threedcal.reskin.stage import train_stage
 
 with stage_log(snakemake.log[0]):
     train_stage(

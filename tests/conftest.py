@@ -306,10 +306,11 @@ def collect_on_bench(folder, sensor, plan, seed, bench=None, dataset=None):
 def collect_and_register(folder, sensor, plan, seed, dataset=None):
     """collect_on_bench, then the dataset stage (folder/reg.json, ts/, ...): its record."""
     from threedcal.dataset.build import build_collected
+    from threedcal.study.scene import dataset_settings
 
     scene = collect_on_bench(folder, sensor, plan, seed, dataset=dataset)
     paths = [folder / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
-    return build_collected(scene, folder / "raw.zarr", *paths, progress=False)
+    return build_collected(dataset_settings(scene), folder / "raw.zarr", *paths, progress=False)
 
 
 # config/paper.yaml trains on its d = R presses (the paper's data), as every press of its plan is one

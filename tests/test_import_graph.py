@@ -103,7 +103,13 @@ def test_no_module_imports_another_modules_private_names():
 
 
 # The study layer and what sits on it; the domain packages below never import them.
-UPPER = ("threedcal.study", "threedcal.quick", "threedcal.report", "threedcal.page", "threedcal.cli")
+UPPER = (
+    "threedcal.study",
+    "threedcal.quick",
+    "threedcal.report",
+    "threedcal.page",
+    "threedcal.cli",
+)
 
 
 def test_domain_packages_import_nothing_from_the_study_layer():
@@ -125,5 +131,7 @@ def test_the_snakefile_parse_loads_no_model_or_solver_libraries():
     code = f"import sys\nfor m in {modules!r}: __import__(m)\n" + (
         "print(sorted(k for k in ('torch', 'scipy', 'trimesh', 'cv2') if k in sys.modules))"
     )
-    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
     assert loaded.stdout.strip() == "[]"

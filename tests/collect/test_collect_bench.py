@@ -25,6 +25,7 @@ from threedcal.collect.store import open_raw
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
 from threedcal.study.config import validate_config
+from threedcal.study.scene import dataset_settings
 from threedcal.study.session import collect_scene
 
 LABELS = (
@@ -213,7 +214,7 @@ def test_registration_recovers_the_hidden_seating(tmp_path):
         "s", scene, tmp_path / "raw.zarr", truth_path=tmp_path / "truth.json", progress=False
     )
     record = build_collected(
-        scene,
+        dataset_settings(scene),
         tmp_path / "raw.zarr",
         tmp_path / "ts",
         tmp_path / "splits.csv",
@@ -295,9 +296,9 @@ def test_a_plan_without_registration_presses_registers_the_rows_captured_so_far(
     from threedcal.dataset.build import register_store
 
     scene, folder, _ = paper_digit_calibration
-    whole = register_store(scene, folder / "raw.zarr", progress=False)
+    whole = register_store(dataset_settings(scene), folder / "raw.zarr", progress=False)
     rows = int(whole.rows("grid")[0]) + 40
-    so_far = register_store(scene, folder / "raw.zarr", progress=False, rows=rows)
+    so_far = register_store(dataset_settings(scene), folder / "raw.zarr", progress=False, rows=rows)
     assert len(so_far.phase) == rows and so_far.registered_rows.max() < rows
     assert list(so_far.registered_rows) == [r for r in whole.registered_rows if r < rows]
     ideal = so_far.registration.fit.ideal(np.array([[10.0, 10.0]]))
@@ -307,14 +308,18 @@ def test_a_plan_without_registration_presses_registers_the_rows_captured_so_far(
     fits = []
 
     def fit(*args):  # the locating and fitting, recorded, its answer the last round's
-        fits.append(args[3])
+        fits.append(args[2])
         return so_far.registration
 
     monkeypatch.setattr(build, "_register", fit)
-    same = register_store(scene, folder / "raw.zarr", progress=False, rows=rows, prior=so_far)
+    same = register_store(
+        dataset_settings(scene), folder / "raw.zarr", progress=False, rows=rows, prior=so_far
+    )
     assert fits == [] and same.registration is so_far.registration
     assert np.array_equal(same.centres, so_far.centres)
-    register_store(scene, folder / "raw.zarr", progress=False, rows=rows - 5, prior=so_far)
+    register_store(
+        dataset_settings(scene), folder / "raw.zarr", progress=False, rows=rows - 5, prior=so_far
+    )
     assert len(fits) == 1 and list(fits[0]) == list(so_far.registered_rows[:-5])
 
 
@@ -331,7 +336,7 @@ def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path
     }
     scene = collect_on_bench(tmp_path, lens_free("digit"), plan, 5)
     paths = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png", "truth.json")]
-    record = build_collected(scene, tmp_path / "raw.zarr", *paths, progress=False)
+    record = build_collected(dataset_settings(scene), tmp_path / "raw.zarr", *paths, progress=False)
     assert_search_found_the_touch(record, tmp_path)
     # the 3 mm presses (a 1 mm wall the camera looks along) register the rig but are not trained
     # on (dataset.max_depth_over_radius, default 0.75): every labelled frame is a 1 mm press
@@ -343,12 +348,12 @@ def test_touch_search_finds_the_hidden_touch_height_with_a_vertical_rim(tmp_path
     # (their outputs beside the default's, which the checks above read)
     others = [tmp_path / f"null_{n}" for n in ("ts", "splits.csv", "reg.json", "reg.png")]
     every = {**scene, "dataset": {**scene["dataset"], "max_depth_over_radius": None}}
-    kept = build_collected(every, tmp_path / "raw.zarr", *others, progress=False)
+    kept = build_collected(dataset_settings(every), tmp_path / "raw.zarr", *others, progress=False)
     assert kept["frames_too_deep"] == 0 and kept["frames_labelled"] == kept["frames_in_view"]
     assert kept["probe_points_labelled"] == kept["probe_points_in_view"]
     none = {**scene, "dataset": {**scene["dataset"], "max_depth_over_radius": 0.1}}
     with pytest.raises(ConfigError, match="dataset.max_depth_over_radius: 0.1 leaves no frame"):
-        build_collected(none, tmp_path / "raw.zarr", *others, progress=False)
+        build_collected(dataset_settings(none), tmp_path / "raw.zarr", *others, progress=False)
 
 
 # ------------------------------------------------------- contact laws the simulator does not have

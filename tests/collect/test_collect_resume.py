@@ -11,6 +11,7 @@ from threedcal.collect.store import RawStore, SettingsMismatch, StoreError, open
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
 from threedcal.study.config import validate_config
+from threedcal.study.scene import dataset_settings
 from threedcal.study.session import collect_scene
 
 LABELS = (*BENCH_LABELS, "t_s", "hardware_s")  # a replayed resume keeps the timeline too
@@ -174,7 +175,7 @@ def test_the_dataset_stage_refuses_a_store_with_a_missing_chunk(
     victim.unlink()
     outputs = [tmp_path / n for n in ("ts", "splits.csv", "reg.json", "reg.png")]
     with pytest.raises(StoreError) as exc:
-        build_collected(config, path, *outputs, progress=False)
+        build_collected(dataset_settings(config), path, *outputs, progress=False)
     assert str(path) in str(exc.value) and words in str(exc.value) and "missing" in str(exc.value)
     assert not any(o.exists() for o in outputs)
 

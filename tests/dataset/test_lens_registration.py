@@ -18,6 +18,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.bench import BenchTruth, draw_lens
 from threedcal.sim.camera import LensedGel
 from threedcal.sim.indenters import Sphere
+from threedcal.study.scene import dataset_settings
 
 SHAPE = (240, 320)
 
@@ -184,7 +185,11 @@ def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_wit
     scene = bench_scene(elastic_gel("digit"), plan, 11)
     paths = [tmp_path / f"area_{n}" for n in ("ts", "splits.csv", "reg.json", "reg.png")]
     rigid = build_collected(
-        scene, tmp_path / "raw.zarr", *paths, tmp_path / "truth.json", progress=False
+        dataset_settings(scene),
+        tmp_path / "raw.zarr",
+        *paths,
+        tmp_path / "truth.json",
+        progress=False,
     )
     assert rigid["error_px"] > record["error_px"] + 0.05, rigid
 

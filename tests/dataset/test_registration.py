@@ -464,13 +464,13 @@ def test_contacts_are_modelled_as_elastic_where_the_gel_is(caplog):
     from threedcal.profiles import load_profile
 
     digit = load_profile("sensor", "digit")
-    assert contact_material({"port": "sim", "bench": {}}, digit) is None  # geometric profile
-    elastic = contact_material({"port": "sim", "bench": {"gel_mechanics": "elastic"}}, digit)
+    assert contact_material(digit, simulated=True, bench_gel_mechanics=None) is None  # geometric
+    elastic = contact_material(digit, simulated=True, bench_gel_mechanics="elastic")
     assert elastic.youngs_modulus_mpa == digit["gel"]["youngs_modulus_mpa"]
-    assert contact_material({"port": "/dev/ttyUSB0"}, digit) == elastic
+    assert contact_material(digit, simulated=False, bench_gel_mechanics=None) == elastic
     bare = {**digit, "gel": {k: v for k, v in digit["gel"].items() if k != "poisson_ratio"}}
     with caplog.at_level("WARNING"):
-        assert contact_material({"port": "/dev/ttyUSB0"}, bare) is None
+        assert contact_material(bare, simulated=False, bench_gel_mechanics=None) is None
     assert "gel.poisson_ratio" in caplog.text
 
 

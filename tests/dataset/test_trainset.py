@@ -5,6 +5,7 @@ import pytest
 from threedcal.dataset.build import build_imported
 from threedcal.dataset.trainset import TrainingSet, coordinate_channels, downscale, model_inputs
 from threedcal.errors import ConfigError
+from threedcal.study.scene import dataset_settings
 
 
 def small_set(n=4, shape=(40, 30)):
@@ -96,7 +97,13 @@ def test_build_imported_real_folder(tmp_path, real_data):
         "seed": 4,
         "dataset": {"downscale": 2, "max_slope_deg": 70},
     }
-    ts = build_imported(scene, tmp_path / "trainset", tmp_path / "splits.csv")
+    ts = build_imported(
+        scene["import"]["format"],
+        scene["import"]["path"],
+        dataset_settings(scene),
+        tmp_path / "trainset",
+        tmp_path / "splits.csv",
+    )
     splits = pd.read_csv(tmp_path / "splits.csv")
     assert len(splits) == 42 and (splits["split"] == "val").sum() == 8
     back = TrainingSet.load(tmp_path / "trainset")

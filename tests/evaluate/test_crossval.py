@@ -19,6 +19,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 from threedcal.study import imported_jobs
+from threedcal.study.scene import dataset_settings
 
 PX_PER_MM, BALL_MM, SIZE = 10.0, 2.0, (64, 80)  # (width, height) of the rendered frames
 TINY = {"preset": "compact", "epochs_base": 1, "patch_px": 24, "contact_patches": 2}
@@ -99,7 +100,13 @@ def trainset_of(folder, tmp_path, fmt="ball_folder"):
         "seed": 0,
         "dataset": {"downscale": 1, "max_slope_deg": 75},
     }
-    build_imported(scene, tmp_path / "trainset", tmp_path / "splits.csv")
+    build_imported(
+        scene["import"]["format"],
+        scene["import"]["path"],
+        dataset_settings(scene),
+        tmp_path / "trainset",
+        tmp_path / "splits.csv",
+    )
     return tmp_path / "trainset"
 
 
@@ -262,7 +269,9 @@ def test_duplicate_presses_bound_the_label_noise():
 def run_cv(trainset, tmp_path, folds=3):
     cv = {"folds": folds, "bootstrap": 200, "label_draws": 3}
     cv_folds.write_folds(trainset, cv, 0, tmp_path / "folds.csv", where="the folder")
-    methods = {m: imported_jobs.method_settings({"model": TINY}, m) for m in imported_jobs.CV_METHODS}
+    methods = {
+        m: imported_jobs.method_settings({"model": TINY}, m) for m in imported_jobs.CV_METHODS
+    }
     for fold in range(folds):
         out = {m: tmp_path / m / f"fold{fold}" for m in methods}
         crossval.train_fold_methods(

@@ -16,13 +16,13 @@ from test_crossval import (
     trainset_of,
 )
 
+from threedcal.dataset import folds as cv_folds
 from threedcal.dataset.labels import contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.study import imported_jobs
 from threedcal.errors import ConfigError
-from threedcal.dataset import folds as cv_folds
 from threedcal.evaluate import sim2real, sim2real_scores, sim2real_settings
 from threedcal.model.checkpoint import read_checkpoint
+from threedcal.study import imported_jobs
 
 S2R = {
     "frames": 6,
@@ -373,7 +373,9 @@ def test_shipped_weights_fine_tune_on_the_same_k_images_in_their_frame_and_score
     assert predicted_at == "32x40 px (80x64 pooled 2x, turned a quarter)"
     grads, depth = frames[int(test.iloc[0])]
     assert grads.shape == (80, 64, 2) and depth.shape == (80, 64)
-    images = sim2real_scores.score_models(ts, folds, {("shipped+real", "4"): {1: out / "model.pt"}}, 1)
+    images = sim2real_scores.score_models(
+        ts, folds, {("shipped+real", "4"): {1: out / "model.pt"}}, 1
+    )
     assert set(images["predicted_at"]) == {predicted_at} and len(images) == len(test)
     # another set's frames are not the ones it was trained on
     wide = dataclasses.replace(

@@ -5,9 +5,9 @@ import pytest
 
 from threedcal.cli import main
 from threedcal.profiles import load_profile
+from threedcal.realism.check import BallLabel, compare, image_figures, load_ball_dataset
 from threedcal.sim.fit import realism_report
 from threedcal.sim.optics import sphere_normals
-from threedcal.realism.check import BallLabel, compare, image_figures, load_ball_dataset
 
 # The figures that the built-in Mini profile does not meet in sample: its noise is white (no
 # noise_correlation_px), the geometric gel has no broad halo around a contact, and its red contrast

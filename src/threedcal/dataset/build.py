@@ -20,7 +20,6 @@ from threedcal.collect.plan import (
 )
 from threedcal.collect.store import open_checked
 from threedcal.dataset.dome_contacts import DomedContacts
-from threedcal.dataset.fractions import ablation_replicates, training_fractions
 from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.refine import refine_labels
@@ -35,11 +34,28 @@ from threedcal.dataset.touch import (
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
 from threedcal.errors import ConfigError
 from threedcal.lens import RadialLens, profile_focal_px, rectify_if
-from threedcal.mount import scene_sensor
 from threedcal.plotting import pyplot
-from threedcal.profiles import load_profile, with_gel_mechanics
+from threedcal.profiles import with_gel_mechanics
 from threedcal.sim.bench import BenchTruth
 from threedcal.sim.elastic import GelMaterial
+
+
+@dataclass(frozen=True)
+class DatasetSettings:
+    """What the dataset stage reads of a scene, as the study layer parsed it
+    (threedcal.study.scene.dataset_settings)."""
+
+    seed: int
+    fractions: tuple[int, ...]  # the data fractions P trained, ascending
+    replicates: int  # nested subset draws per fraction
+    downscale: int
+    max_slope_deg: float | None  # as configured: check_max_slope reads it
+    max_depth_over_radius: float | None = None
+    refine_labels: bool = False
+    sensor: Mapping | None = None  # the sensor profile, seated as the scene's mount says
+    probe_radius_mm: float | None = None  # a collected scene's ball
+    bench_gel_mechanics: str | None = None  # a simulated bench's gel (None on a real rig)
+    simulated: bool = False  # collected on the simulated bench
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
@@ -53,22 +69,26 @@ def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:
 
 
 def build_imported(
-    scene: Mapping, trainset_dir: str | Path, splits_path: str | Path
+    data_format: str,
+    data_path: str | Path,
+    settings: DatasetSettings,
+    trainset_dir: str | Path,
+    splits_path: str | Path,
 ) -> TrainingSet:
-    data = load_imported(scene["import"]["format"], scene["import"]["path"])
+    data = load_imported(data_format, data_path)
 
     trainset = from_imported(
         data,
-        seed=scene["seed"],
-        fractions=tuple(training_fractions(scene)),
-        replicates=ablation_replicates(scene),
+        seed=settings.seed,
+        fractions=settings.fractions,
+        replicates=settings.replicates,
     )
-    trainset.max_slope_deg = check_max_slope(scene["dataset"]["max_slope_deg"])
-    if scene.get("sensor"):
-        trainset.meta["sensor"] = load_profile("sensor", scene["sensor"]).get("name")
-    if scene["dataset"].get("refine_labels"):
+    trainset.max_slope_deg = check_max_slope(settings.max_slope_deg)
+    if settings.sensor:
+        trainset.meta["sensor"] = settings.sensor.get("name")
+    if settings.refine_labels:
         trainset = refine_labels(trainset)
-    trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
+    trainset = downscale(trainset, settings.downscale)
     trainset.save(trainset_dir)
     xy = np.full((int(data.point.max()) + 1, 2), np.nan)
     xy[data.point] = data.xy_mm
@@ -129,13 +149,13 @@ def _mean_frame(raw, start: int, stop: int) -> np.ndarray:
     return np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8)
 
 
-def contact_material(scene: Mapping, sensor: Mapping):
+def contact_material(sensor: Mapping, simulated: bool, bench_gel_mechanics: str | None):
     """The gel's elastic constants when its contacts are elastic, else None (it follows the ball).
 
     A real gel is elastic. A simulated bench renders the gel its `bench.gel_mechanics` (else the
     profile's `gel.mechanics`) names, and the contacts the registration sees are that gel's."""
-    if scene.get("port") == "sim":
-        gel = with_gel_mechanics(sensor, (scene.get("bench") or {}).get("gel_mechanics"))["gel"]
+    if simulated:
+        gel = with_gel_mechanics(sensor, bench_gel_mechanics)["gel"]
         if gel.get("mechanics", "geometric") != "elastic":
             return None
     missing = [k for k in ("youngs_modulus_mpa", "poisson_ratio") if k not in sensor["gel"]]
@@ -151,7 +171,7 @@ def contact_material(scene: Mapping, sensor: Mapping):
 
 
 def register_store(
-    scene: Mapping,
+    settings: DatasetSettings,
     store_path: str | Path,
     progress: bool = True,
     expect_digest: str | None = None,
@@ -164,7 +184,7 @@ def register_store(
     many plan rows, captured so far. `prior`: this store registered earlier (a quick calibration's
     last round); its fit is reused when it located the same rows, whose frames a store never
     changes, rather than located and fitted again (most of a round's labelling time)."""
-    sensor = scene_sensor(scene)
+    sensor = settings.sensor
     raw = open_checked(store_path, expect_digest, rows=rows)
     height, width = raw["frames"].shape[1:3]
     point_of_frame = raw["point"].values
@@ -193,7 +213,7 @@ def register_store(
     if prior is not None and np.array_equal(prior.registered_rows, rows):
         registration = prior.registration
     else:
-        registration = _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress)
+        registration = _register(settings, raw, rows, first, last, cmd_xy, whole, progress)
     # where each press lies in the ideal frame: what the trainset's rectified frames show
     centres = registration.fit.ideal(cmd_xy)
     # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
@@ -204,8 +224,9 @@ def register_store(
     )
 
 
-def _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress):
+def _register(settings, raw, rows, first, last, cmd_xy, whole, progress):
     """register_camera on the contacts of plan rows `rows` (their mean frames)."""
+    sensor = settings.sensor
     height, width = raw["frames"].shape[1:3]
     dome = None
     if sensor["gel"].get("dome"):
@@ -215,11 +236,11 @@ def _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress):
         )
         dome = DomedContacts(
             sensor["gel"]["dome"],
-            float(scene["probe"]["radius_mm"]),
+            float(settings.probe_radius_mm),
             np.clip(nominal, 0.0, None),
             float(sensor["px_per_mm"]),
             (height, width),
-            material=contact_material(scene, sensor),
+            material=contact_material(sensor, settings.simulated, settings.bench_gel_mechanics),
         )
     return register_camera(
         cmd_xy[first[rows]],
@@ -234,7 +255,7 @@ def _register(scene, sensor, raw, rows, first, last, cmd_xy, whole, progress):
 
 
 def build_collected(
-    scene: Mapping,
+    settings: DatasetSettings,
     store_path: str | Path,
     trainset_dir: str | Path,
     splits_path: str | Path,
@@ -254,15 +275,15 @@ def build_collected(
     whole and checked first (complete, every point captured, every chunk present and readable;
     `expect_digest`: the frame settings collect/summary.json recorded).
     """
-    radius_mm = float(scene["probe"]["radius_mm"])
-    store = register_store(scene, store_path, progress, expect_digest)
+    radius_mm = float(settings.probe_radius_mm)
+    store = register_store(settings, store_path, progress, expect_digest)
     method = "search" if len(store.rows("touch")) else "rim"
     touch = touch_height(store, radius_mm, method, progress)
     offset = touch["touch_offset_mm"]
     contact_z_mm = round(float(store.sensor["mount"]["z_touch_mm"]) + offset, 4)
-    labels = _label_frames(scene, store, offset)
-    trainset = _collected_trainset(scene, store, labels, contact_z_mm)
-    trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
+    labels = _label_frames(settings, store, offset)
+    trainset = _collected_trainset(settings, store, labels, contact_z_mm)
+    trainset = downscale(trainset, settings.downscale)
     trainset.save(trainset_dir)
     write_splits(trainset, splits_path, xy_mm=labels.coordinates[["x_mm", "y_mm"]].to_numpy())
     record = _registration_record(store, touch, labels, contact_z_mm)
@@ -286,7 +307,7 @@ def build_collected(
 
 
 def collected_so_far(
-    scene: Mapping,
+    settings: DatasetSettings,
     store_path: str | Path,
     rows: int,
     progress: bool = False,
@@ -297,16 +318,16 @@ def collected_so_far(
     next round's `prior`: register_store). Registered and labelled as `build_collected` does, but
     every labelled press trains: the next round's presses, not a split of these, judge the
     model. Samples' `plan_row` names each frame's press."""
-    radius_mm = float(scene["probe"]["radius_mm"])
-    store = register_store(scene, store_path, progress, rows=rows, prior=prior)
+    radius_mm = float(settings.probe_radius_mm)
+    store = register_store(settings, store_path, progress, rows=rows, prior=prior)
     method = "search" if len(store.rows("touch")) else "rim"
     touch = touch_height(store, radius_mm, method, progress)
     offset = touch["touch_offset_mm"]
     contact_z_mm = round(float(store.sensor["mount"]["z_touch_mm"]) + offset, 4)
-    labels = _label_frames(scene, store, offset)
-    trainset = _collected_trainset(scene, store, labels, contact_z_mm, every_press_trains=True)
+    labels = _label_frames(settings, store, offset)
+    trainset = _collected_trainset(settings, store, labels, contact_z_mm, every_press_trains=True)
     trainset.samples["plan_row"] = store.raw["point"].values[labels.keep]
-    trainset = downscale(trainset, int(scene["dataset"]["downscale"]))
+    trainset = downscale(trainset, settings.downscale)
     return trainset, _registration_record(store, touch, labels, contact_z_mm), store
 
 
@@ -322,11 +343,11 @@ class _Labels:
     coordinates: pd.DataFrame  # one row per coordinate: x_mm, y_mm, point (sorted by point)
 
 
-def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Labels:
+def _label_frames(settings: DatasetSettings, store: RegisteredStore, offset: float) -> _Labels:
     """Labels for every grid frame whose probe centre the registration puts inside the image."""
     raw, centres = store.raw, store.centres
     height, width = raw["frames"].shape[1:3]
-    radius_mm = float(scene["probe"]["radius_mm"])
+    radius_mm = float(settings.probe_radius_mm)
     depth = np.clip(store.nominal_depth + offset, 0.0, None)
     inside = (
         in_field_of_view(centres[:, 0], centres[:, 1], width, height)
@@ -336,16 +357,14 @@ def _label_frames(scene: Mapping, store: RegisteredStore, offset: float) -> _Lab
     # Past d = R the contact stops growing and the rest of the press is a vertical wall the camera
     # looks along: frames that differ only in its height look alike while their rim labels do not.
     # Such presses serve the registration and the touch height, not the model (docs/explanation/labels.md).
-    max_ratio = scene["dataset"]["max_depth_over_radius"]
+    max_ratio = settings.max_depth_over_radius
     too_deep = np.zeros_like(inside)
     if max_ratio is not None:
         # the plan's depth, as the user wrote it (its dome compensation undone: a 1 mm press near a
         # domed gel's edge is commanded deeper, not pressed deeper); measured sags would split
         # presses that sit at the limit
-
-        sensor = scene_sensor(scene)
         as_written = raw["depth_mm"].values - dome_sag_mm(
-            sensor, raw["x_mm"].values, raw["y_mm"].values
+            store.sensor, raw["x_mm"].values, raw["y_mm"].values
         )
         too_deep = inside & (as_written > float(max_ratio) * radius_mm + 1e-3)
     keep = np.flatnonzero(inside & ~too_deep)
@@ -367,7 +386,7 @@ def _plan_xy(raw) -> np.ndarray:
 
 
 def _collected_trainset(
-    scene: Mapping,
+    settings: DatasetSettings,
     store: RegisteredStore,
     labels: _Labels,
     contact_z_mm: float,
@@ -376,16 +395,16 @@ def _collected_trainset(
     """The kept frames, rectified through the fitted lens (one mm is one px_per_mm everywhere, as
     the labels are), with their labels and splits (`every_press_trains`: no validation split,
     every press in every subset)."""
-    radius_mm = float(scene["probe"]["radius_mm"])
+    radius_mm = float(settings.probe_radius_mm)
     raw, sensor, fit = store.raw, store.sensor, store.registration.fit
     keep, coordinate_id, depth = labels.keep, labels.coordinate_id, labels.depth
-    replicates = ablation_replicates(scene)
+    replicates = settings.replicates
     if every_press_trains:
         replicates = 1
         table = labels.coordinates.assign(split="train", min_p=1).set_index("point")
     else:
         table = split_points(
-            labels.coordinates, training_fractions(scene), seed=scene["seed"], replicates=replicates
+            labels.coordinates, list(settings.fractions), seed=settings.seed, replicates=replicates
         ).set_index("point")
     samples = pd.DataFrame(
         {
@@ -410,7 +429,7 @@ def _collected_trainset(
         samples=samples.assign(frame=np.arange(len(keep))),
         px_per_mm=store.px_per_mm,
         sphere_radius_mm=radius_mm,
-        max_slope_deg=check_max_slope(scene["dataset"]["max_slope_deg"]),
+        max_slope_deg=check_max_slope(settings.max_slope_deg),
         meta={
             "source": "collected",
             "store_frames": keep.tolist(),

@@ -62,6 +62,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import train
 from threedcal.plotting import pyplot
 from threedcal.quick.loop import QuickLoop
+from threedcal.study.scene import dataset_settings
 from threedcal.study.session import prepare
 
 LEVEL = 0.95
@@ -156,7 +157,7 @@ def scratch_arm(
             continue
         rows = loop.ends[point.round - 1]
         trainset, _, registered = collected_so_far(
-            loop.scene, loop.store_path, rows, prior=registered
+            dataset_settings(loop.scene), loop.store_path, rows, prior=registered
         )
         budget = max(1, point.steps)
         settings = replace(

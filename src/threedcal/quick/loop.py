@@ -49,6 +49,7 @@ from threedcal.stop_rule import (
     rule_problems,
 )
 from threedcal.study.config import quick_run, quick_scene_problems
+from threedcal.study.scene import dataset_settings
 from threedcal.study.session import (
     collect_on_rig,
     estimate_hardware_s,
@@ -155,7 +156,7 @@ class QuickLoop:
         began = time.perf_counter()
         k = len(self.records) + 1
         trainset, self.registration, self._registered = collected_so_far(
-            self.scene, self.store_path, rows, prior=self._registered
+            dataset_settings(self.scene), self.store_path, rows, prior=self._registered
         )
         if not self.models:
             initial = self.work / "r0" / "model.pt"
@@ -385,7 +386,6 @@ def _plain(value):
 def _finished_rows(path: Path, plan: pd.DataFrame, settings: Mapping) -> int:
     """The plan rows a finished quick store holds, after checking its settings are the config's."""
     import zarr
-
 
     finished_store_summary(path, plan, settings)
     attrs = zarr.open_group(str(path), mode="r").attrs

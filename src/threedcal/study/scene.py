@@ -1,0 +1,35 @@
+"""A scene's settings parsed into the typed values the domain packages take: the one place that
+reads a scene's sections for them, so no domain function reads a config mapping by key."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from threedcal.dataset.build import DatasetSettings
+from threedcal.dataset.fractions import ablation_replicates, training_fractions
+from threedcal.mount import scene_sensor
+from threedcal.profiles import load_profile
+
+
+def dataset_settings(scene: Mapping) -> DatasetSettings:
+    """The dataset stage's settings: an imported scene's (its sensor profile when it names one) or
+    a collected scene's (its sensor seated by its mount, its ball, and the bench it ran on)."""
+    dataset = scene["dataset"]
+    imported = "import" in scene
+    if imported:
+        sensor = load_profile("sensor", scene["sensor"]) if scene.get("sensor") else None
+    else:
+        sensor = scene_sensor(scene)
+    return DatasetSettings(
+        seed=scene["seed"],
+        fractions=tuple(training_fractions(scene)),
+        replicates=ablation_replicates(scene),
+        downscale=int(dataset["downscale"]),
+        max_slope_deg=dataset["max_slope_deg"],
+        max_depth_over_radius=dataset.get("max_depth_over_radius"),
+        refine_labels=bool(dataset.get("refine_labels")),
+        sensor=sensor,
+        probe_radius_mm=None if imported else float(scene["probe"]["radius_mm"]),
+        bench_gel_mechanics=(scene.get("bench") or {}).get("gel_mechanics"),
+        simulated=scene.get("port") == "sim",
+    )
