@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import yaml
 
-from threedcal.dataset.fractions import ablation_replicates, model_keys, training_fractions
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.study.config import load_config, validate_config
+from threedcal.study.fractions import ablation_replicates, model_keys, training_fractions
 
 REPO = Path(__file__).resolve().parents[1]
 SIM_SCENE = {"sensor": "digit", "printer": "ender3"}

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from threedcal.object_refs import MESH_SUFFIXES
 from threedcal.errors import ConfigError
+from threedcal.object_refs import MESH_SUFFIXES
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,8 @@ import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
-from threedcal.sim.optics import field_terms
 from threedcal.realism.check import halo_radii
+from threedcal.sim.optics import field_terms
 
 FIELD_DEGREE = 4
 

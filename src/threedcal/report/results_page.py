@@ -24,12 +24,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from threedcal.dataset.fractions import convergence_fractions, training_fractions
 from threedcal.evaluate.ablation_reading import curve_summary
 from threedcal.report.stage_times import stage_time_lines, stage_times, study_span
 from threedcal.report.summary import read_json, reading_line, sim2real_rows
 from threedcal.study.config import has_arms, is_quick
 from threedcal.study.config import is_imported as config_is_imported
+from threedcal.study.fractions import convergence_fractions, training_fractions
 from threedcal.study.paths import has_ablation, has_objects, has_sim2real
 
 TITLE = "Results of the default study"

@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 
 from threedcal.errors import ConfigError
-from threedcal.sim.optics import field_terms
 from threedcal.realism.check import HALO_MAX_RADII
+from threedcal.sim.optics import field_terms
 
 FIELD_BLUR_PX = 4.0  # the background field is fitted at low frequency ...
 FIELD_STRIDE = 4  # ... on every 4th pixel
@@ -377,9 +377,9 @@ def _real_change(frame, bg, label, ball_px) -> _Contact:
 def _contact_bases(profile, data, labels) -> list[np.ndarray]:
     """Per contact, the unblurred change (H, W, L) of each light's directional term at unit gain,
     full frame (zeros outside the contact's window)."""
+    from threedcal.realism.check import simulated_depth_mm
     from threedcal.sim.indenters import Sphere
     from threedcal.sim.optics import GelSimulator
-    from threedcal.realism.check import simulated_depth_mm
 
     n = len(profile["lights"])
     if n != 3:
@@ -456,8 +456,8 @@ def _bounded_lstsq(a: np.ndarray, b: np.ndarray, lower: np.ndarray) -> np.ndarra
 # ------------------------------------------------------------------------- noise
 def _fit_noise(profile, data, frames, labels, ball_px, correlation_range_px) -> dict[str, Any]:
     """noise_dn and noise_correlation_px so that blank renders match the frames' fine residual."""
-    from threedcal.sim.optics import GelSimulator
     from threedcal.realism.check import noise_figures
+    from threedcal.sim.optics import GelSimulator
 
     h, w = data.height_px, data.width_px
     yy, xx = np.mgrid[:h, :w]
@@ -583,7 +583,6 @@ def realism_run(
     2-D halo (it needs two real halves). `gel_mechanics`: the gel's model in place of the profile's
     (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
     from threedcal.profiles import load_profile, with_gel_mechanics
-    from threedcal.realism.halo2d import folder_halos, format_halos
     from threedcal.realism.check import (
         LABELLED_ONLY,
         compare,
@@ -591,6 +590,7 @@ def realism_run(
         load_ball_dataset,
         render_presses,
     )
+    from threedcal.realism.halo2d import folder_halos, format_halos
 
     data = load_ball_dataset(real)
     profile = with_gel_mechanics(load_profile("sensor", sensor), gel_mechanics)

@@ -20,7 +20,6 @@ from threedcal.collect.plan import (
     validate_plan,
     whole_contacts,
 )
-from threedcal.dataset.fractions import FULL_TRAINING_P, normalise_ablation, training_fractions
 from threedcal.dataset.importers import check_import, load_imported
 from threedcal.dataset.reframe import reframe_problem
 from threedcal.errors import ConfigError
@@ -31,6 +30,7 @@ from threedcal.profiles import ProfileNotFound, load_profile, resolve_profile
 from threedcal.rig import check_devices
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
+from threedcal.study.fractions import FULL_TRAINING_P, normalise_ablation, training_fractions
 
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
 IMPORT_IRRELEVANT = (

@@ -13,18 +13,18 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from threedcal.dataset.fractions import (
+from threedcal.errors import ConfigError
+from threedcal.mount import scene_mount_values
+from threedcal.pretrained import SHIPPED_DIR
+from threedcal.profiles import load_profile
+from threedcal.study.config import has_arms, is_imported, is_quick, real_check_sets, realism_sets
+from threedcal.study.fractions import (
     FULL_TRAINING_P,
     convergence_fractions,
     model_keys,
     normalise_ablation,
     training_fractions,
 )
-from threedcal.errors import ConfigError
-from threedcal.mount import scene_mount_values
-from threedcal.pretrained import SHIPPED_DIR
-from threedcal.profiles import load_profile
-from threedcal.study.config import has_arms, is_imported, is_quick, real_check_sets, realism_sets
 
 RESULTS = "results"
 # Every file the workflow writes that something else names (a rule's input, a scene's targets), as

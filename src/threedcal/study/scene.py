@@ -6,9 +6,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from threedcal.dataset.build import DatasetSettings
-from threedcal.dataset.fractions import ablation_replicates, training_fractions
 from threedcal.mount import scene_sensor
 from threedcal.profiles import load_profile
+from threedcal.study.fractions import ablation_replicates, training_fractions
 
 
 def dataset_settings(scene: Mapping) -> DatasetSettings:
