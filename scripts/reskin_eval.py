@@ -1,13 +1,12 @@
 """Rule `reskin_eval`: localisation and depth errors on the held-out coordinates → json + figure."""
 
-from threedcal.reskin.stage import eval_stage
-
 from threedcal.collect.store import collected_store
 from threedcal.logs import stage_log
 from threedcal.profiles import load_profile
+from threedcal.study.stages import reskin_eval_stage
 
 with stage_log(snakemake.log[0]):
-    eval_stage(
+    reskin_eval_stage(
         collected_store(snakemake.input.collected)[0],
         snakemake.input.model,
         snakemake.input.splits,

@@ -1,12 +1,11 @@
 """Rule `reskin_train`: split a ReSkin store by coordinate and train the MLP → model.pt, losses, splits."""
 
-from threedcal.reskin.stage import train_stage
-
 from threedcal.collect.store import collected_store
 from threedcal.logs import stage_log
+from threedcal.study.stages import reskin_train_stage
 
 with stage_log(snakemake.log[0]):
-    train_stage(
+    reskin_train_stage(
         collected_store(snakemake.input.collected)[0],
         snakemake.params.settings,
         seed=snakemake.params.seed,

@@ -2,13 +2,16 @@
 imports another's private names: the spine is schema → profiles → config → stages."""
 
 import ast
+import importlib
+import importlib.util
 import re
 import subprocess
 import sys
 
 from threedcal.provenance import PACKAGE_ROOT, imported_modules, module_file
 
-SNAKEFILE = PACKAGE_ROOT.parents[1] / "Snakefile"
+REPO = PACKAGE_ROOT.parents[1]
+SNAKEFILE = REPO / "Snakefile"
 
 
 def _modules() -> dict[str, object]:
@@ -135,3 +138,25 @@ def test_the_snakefile_parse_loads_no_model_or_solver_libraries():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     )
     assert loaded.stdout.strip() == "[]"
+
+
+def test_every_name_the_scripts_import_from_the_library_exists():
+    """The rules' scripts, the benchmarks and the diagnostics run only in whole-study runs: a name
+    moved in the library must not be found missing there first."""
+    missing = []
+    for folder in ("scripts", "benchmarks", "diagnostics"):
+        for path in sorted((REPO / folder).glob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("threedcal"):
+                    if importlib.util.find_spec(node.module) is None:
+                        missing.append(f"{path.relative_to(REPO)}: {node.module}")
+                        continue
+                    module = importlib.import_module(node.module)
+                    for alias in node.names:
+                        name = f"{node.module}.{alias.name}"
+                        if (
+                            not hasattr(module, alias.name)
+                            and importlib.util.find_spec(name) is None
+                        ):
+                            missing.append(f"{path.relative_to(REPO)}: {name}")
+    assert missing == []

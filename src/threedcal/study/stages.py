@@ -1,4 +1,5 @@
-"""TODO docstring."""
+"""The stages whose rules compose several domain steps: each takes the rule's files and settings as
+plain values and writes the rule's outputs (the statistics, the presets comparison, ReSkin)."""
 
 from __future__ import annotations
 
@@ -120,7 +121,7 @@ def presets_stage(
     return table
 
 
-def train_stage(
+def reskin_train_stage(
     store: str | Path,
     settings: Mapping[str, Any] | None,
     *,
@@ -155,7 +156,7 @@ def train_stage(
     return {"train_readings": len(train.targets), "test_readings": len(held.targets)}
 
 
-def eval_stage(
+def reskin_eval_stage(
     store: str | Path,
     model_path: str | Path,
     splits_path: str | Path,
