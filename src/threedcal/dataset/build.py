@@ -117,7 +117,7 @@ def contact_material(scene: Mapping, sensor: Mapping):
     A real gel is elastic. A simulated bench renders the gel its `bench.gel_mechanics` (else the
     profile's `gel.mechanics`) names, and the contacts the registration sees are that gel's."""
     from threedcal.profiles import with_gel_mechanics
-    from threedcal.sim.elastic import GelMaterial
+    from threedcal.sim.layer_kernel import GelMaterial
 
     if scene.get("port") == "sim":
         gel = with_gel_mechanics(sensor, (scene.get("bench") or {}).get("gel_mechanics"))["gel"]
