@@ -37,7 +37,7 @@ from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
 from threedcal.model.presets_study import PATCH_BALL_SETTINGS
-from threedcal.model.train import training_autocast
+from threedcal.model.train_step import training_autocast
 
 HEIGHT, WIDTH = 240, 320
 # The model's frame is the camera's pooled by this (dataset.downscale, as the preset is trained).
@@ -138,7 +138,8 @@ def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     """Held-out ball_eval figures of each preset trained with BALL_SETTINGS on `folder`."""
     from threedcal.dataset.build import build_imported
     from threedcal.model.ball_eval import evaluate
-    from threedcal.model.train import TrainSettings, train
+    from threedcal.model.train import train
+    from threedcal.model.train_settings import TrainSettings
 
     scene = {
         "import": {"format": "ball_folder", "path": str(folder)},

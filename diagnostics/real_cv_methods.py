@@ -34,7 +34,8 @@ from threedcal.model import crossval
 from threedcal.model import folds as cv_folds
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.presets_study import PATCH_BALL_SETTINGS, depth_ms_per_frame
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 # fots_ball's settings before this study (the models explanation, Choosing a preset).
 BALL = PATCH_BALL_SETTINGS

@@ -67,7 +67,8 @@ def tiny_checkpoint(path: str) -> None:
     import pandas as pd
 
     from threedcal.dataset.trainset import TrainingSet
-    from threedcal.model.train import TrainSettings, train
+    from threedcal.model.train import train
+    from threedcal.model.train_settings import TrainSettings
     from threedcal.profiles import load_profile
     from threedcal.sim import GelSimulator, Sphere
     from threedcal.sim.bench import nominal_affine

@@ -7,7 +7,8 @@ from test_crossval import TINY, make_ball_folder, trainset_of
 
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.model.presets_study import COLUMNS, compare_presets
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 
 def test_a_preset_already_trained_is_read_not_trained_again_and_scores_as_a_fresh_training(

@@ -364,8 +364,8 @@ def test_a_run_presses_its_own_design_and_trains_with_its_own_seed(tmp_path):
     """Run 2 draws other quick presses after the same touch search and registration lattice, and
     fine-tunes with the seed's replicate 1; run 1 is the calibration as it always was."""
     from threedcal.collect.session import prepare
-    from threedcal.dataset.splits import replicate_seed
     from threedcal.quick.loop import QuickLoop
+    from threedcal.seeds import replicate_seed
 
     scenes = validate_config(with_runs({"quick": {"run": 2}}))["scenes"]
     plans, seeds = [], []

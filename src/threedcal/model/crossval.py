@@ -357,7 +357,8 @@ def train_fold_methods(
     """One fold's model of every method (name -> `model:` settings) into out_dirs[name]
     (model.pt, losses.csv), each trained on the images outside the fold: one job for the fold, so
     the set, its folds and the libraries are loaded once, not once a method."""
-    from threedcal.model.train import TrainSettings, train
+    from threedcal.model.train import train
+    from threedcal.model.train_settings import TrainSettings
 
     ts = TrainingSet.load(trainset_dir)
     subset = fold_trainset(ts, read_folds(folds_path, ts), fold, None, seed)
@@ -498,7 +499,8 @@ def nested_choice(
     the best candidate's, summed over gradient RMSE and cap depth MAE): lowest wins.
     Returns {"chosen": name, "inner": {name: pooled figures}}.
     """
-    from threedcal.model.train import TrainSettings, train
+    from threedcal.model.train import train
+    from threedcal.model.train_settings import TrainSettings
 
     inner = inner_folds(folds, fold, inner_k, seed)
     figures = {}

@@ -23,7 +23,8 @@ from threedcal.dataset.trainset import TrainingSet
 from threedcal.model.ball_eval import evaluate
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 COLUMNS = ["preset", "ms_per_frame", "gradient_rmse", "cap_depth_mae_um", "train_s"]
 # Patch training on imported ball images, as fots_ball's `model:` section set it before its

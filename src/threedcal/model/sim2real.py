@@ -386,7 +386,7 @@ def write_simulated(
 
 # ---------------------------------------------------------------------------------- training
 def _train_settings(model: Mapping, seed: int, threads: int, **changes):
-    from threedcal.model.train import TrainSettings
+    from threedcal.model.train_settings import TrainSettings
 
     return TrainSettings.from_scene(
         {"model": {**dict(model), **changes}, "seed": seed, "torch_threads": threads}

@@ -93,8 +93,8 @@ class QuickLoop:
         progress: bool = False,
     ):
         from threedcal.config import quick_run
-        from threedcal.dataset.splits import replicate_seed
-        from threedcal.model.train import TrainSettings
+        from threedcal.model.train_settings import TrainSettings
+        from threedcal.seeds import replicate_seed
 
         self.scene, self.plan, self.sensor, self.printer = scene, plan, sensor, printer
         self.store_path, self.work = Path(store_path), Path(work_dir)
