@@ -19,7 +19,7 @@ import zarr
 from conftest import assert_same_array, snakemake, snakemake_command, snapshot
 
 from threedcal.collect.session import collect_scene
-from threedcal.collect.store import open_raw
+from threedcal.collect.store_read import open_raw
 from threedcal.config import validate_config
 
 SUMMARY = "results/t/collect/summary.json"

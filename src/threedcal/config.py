@@ -11,7 +11,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from threedcal.collect.plan import plan_from_config, validate_plan
+from threedcal.collect.plan import validate_plan
+from threedcal.collect.scene_plan import plan_from_config
 from threedcal.dataset.importers import check_import
 from threedcal.errors import ConfigError
 from threedcal.mount import scene_mount_values, with_mount
@@ -227,7 +228,7 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """What a quick calibration (plan.pattern: quick) would refuse once its printer had moved:
     rounds that cannot cover the gel, a stop rule out of range, shipped weights made for another
     sensor, network or frame size, and stages it does not run."""
-    from threedcal.collect.plan import quick_problems
+    from threedcal.collect.quick_plan import quick_problems
     from threedcal.quick.stop_rule import rule_problems
 
     quick = scene["quick"]
@@ -254,12 +255,9 @@ def _quick_registration_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """A quick plan whose registration presses (or, with none, its first round's) leave too few
     whole contacts for the first round's registration: the affine through the profile's lens, its
     contacts to spare for the outliers (threedcal.dataset.camera_fit.fit_camera)."""
-    from threedcal.collect.plan import (
-        quick_plan,
-        registration_presses_of,
-        rows_per_press,
-        whole_contacts,
-    )
+    from threedcal.collect.plan import whole_contacts
+    from threedcal.collect.quick_plan import quick_plan, rows_per_press
+    from threedcal.collect.scene_plan import registration_presses_of
     from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS
 
     plan = scene["plan"]

@@ -8,7 +8,8 @@ import pytest
 from test_collect_bench import LABELS as BENCH_LABELS
 
 from threedcal.collect.session import collect_scene
-from threedcal.collect.store import RawStore, SettingsMismatch, StoreError, open_raw
+from threedcal.collect.store import RawStore, SettingsMismatch, StoreError
+from threedcal.collect.store_read import open_raw
 from threedcal.config import validate_config
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError

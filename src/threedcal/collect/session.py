@@ -21,8 +21,9 @@ import numpy as np
 import pandas as pd
 import zarr
 
-from threedcal.collect.plan import plan_from_config, validate_plan
+from threedcal.collect.plan import validate_plan
 from threedcal.collect.run import MotionSettings, RunResult, collect
+from threedcal.collect.scene_plan import plan_from_config
 from threedcal.collect.store import (
     IMAGE_LAYOUT,
     RawStore,
@@ -433,7 +434,7 @@ def collect_stage(
 
     For a magnetic sensor `mosaic` receives a figure of sample readings instead of frames."""
     from threedcal.collect.figures import coverage_figure, mosaic_figure
-    from threedcal.collect.store import open_raw
+    from threedcal.collect.store_read import open_raw
 
     prepared = prepare(scene, source=f"scenes.{name}")
     result = collect_scene(

@@ -34,7 +34,7 @@ class ReSkinSet:
 
 def load_readings(store_path: str | Path) -> ReSkinSet:
     """The ReSkin readings of a complete collection store, baseline subtracted."""
-    from threedcal.collect.store import open_checked
+    from threedcal.collect.store_read import open_checked
 
     raw = open_checked(store_path)  # whole and checked: every record, every chunk
     if "readings" not in raw:
