@@ -4,7 +4,7 @@ from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
-from threedcal.dataset.fractions import FULL_TRAINING_P, convergence_fractions, model_keys
+from threedcal.study.fractions import FULL_TRAINING_P, convergence_fractions, model_keys
 from threedcal.evaluate.objects import check_object_files
 from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, cycle_ends, snapshot_name
 from threedcal.provenance import script_digest

@@ -24,7 +24,7 @@ from torch.func import functional_call, stack_module_state, vmap
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format
-from threedcal.model.train import training_autocast
+from threedcal.model.train_step import training_autocast
 
 PRESET, BATCH, PATCH, LOSS = "context_half", 4, 48, "huber"
 

@@ -37,7 +37,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import host_line, resolve_precision
 from threedcal.model.presets import build_model, preferred_memory_format, preset_args
-from threedcal.model.train import training_autocast
+from threedcal.model.train_step import training_autocast
 
 HEIGHT, WIDTH = 240, 320
 # The model's frame is the camera's pooled by this (dataset.downscale, as the preset is trained).

@@ -30,8 +30,9 @@ from scipy.optimize import brentq
 
 from threedcal.dataset.labels import sphere_depth, sphere_gradients
 from threedcal.profiles import load_profile
-from threedcal.sim.elastic import GelMaterial, LayerKernel, layer_factor, solve_contact
+from threedcal.sim.elastic import solve_contact
 from threedcal.sim.indenters import Sphere
+from threedcal.sim.layer_kernel import GelMaterial, LayerKernel, layer_factor
 from threedcal.sim.optics import GelSimulator
 
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
@@ -84,7 +85,7 @@ def paraboloid(material, R, d, s, extent):
 def derive(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
     """The surface compliance of a layer bonded to a rigid base, from the Navier equations of one
     plane-strain Fourier mode (u_x = U(z) sin kx, u_z = W(z) cos kx; z into the gel, the surface at
-    z = 0 loaded by p cos kx, shear-free; the base z = h fixed), against sim.elastic.layer_factor."""
+    z = 0 loaded by p cos kx, shear-free; the base z = h fixed), against sim.layer_kernel.layer_factor."""
     import sympy as sp
 
     z, k, h, mu, nu, p, X = sp.symbols("z k h mu nu p X", positive=True)
@@ -114,7 +115,7 @@ def derive(sizes: Sizes = FULL, out: Path = FIGURES) -> dict:
         for t in (0.01, 0.1, 0.5, 1.0, 3.0, 10.0)
         for v in (0.0, 0.3, 0.49, 0.5)
     )
-    print(f"largest difference from threedcal.sim.elastic.layer_factor: {worst:.1e}")
+    print(f"largest difference from threedcal.sim.layer_kernel.layer_factor: {worst:.1e}")
     return {"layer_factor_difference": worst}
 
 

@@ -28,7 +28,8 @@ from threedcal.dataset.labels import local_dome, sphere_gradients
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.depth import integrate
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench, plan_centre_printer_mm
 from threedcal.study.config import validate_config

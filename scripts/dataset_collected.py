@@ -1,6 +1,6 @@
 """Rule `dataset_collected`: registration, labels, splits and the model-ready set of a collected scene."""
 
-from threedcal.collect.store import collected_store
+from threedcal.collect.store_read import collected_store
 from threedcal.dataset.build import build_collected
 from threedcal.logs import stage_log
 from threedcal.study.scene import dataset_settings

@@ -1,6 +1,6 @@
 """Rule `reskin_eval`: localisation and depth errors on the held-out coordinates → json + figure."""
 
-from threedcal.collect.store import collected_store
+from threedcal.collect.store_read import collected_store
 from threedcal.logs import stage_log
 from threedcal.profiles import load_profile
 from threedcal.study.stages import reskin_eval_stage

@@ -1,6 +1,6 @@
 """Rule `reskin_train`: split a ReSkin store by coordinate and train the MLP → model.pt, losses, splits."""
 
-from threedcal.collect.store import collected_store
+from threedcal.collect.store_read import collected_store
 from threedcal.logs import stage_log
 from threedcal.study.stages import reskin_train_stage
 

@@ -2,7 +2,8 @@
 
 from threedcal.logs import stage_log
 from threedcal.model.contact_guard import check_calibration_presses
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 with stage_log(snakemake.log[0]):
     settings = TrainSettings.from_scene(snakemake.params.settings)

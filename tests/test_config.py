@@ -267,7 +267,7 @@ def test_the_shipped_configs_pass_config_check(repo, capsys):
 def test_train_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     import dataclasses
 
-    from threedcal.model.train import TrainSettings
+    from threedcal.model.train_settings import TrainSettings
     from threedcal.schema import load_schema
 
     fields = dataclasses.fields(TrainSettings)

@@ -67,10 +67,12 @@ def tiny_checkpoint(path: str) -> None:
     import pandas as pd
 
     from threedcal.dataset.trainset import TrainingSet
-    from threedcal.model.train import TrainSettings, train
+    from threedcal.model.train import train
+    from threedcal.model.train_settings import TrainSettings
     from threedcal.profiles import load_profile
-    from threedcal.sim import GelSimulator, Sphere
     from threedcal.sim.bench import nominal_affine
+    from threedcal.sim.indenters import Sphere
+    from threedcal.sim.optics import GelSimulator
 
     sim = GelSimulator(load_profile("sensor", "digit"), seed=0)
     centres = [(80, 110), (160, 110), (120, 160), (80, 210), (160, 210), (120, 250)]
@@ -121,7 +123,8 @@ def tiny_checkpoint(path: str) -> None:
 
 def sim_frame() -> np.ndarray:
     from threedcal.profiles import load_profile
-    from threedcal.sim import GelSimulator, Sphere
+    from threedcal.sim.indenters import Sphere
+    from threedcal.sim.optics import GelSimulator
 
     sim = GelSimulator(load_profile("sensor", "digit"), seed=1)
     return sim.render(

@@ -18,7 +18,7 @@ import yaml
 import zarr
 from conftest import assert_same_array, snakemake, snakemake_command, snapshot
 
-from threedcal.collect.store import open_raw
+from threedcal.collect.store_read import open_raw
 from threedcal.study.config import validate_config
 from threedcal.study.session import collect_scene
 

@@ -21,7 +21,7 @@ from conftest import (
     snapshot,
 )
 
-from threedcal.collect.store import open_raw
+from threedcal.collect.store_read import open_raw
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
 from threedcal.study.config import validate_config
@@ -397,7 +397,8 @@ def wide_skirt(sensor: str, folder) -> str:
 def touch_error_with_true_centres(tmp_path, sensor, seed):
     """Collect a touch search and measure δ with the contacts placed by the bench's true affine:
     the search alone, apart from the registration (tested above)."""
-    from threedcal.collect.plan import dome_sag_at_px, plan_phases
+    from threedcal.collect.plan import dome_sag_at_px
+    from threedcal.collect.scene_plan import plan_phases
     from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, measure_touch_search
 
     plan = {"spacing_mm": 8.0, "depth_mm": 1.0, "frames": 1}

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from test_collect_bench import LABELS as BENCH_LABELS
 
-from threedcal.collect.store import RawStore, SettingsMismatch, StoreError, open_raw
+from threedcal.collect.store import RawStore, SettingsMismatch, StoreError
+from threedcal.collect.store_read import open_raw
 from threedcal.dataset.build import build_collected
 from threedcal.errors import ConfigError
 from threedcal.study.config import validate_config

@@ -9,7 +9,8 @@ import pytest
 
 from threedcal.collect.plan import clearance_z, grid_plan, plan_to_printer
 from threedcal.collect.run import CollectionInterrupted, MotionSettings, collect
-from threedcal.collect.store import RawStore, open_raw
+from threedcal.collect.store import RawStore
+from threedcal.collect.store_read import open_raw
 from threedcal.errors import ConfigError
 from threedcal.hardware.printer import MarlinHost, PrinterTimeout, printer_profile
 from threedcal.sim.marlin import SimMarlin

@@ -5,14 +5,13 @@ import pytest
 from threedcal.collect.plan import (
     dome_sag_mm,
     grid_plan,
-    plan_from_config,
-    plan_phases,
     plan_to_printer,
     read_plan_csv,
     serpentine,
     touch_search_plan,
     validate_plan,
 )
+from threedcal.collect.scene_plan import plan_from_config, plan_phases
 from threedcal.errors import ConfigError
 
 SENSOR = {

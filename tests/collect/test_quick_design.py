@@ -10,16 +10,9 @@ from threedcal.collect.design import (
     halton_design,
     hexagonal_covering_radius,
 )
-from threedcal.collect.plan import (
-    dome_sag_mm,
-    plan_from_config,
-    quick_area_mm,
-    quick_rounds,
-    registration_plan,
-    registration_presses_of,
-    validate_plan,
-    whole_contacts,
-)
+from threedcal.collect.plan import dome_sag_mm, registration_plan, validate_plan, whole_contacts
+from threedcal.collect.quick_plan import quick_area_mm, quick_rounds
+from threedcal.collect.scene_plan import plan_from_config, registration_presses_of
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.study.config import validate_config
@@ -155,7 +148,8 @@ def test_whole_contacts_counts_the_contacts_whose_rim_and_margin_lie_in_the_fram
 def test_each_quick_press_pauses_to_register_on_its_way_down():
     """registration.each_press: every press is two rows at one place, its pause (phase register,
     the registration depth) then its own depth (grid), one press; the rounds count presses."""
-    from threedcal.collect.plan import continued_presses, plan_phases, rows_per_press
+    from threedcal.collect.quick_plan import continued_presses, rows_per_press
+    from threedcal.collect.scene_plan import plan_phases
 
     config = quick_plan_config(
         round_presses=10,

@@ -7,11 +7,10 @@ from threedcal.collect.store import (
     RawStore,
     SettingsMismatch,
     StoreError,
-    open_checked,
-    open_raw,
     settings_digest,
     store_summary,
 )
+from threedcal.collect.store_read import open_checked, open_raw
 from threedcal.errors import ConfigError
 
 PLAN = pd.DataFrame(

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import bench_scene, collect_and_register, elastic_gel, shared_across_workers
 
-from threedcal.collect.store import open_checked
+from threedcal.collect.store_read import open_checked
 from threedcal.dataset.build import build_collected
 from threedcal.dataset.camera_fit import fit_affine, fit_camera, fit_lensed
 from threedcal.dataset.contacts import locate_contact

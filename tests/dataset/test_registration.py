@@ -255,7 +255,7 @@ def test_an_elastic_contacts_pressure_leans_toward_the_apex_and_vanishes_at_it()
     rigid overlap's area centroid there (the pressure gathers where the ball presses deepest);
     at the apex it stays on the axis."""
     from threedcal.profiles import load_profile
-    from threedcal.sim.elastic import GelMaterial
+    from threedcal.sim.layer_kernel import GelMaterial
 
     gel = load_profile("sensor", "digit")["gel"]
     dome = DomedContacts(

@@ -2,14 +2,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from threedcal.dataset.splits import (
-    in_field_of_view,
-    replicate_seed,
-    split_points,
-    subset,
-    subset_size,
-)
+from threedcal.dataset.splits import in_field_of_view, split_points, subset, subset_size
 from threedcal.errors import ConfigError
+from threedcal.seeds import replicate_seed
 
 FRACTIONS = [1, 5, 10, 20, 40, 80]
 

@@ -16,20 +16,17 @@ from threedcal.evaluate.ablation_reading import (
     read_validation_errors,
     readings_compared,
 )
+from threedcal.evaluate.curve_bootstrap import crossings, expanded_tail, resample_means
 from threedcal.evaluate.learning_curve import (
     FITTED,
     FLAT,
     NOT_FITTED,
-    crossing,
-    crossings,
     curve_table,
-    expanded_tail,
-    fit_curves,
     fit_learning_curve,
     learning_curve,
-    resample_means,
 )
 from threedcal.evaluate.learning_curve_figure import learning_curve_figure
+from threedcal.evaluate.power_law_fit import crossing, fit_curves
 
 POINTS = {1: 12, 5: 61, 10: 122, 20: 244, 40: 488, 80: 976}
 A, B, C = 1.0e-3, 0.3e-3, 0.6  # MSE(n) = A + B (n / 976)^-C

@@ -308,7 +308,8 @@ def fake_shipped(ts_dir, directory):
 
     from threedcal.dataset.reframe import reframe
     from threedcal.model.checkpoint import save_checkpoint
-    from threedcal.model.train import TrainSettings, save_initial
+    from threedcal.model.train import save_initial
+    from threedcal.model.train_settings import TrainSettings
 
     recipe = {
         **TINY,

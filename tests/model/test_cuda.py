@@ -12,7 +12,8 @@ from test_model import SHAPE, TINY, synthetic_set
 from threedcal.model import PRESET_NAMES
 from threedcal.model.drift import drift_offset
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.train import TrainSettings, configure_torch, train
+from threedcal.model.train import configure_torch, train
+from threedcal.model.train_settings import TrainSettings
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 

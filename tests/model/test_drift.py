@@ -8,7 +8,9 @@ from test_model import TINY, synthetic_set
 from threedcal.errors import ConfigError
 from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.train import ModelInputs, TrainSettings, train
+from threedcal.model.patches import ModelInputs
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 
 def test_offset_is_the_global_shift_despite_a_contact():

@@ -14,7 +14,8 @@ from threedcal.errors import ConfigError, TrainingError
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.lockstep import Member, WindowStream, train_lockstep
 from threedcal.model.stopping import cycle_ends
-from threedcal.model.train import TrainSettings, _epoch_windows, _Job
+from threedcal.model.train import _epoch_windows, _Job
+from threedcal.model.train_settings import TrainSettings
 
 TINY = dict(patch_px=24, contact_patches=2, background_patches=1, torch_threads=1, batch_size=3)
 

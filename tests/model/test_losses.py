@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from threedcal.model.losses import gradient_loss, unit_normals
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 
 def field(gx, gy=0.0, shape=(3, 4)) -> torch.Tensor:

@@ -7,7 +7,8 @@ from test_model import TINY, fresh_checkpoint, synthetic_set
 from threedcal.errors import ConfigError
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.machine import cpu_capability, cpu_flags, host_line, isa_limits, torch_device
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 from threedcal.report.summary import environment
 
 

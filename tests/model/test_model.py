@@ -23,7 +23,8 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.lookup import LookupTable
 from threedcal.model.machine import BFLOAT16_SAFE
 from threedcal.model.presets import TouchNet, build_model, reach_px
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 SHAPE = (40, 48)
 
@@ -263,7 +264,7 @@ def test_bfloat16_gradients_follow_float32_for_every_network_auto_trains_in_it(
     # bfloat16 weight gradients of dilated convolutions are NaN at some channel counts (24:
     # multiscale, which auto keeps in float32); these must stay finite and within bfloat16's
     # rounding of the float32 gradients, at the step shapes they train with.
-    from threedcal.model.train import training_autocast
+    from threedcal.model.train_step import training_autocast
 
     torch.manual_seed(0)
     model = build_model(preset).to(memory_format=torch.channels_last)
@@ -286,7 +287,7 @@ def test_bfloat16_gradients_follow_float32_for_every_network_auto_trains_in_it(
 def test_a_non_finite_loss_stops_training_with_the_job_and_what_to_change(
     tmp_path, monkeypatch, precision
 ):
-    import threedcal.model.train as module
+    import threedcal.model.train_step as module
 
     ts = synthetic_set()
     settings = TrainSettings.of(
@@ -328,15 +329,15 @@ def test_a_resume_checkpoint_is_written_only_when_its_interval_has_passed(tmp_pa
 
 def test_a_replicate_trains_on_its_own_subset_with_its_own_seed(tmp_path, monkeypatch):
     import threedcal.model.train as module
-    from threedcal.dataset.splits import replicate_seed
+    from threedcal.seeds import replicate_seed
 
     ts = synthetic_set()
     ts.samples["min_p_r1"] = [80, 80, 20, 20, 0, 0]  # replicate 1's P = 20 subset: points 2, 3
     ts = TrainingSet(ts.frames, ts.blank, ts.samples, px_per_mm=8.0, sphere_radius_mm=2.0)
     used = []
-    real = module._train_epoch
+    real = module.train_epoch
     monkeypatch.setattr(
-        module, "_train_epoch", lambda m, t, idx, *a: used.append(list(idx)) or real(m, t, idx, *a)
+        module, "train_epoch", lambda m, t, idx, *a: used.append(list(idx)) or real(m, t, idx, *a)
     )
     settings = TrainSettings.of(preset="compact_tiny", seed=3, **TINY)
     zero = train(ts, tmp_path / "r0", 20, settings, progress=False)
@@ -358,7 +359,7 @@ def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch
         preset="compact_tiny", seed=5, lr_schedule=schedule, **{**TINY, "epochs_base": 3}
     )
     train(ts, tmp_path / "full", 80, settings, progress=False)
-    real = module._train_epoch
+    real = module.train_epoch
     calls = []
 
     def crash_on_third(*args, **kwargs):
@@ -367,12 +368,12 @@ def test_an_interrupted_training_resumes_to_the_same_bytes(tmp_path, monkeypatch
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(module, "_train_epoch", crash_on_third)
+    monkeypatch.setattr(module, "train_epoch", crash_on_third)
     monkeypatch.setattr(module, "RESUME_EVERY_S", 0.0)  # a checkpoint after every epoch
     with pytest.raises(KeyboardInterrupt):
         train(ts, tmp_path / "resumed", 80, settings, progress=False)
     assert read_checkpoint(tmp_path / "resumed/checkpoint.pt")["epoch"] == 2
-    monkeypatch.setattr(module, "_train_epoch", real)
+    monkeypatch.setattr(module, "train_epoch", real)
     train(ts, tmp_path / "resumed", 80, settings, progress=False)
     full, resumed = (tmp_path / d / "model.pt" for d in ("full", "resumed"))
     assert full.read_bytes() == resumed.read_bytes()
@@ -421,6 +422,7 @@ def test_channels_last_inference_gives_the_contiguous_layouts_gradients(preset):
 @pytest.mark.parametrize("preset", ["compact_tiny", "context"])
 def test_training_in_nhwc_follows_the_contiguous_layouts_losses(tmp_path, monkeypatch, preset):
     import threedcal.model.train as trainer
+    import threedcal.model.train_step as train_step
 
     ts = synthetic_set()
     # the CPU's layouts (on a GPU, cuDNN picks other kernels per layout, in TF32)
@@ -429,7 +431,10 @@ def test_training_in_nhwc_follows_the_contiguous_layouts_losses(tmp_path, monkey
     assert fast["state_dict"][
         "stem.weight" if preset == "context" else "body.0.weight"
     ].is_contiguous(memory_format=torch.channels_last)
-    monkeypatch.setattr(trainer, "preferred_memory_format", lambda model: torch.contiguous_format)
+    for module in (trainer, train_step):
+        monkeypatch.setattr(
+            module, "preferred_memory_format", lambda model: torch.contiguous_format
+        )
     plain = train(ts, tmp_path / "nchw", 20, settings, progress=False)
     losses = [pd.read_csv(tmp_path / name / "losses.csv") for name in ("nhwc", "nchw")]
     assert len(losses[0]) == settings.epochs(20) > 1
@@ -575,7 +580,7 @@ def test_predict_cli_writes_depth_and_colour_map(tmp_path):
 
 
 def test_scheduled_lr_constant_and_a_cosine_over_the_steps():
-    from threedcal.model.train import scheduled_lr
+    from threedcal.model.train_settings import scheduled_lr
 
     constant = TrainSettings.of(lr=0.01)
     assert {scheduled_lr(constant, e, 5, b, 3) for e in (1, 3, 5) for b in range(3)} == {0.01}
@@ -596,7 +601,7 @@ def test_scheduled_lr_constant_and_a_cosine_over_the_steps():
 
 
 def test_skirt_reach_moves_contact_patches_off_the_contact():
-    from threedcal.model.train import sample_windows
+    from threedcal.model.patches import sample_windows
 
     ts = synthetic_set()
     centre = ts.center_px[0]

@@ -151,7 +151,8 @@ def bench_model(tmp_path_factory):
     workers: (folder, model.pt)."""
 
     def build(folder):
-        from threedcal.model.train import TrainSettings, train
+        from threedcal.model.train import train
+        from threedcal.model.train_settings import TrainSettings
 
         collect_and_register(folder, lens_free("digit"), PLAN, SEED)
         settings = TrainSettings.of(preset="lookup", epochs_base=1, torch_threads=2)

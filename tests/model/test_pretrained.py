@@ -8,7 +8,8 @@ from test_model import TINY, synthetic_set
 from threedcal.cli import main
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 from threedcal.pretrained import (
     SHIPPED_DIR,
     provenance,

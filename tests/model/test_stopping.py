@@ -12,7 +12,8 @@ from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.machine import resolve_precision
 from threedcal.model.stopping import Doubling, holdout_split
-from threedcal.model.train import TrainSettings, train
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 
 RULE = {"rule": "doubling", "holdout": 0.2, "first_cycle": 10, "min_gain": 0.05, "max_steps": 1000}
 

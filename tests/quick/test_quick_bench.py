@@ -8,7 +8,8 @@ import pytest
 import zarr
 from conftest import snapshot
 
-from threedcal.collect.store import StoreError, open_checked
+from threedcal.collect.store import StoreError
+from threedcal.collect.store_read import open_checked
 from threedcal.model.inference import DepthEstimator
 from threedcal.profiles import load_profile
 from threedcal.quick.loop import ROUND_COLUMNS, quick_stage

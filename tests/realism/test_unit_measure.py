@@ -7,7 +7,7 @@ import pytest
 
 from threedcal.errors import ConfigError
 from threedcal.realism import unit_measure as um
-from threedcal.sim.optics import field_terms
+from threedcal.sim.background_field import field_terms
 
 
 def _field(width, height, coefficients, degree=4):

@@ -9,8 +9,10 @@ import pandas as pd
 import pytest
 import serial
 
-from threedcal.collect.plan import cross_plan, plan_from_config, validate_plan
-from threedcal.collect.store import PointRecord, RawStore, open_raw, readings_layout
+from threedcal.collect.plan import cross_plan, validate_plan
+from threedcal.collect.scene_plan import plan_from_config
+from threedcal.collect.store import PointRecord, RawStore, readings_layout
+from threedcal.collect.store_read import open_raw
 from threedcal.errors import ConfigError
 from threedcal.hardware.printer import MarlinHost
 from threedcal.hardware.reskin import (
@@ -417,7 +419,7 @@ def test_hardware_collection_reads_the_board_through_the_real_host_and_reader(
     # The hardware path (serial printer + ReSkin reader), with both serial ends simulated.
     from conftest import _profile_variant
 
-    from threedcal.collect.store import open_raw
+    from threedcal.collect.store_read import open_raw
     from threedcal.study.session import collect_scene
 
     # A real rig waits probing.settle_s (0.3 s) at every press, on the wall clock; the simulated

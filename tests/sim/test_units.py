@@ -102,7 +102,7 @@ def _legendre_field(weights, degree, u, v):
 
 @pytest.mark.parametrize("degree", [1, 2, 4])
 def test_a_units_own_field_is_its_legendre_series_in_the_simulators_basis(degree):
-    from threedcal.sim.optics import field_terms
+    from threedcal.sim.background_field import field_terms
     from threedcal.sim.units import legendre_terms, smooth_field_coefficients
 
     coefficients = smooth_field_coefficients(np.random.default_rng(5), 6.0, degree)
@@ -166,7 +166,7 @@ def test_a_units_skin_is_drawn_in_its_range_and_a_bad_range_refused():
 
 def test_pretraining_frames_drift_from_their_blank_by_a_smooth_field_of_the_stated_rms(mini):
     from threedcal.dataset.unit_presses import DRIFT_DEGREE, drifted_frames
-    from threedcal.sim.optics import field_terms
+    from threedcal.sim.background_field import field_terms
 
     bare = {k: v for k, v in mini.items() if k != "lens"}  # no lens: the frames as rendered
     still = {**bare, "unit_variation": {"light_gain": 0.1}}

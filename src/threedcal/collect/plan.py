@@ -6,14 +6,14 @@ apex the probe is commanded; on a domed gel the surface away from the apex sits 
 with dome compensation commands ``depth + sag(x, y)`` to keep the penetration even — the rule the
 authors' DIGIT plan follows. py3DCal plan CSVs (``x, y, depth, frames`` with a ``#`` header) load as is.
 
-A scene's plan (`plan_from_config`) also has a ``phase`` column: ``touch`` rows come first — a
-first-contact search that steps the probe down through the nominal touch height at a few places,
+A scene's plan (threedcal.collect.scene_plan) also has a ``phase`` column: ``touch`` rows come first
+— a first-contact search that steps the probe down through the nominal touch height at a few places,
 one row per step, from which the dataset stage measures where the gel really is — then the
-``register`` rows — shallow presses over the whole probe area, whose small contacts lie whole in
-the frame nearer its edges than the grid's, from which the dataset stage fits the camera's
-registration — then the ``grid`` rows (grid, cross, CSV, or a quick plan's rounds) that the model
-trains on. Touch rows
-may sit above the gel (negative depth); the collection loop and store carry them like any other row.
+``register`` rows — shallow presses over the whole probe area, whose small contacts lie whole in the
+frame nearer its edges than the grid's, from which the dataset stage fits the camera's registration
+— then the ``grid`` rows (grid, cross, CSV, or a quick plan's rounds) that the model trains on.
+Touch rows may sit above the gel (negative depth); the collection loop and store carry them like any
+other row.
 """
 
 from __future__ import annotations
@@ -234,12 +234,6 @@ def cross_plan(
     )
 
 
-# The quick plan's rounds: fewer presses than this cannot reach every quarter of the gel, and the
-# stop rule's paired interval needs a few presses a round to say anything.
-MIN_ROUND_PRESSES = 4
-# The quick plan's default area keeps this far inside the camera's nominal view: a seating error
-# of the sensor in its base (the bench draws up to 0.4 mm) must not carry a press out of the frame.
-QUICK_VIEW_MARGIN_MM = 0.5
 # A contact is located only when its rim lies this far inside the frame (the registration's
 # `whole` test, threedcal.dataset.build.register_store).
 WHOLE_CONTACT_MARGIN_PX = 5
@@ -253,151 +247,6 @@ def camera_view_mm(sensor: Mapping) -> tuple[float, float, float, float]:
     half_x = sensor["image"]["width_px"] / scale / 2
     half_y = sensor["image"]["height_px"] / scale / 2
     return (width / 2 - half_x, height / 2 - half_y, width / 2 + half_x, height / 2 + half_y)
-
-
-def quick_area_mm(sensor: Mapping, plan_config: Mapping) -> tuple[float, float, float, float]:
-    """The area a quick plan spreads its presses over: `area_mm` as configured, else the part of
-    the probe area the camera sees, QUICK_VIEW_MARGIN_MM inside the view."""
-    if plan_config.get("area_mm") is not None:
-        x0, y0, x1, y1 = (float(v) for v in plan_config["area_mm"])
-        return x0, y0, x1, y1
-    width, height = plan_area_mm(sensor)
-    vx0, vy0, vx1, vy1 = camera_view_mm(sensor)
-    margin = QUICK_VIEW_MARGIN_MM
-    return (
-        max(vx0 + margin, 0.0),
-        max(vy0 + margin, 0.0),
-        min(vx1 - margin, width),
-        min(vy1 - margin, height),
-    )
-
-
-def quick_problems(plan_config: Mapping, sensor: Mapping) -> list[str]:
-    """Why a quick plan's rounds could not cover the gel the camera sees ([] when they can)."""
-    problems = []
-    per_round = int(plan_config.get("round_presses", 10))
-    most = int(plan_config.get("max_presses", 50))
-    if pauses_to_register(plan_config):
-        registration = plan_config["registration"]
-        if float(registration.get("spacing_mm", 0.0)) > 0:
-            problems.append(
-                "plan.registration: each_press registers the rounds' presses; a lattice "
-                "(spacing_mm > 0) as well is not allowed"
-            )
-        if float(registration.get("depth_mm", 0.4)) >= float(plan_config["depth_mm"]):
-            problems.append(
-                f"plan.registration.depth_mm: {registration.get('depth_mm', 0.4)} must lie above "
-                f"plan.depth_mm ({plan_config['depth_mm']}): each press pauses there on its way "
-                "down"
-            )
-    if per_round < MIN_ROUND_PRESSES:
-        problems.append(
-            f"plan.round_presses: {per_round} presses a round cannot cover the gel (at least "
-            f"{MIN_ROUND_PRESSES}: one per quarter, and the stop rule compares presses in pairs)"
-        )
-    if most < per_round:
-        problems.append(
-            f"plan.max_presses: {most} is fewer than one round (round_presses: {per_round})"
-        )
-    if sensor.get("type") != "vision":
-        problems.append("plan.pattern: quick calibrates a vision sensor (a camera's frames)")
-        return problems
-    x0, y0, x1, y1 = quick_area_mm(sensor, plan_config)
-    vx0, vy0, vx1, vy1 = camera_view_mm(sensor)
-    width, height = plan_area_mm(sensor)
-    lo_x, lo_y, hi_x, hi_y = max(vx0, 0.0), max(vy0, 0.0), min(vx1, width), min(vy1, height)
-    tolerance = 1e-9
-    if not (x1 > x0 and y1 > y0):
-        problems.append(f"plan.area_mm: {[x0, y0, x1, y1]} is empty (x0 < x1 and y0 < y1 needed)")
-    elif (
-        x0 < lo_x - tolerance
-        or y0 < lo_y - tolerance
-        or x1 > hi_x + tolerance
-        or y1 > hi_y + tolerance
-    ):
-        problems.append(
-            f"plan.area_mm: [{x0:g}, {y0:g}, {x1:g}, {y1:g}] mm reaches outside what the camera "
-            f"sees of the probe area ([{lo_x:.2f}, {lo_y:.2f}, {hi_x:.2f}, {hi_y:.2f}] mm, "
-            "plan-relative): presses there give no frames to learn from"
-        )
-    return problems
-
-
-def quick_plan(sensor: Mapping, plan_config: Mapping, run: int = 1) -> pd.DataFrame:
-    """The quick plan's presses: `max_presses` of a seeded scrambled Halton design over the quick
-    area (threedcal.collect.design), each `depth_mm` deep (dome compensated) for `frames` frames,
-    in rounds of `round_presses` (each round's prefix spreads evenly), each round a short path.
-    Run r of a calibration (`quick.run`) scrambles with plan.seed's replicate r − 1."""
-    from threedcal.collect.design import halton_design, round_order
-    from threedcal.dataset.splits import replicate_seed
-
-    problems = quick_problems(plan_config, sensor)
-    if problems:
-        raise ConfigError("; ".join(problems))
-    most, per_round = int(plan_config.get("max_presses", 50)), int(plan_config["round_presses"])
-    check_plan_size(most, most * int(plan_config["frames"]), f"plan.max_presses={most}")
-    area = quick_area_mm(sensor, plan_config)
-    seed = replicate_seed(int(plan_config.get("seed", 0)), run - 1)
-    xy = halton_design(most, area, seed, per_round)
-    xy = np.round(xy[round_order(xy, per_round, start=(area[0], area[1]))], 4)
-    sag = dome_sag_mm(sensor, xy[:, 0], xy[:, 1])
-    presses = pd.DataFrame(
-        {
-            "x_mm": xy[:, 0],
-            "y_mm": xy[:, 1],
-            "depth_mm": np.round(float(plan_config["depth_mm"]) + sag, 4),
-            "frames": int(plan_config["frames"]),
-            "phase": "grid",
-        }
-    )
-    if not pauses_to_register(plan_config):
-        return presses
-    # each press pauses on its way down: a "register" row, then its "grid" row at the same place
-    paused = presses.assign(
-        depth_mm=np.round(float(plan_config["registration"]["depth_mm"]) + sag, 4),
-        frames=int(plan_config["registration"].get("frames", 1)),
-        phase="register",
-    )
-    rows = pd.concat([paused, presses], keys=[0, 1]).swaplevel().sort_index(kind="stable")
-    return rows.reset_index(drop=True)
-
-
-def pauses_to_register(plan_config: Mapping) -> bool:
-    """Whether a quick plan's presses register on their way down (`registration.each_press`):
-    each pauses at the registration depth for its frames there, then goes on to its own depth."""
-    registration = plan_config.get("registration") or {}
-    return plan_config.get("pattern") == "quick" and bool(registration.get("each_press"))
-
-
-def rows_per_press(plan_config: Mapping) -> int:
-    """Plan rows a quick press takes: two when it pauses to register on its way down."""
-    return 2 if pauses_to_register(plan_config) else 1
-
-
-def quick_rounds(plan_config: Mapping, first_row: int) -> list[int]:
-    """The plan rows at which each round of a quick plan ends (exclusive), its presses starting
-    at `first_row` (after the touch search and any registration lattice)."""
-    most, per_round = int(plan_config["max_presses"]), int(plan_config["round_presses"])
-    ends = list(range(per_round, most, per_round)) + [most]
-    return [first_row + end * rows_per_press(plan_config) for end in ends]
-
-
-def continued_presses(plan: pd.DataFrame) -> np.ndarray:
-    """Per plan row: whether it goes on with the row before as one press (the probe stays down
-    and goes deeper at the same place): a quick press's grid row after its pause to register."""
-    if "phase" not in plan or len(plan) < 2:
-        return np.zeros(len(plan), dtype=bool)
-    phase = plan["phase"].astype(str).to_numpy()
-    x, y, depth = (plan[c].to_numpy(float) for c in ("x_mm", "y_mm", "depth_mm"))
-    out = np.zeros(len(plan), dtype=bool)
-    out[1:] = (
-        (phase[:-1] == "register")
-        & (phase[1:] == "grid")
-        & (x[1:] == x[:-1])
-        & (y[1:] == y[:-1])
-        & (depth[1:] >= depth[:-1])
-    )
-    return out
 
 
 def touch_uncertainty_mm(sensor: Mapping) -> float:
@@ -541,8 +390,8 @@ def validate_plan(
     max_depth = float(sensor["gel"]["max_penetration_mm"])
     width, height = plan_area_mm(sensor)
     margin = 1e-9
-    # The columns are read once and a row is described only when it fails: a pandas lookup per cell
-    # made the default study's 6,700 rows cost 0.72 s of every Snakemake parse (now 0.07 s).
+    # The columns are read once and a row is described only when it fails: every Snakemake parse
+    # validates the plan, and a pandas lookup per cell is slow on a study's thousands of rows.
     columns = [plan[c].to_numpy() for c in PLAN_COLUMNS]
     phases = plan["phase"].astype(str).to_numpy() if "phase" in plan else None
     for i in range(len(plan)):
@@ -613,103 +462,6 @@ def check_plan_size(points: float, frames: float, what: str = "the plan") -> Non
         )
 
 
-def plan_from_config(plan_config: Mapping, sensor: Mapping, run: int = 1) -> pd.DataFrame:
-    """The plan a scene's `plan:` section describes: the touch search (vision sensors, when
-    `touch_search.points` > 0), the registration presses (vision sensors, when
-    `registration.spacing_mm` > 0), then the grid rows (CSV, grid or cross); column `phase`
-    tells them apart."""
-    if plan_config.get("csv"):
-        rows = read_plan_csv(plan_config["csv"])
-        check_plan_size(len(rows), rows["frames"].sum(), str(plan_config["csv"]))
-    elif plan_config.get("pattern") == "quick":
-        rows = quick_plan(sensor, plan_config, run)
-    else:
-        depths = plan_config.get("depths_mm") or [plan_config["depth_mm"]]
-        mode = plan_config.get("depth_mode", "every")
-        spacing = float(plan_config["spacing_mm"])
-        if spacing > 0 and np.isfinite(spacing):
-            width, height = plan_area_mm(sensor)
-            points = (width // spacing + 1) * (height // spacing + 1)
-            points *= len(depths) if mode == "every" else 1
-            check_plan_size(
-                points, points * plan_config["frames"], f"spacing_mm={spacing:g}: the plan"
-            )
-        if plan_config.get("pattern", "grid") == "cross":
-            rows = cross_plan(
-                sensor,
-                spacing_mm=plan_config["spacing_mm"],
-                depths_mm=depths,
-                frames=plan_config["frames"],
-                arm_width_mm=plan_config.get("arm_width_mm", 6.0),
-                depth_mode=mode,
-            )
-        else:
-            rows = grid_plan(
-                sensor,
-                spacing_mm=plan_config["spacing_mm"],
-                depths_mm=depths,
-                frames=plan_config["frames"],
-                depth_mode=mode,
-            )
-            rows = _inside_area(rows, plan_config, sensor)
-    rows = rows if "phase" in rows else rows.assign(phase="grid")
-    before = [p for p in _leading_phases(plan_config, sensor) if not p.empty]
-    if not before:
-        return rows
-    return pd.concat([*before, rows], ignore_index=True)
-
-
-def _leading_phases(plan_config: Mapping, sensor: Mapping) -> list[pd.DataFrame]:
-    """The rows a scene's plan starts with, in order: the touch search, the registration presses."""
-    return [touch_search_of(plan_config, sensor), registration_presses_of(plan_config, sensor)]
-
-
-def touch_search_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
-    """The touch-search rows a scene's plan starts with (none for a magnetic sensor or 0 points)."""
-    search = plan_config.get("touch_search") or {}
-    if sensor.get("type") != "vision" or int(search.get("points", 0)) <= 0:
-        return touch_search_plan(sensor, {"points": 0})
-    return touch_search_plan(sensor, search)
-
-
-def registration_presses_of(plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
-    """The registration presses a scene's plan holds after its touch search (none for a magnetic
-    sensor or spacing 0). A quick plan keeps only the lattice's presses inside its area: one
-    farther out leaves no whole contact in the frame, so the registration never uses it, and a
-    quick calibration is short of printer time, not of lattice."""
-    presses = plan_config.get("registration") or {}
-    if sensor.get("type") != "vision":
-        return registration_plan(sensor, {"spacing_mm": 0})
-    rows = registration_plan(sensor, presses)
-    if plan_config.get("pattern") == "quick" and not rows.empty:
-        x0, y0, x1, y1 = quick_area_mm(sensor, plan_config)
-        inside = rows["x_mm"].between(x0 - 1e-9, x1 + 1e-9) & rows["y_mm"].between(
-            y0 - 1e-9, y1 + 1e-9
-        )
-        return rows[inside].reset_index(drop=True)
-    return _inside_area(rows, plan_config, sensor)
-
-
-def _inside_area(rows: pd.DataFrame, plan_config: Mapping, sensor: Mapping) -> pd.DataFrame:
-    """A grid plan's rows (or its registration lattice) where they lie inside `area_mm` (x0, y0,
-    x1, y1 plan mm: the part of the probe area the camera sees, say), the lattice kept as the
-    whole area's (its points and depths); all of them without `area_mm`."""
-    if plan_config.get("area_mm") is None or plan_config.get("pattern", "grid") != "grid":
-        return rows
-    x0, y0, x1, y1 = (float(v) for v in plan_config["area_mm"])
-    width, height = plan_area_mm(sensor)
-    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
-        raise ConfigError(
-            f"plan.area_mm: {[x0, y0, x1, y1]} must be x0 < x1, y0 < y1 inside the probe area "
-            f"(0..{width:g} x 0..{height:g} mm)"
-        )
-    tolerance = 1e-9
-    inside = rows["x_mm"].between(x0 - tolerance, x1 + tolerance) & rows["y_mm"].between(
-        y0 - tolerance, y1 + tolerance
-    )
-    return rows[inside].reset_index(drop=True)
-
-
 def whole_contacts(sensor: Mapping, rows: pd.DataFrame, probe_radius_mm: float) -> int:
     """How many of the presses `rows` (plan mm, depth below the touch) leave a contact whole in
     the frame, the sensor seated as its base puts it and the ball's contact radius that of a rigid
@@ -727,29 +479,3 @@ def whole_contacts(sensor: Mapping, rows: pd.DataFrame, probe_radius_mm: float) 
     width, height = sensor["image"]["width_px"], sensor["image"]["height_px"]
     whole = (x >= reach) & (x <= width - 1 - reach) & (y >= reach) & (y <= height - 1 - reach)
     return int(whole.sum())
-
-
-def plan_phases(stored_plan: Mapping, plan_config: Mapping, sensor: Mapping) -> np.ndarray:
-    """The phase of every row of a collected plan (a store's ``plan`` attribute: x_mm, y_mm,
-    depth_mm, frames lists), checked against the touch search and registration presses its
-    config describes."""
-    n_rows = len(stored_plan["x_mm"])
-    stored = np.column_stack([np.asarray(stored_plan[c], dtype=float) for c in PLAN_COLUMNS])
-    phases: list[str] = []
-    for rows, key in zip(
-        _leading_phases(plan_config, sensor),
-        ("plan.touch_search", "plan.registration"),
-        strict=True,
-    ):
-        start, stop = len(phases), len(phases) + len(rows)
-        expected = rows[list(PLAN_COLUMNS)].to_numpy(dtype=float)
-        if stop > n_rows or not np.allclose(stored[start:stop], expected, atol=1e-6):
-            raise ConfigError(
-                f"the collected plan does not hold the rows its {key} describes ({len(rows)} "
-                f"rows from row {start}): was the store collected with another config?"
-            )
-        phases += [str(p) for p in rows["phase"]]
-    rest = n_rows - len(phases)
-    if pauses_to_register(plan_config):  # each quick press: its pause, then its own depth
-        return np.array(phases + ["register", "grid"] * (rest // 2) + ["register"] * (rest % 2))
-    return np.array(phases + ["grid"] * rest)

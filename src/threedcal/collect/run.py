@@ -30,22 +30,23 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from threedcal.collect.plan import (
-    clearance_z,
-    continued_presses,
-    dome_sag_mm,
-    plan_area_mm,
-    plan_to_printer,
-)
+from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_to_printer
+from threedcal.collect.quick_plan import continued_presses
 from threedcal.collect.store import PointRecord, RawStore, StoreError
 from threedcal.errors import ConfigError
+from threedcal.hardware.printer import (
+    PrinterDisconnected,
+    PrinterHalted,
+    PrinterReset,
+    PrinterTimeout,
+)
 from threedcal.rig import Clock, WallClock
 
 # Captured points are written to the store together, once FLUSH_EVERY_S has passed since the last
 # write or FLUSH_MAX_POINTS wait: a zarr write costs about a millisecond whatever its size, ten
-# per point, which was most of a simulated collection's time. A printer takes over a second a point,
-# so on hardware every point is still written as it is captured. A kill loses only what waits: those
-# points are not `captured` and the next run probes them again.
+# per point, most of a simulated collection's time if written one by one. A printer takes over a
+# second a point, so on hardware every point is still written as it is captured. A kill loses only
+# what waits: those points are not `captured` and the next run probes them again.
 FLUSH_EVERY_S = 1.0
 FLUSH_MAX_POINTS = 256
 
@@ -135,13 +136,6 @@ def stop_on_signals(printer) -> Iterator[None]:
 
 def unrecoverable(error: BaseException) -> bool:
     """A printer fault after which no G-code can be trusted to run: halted, reset, silent, gone."""
-    from threedcal.hardware.printer import (
-        PrinterDisconnected,
-        PrinterHalted,
-        PrinterReset,
-        PrinterTimeout,
-    )
-
     return isinstance(error, PrinterHalted | PrinterReset | PrinterTimeout | PrinterDisconnected)
 
 
@@ -156,9 +150,7 @@ def make_safe(printer, safe_z: float, feed_mm_s: float, cause: BaseException | N
     try:
         printer.move_to(z=safe_z, feed_mm_s=feed_mm_s)
         printer.wait_until_idle()
-        release = getattr(printer, "release_motors", None)
-        if release is not None:
-            release()
+        _release_motors(printer)
     except BaseException as exc:  # noqa: BLE001 - a failed lift (or a second Ctrl-C): stop hard
         _emergency_stop(printer)
         return f"emergency stop (M112): lifting failed ({type(exc).__name__}: {exc})"
@@ -177,6 +169,13 @@ def _keep_what_was_captured(run: _Run) -> None:
             len(run.pending),
             exc,
         )
+
+
+def _release_motors(printer) -> None:
+    """Release the steppers, where the printer can (as its profile's `safe_stop.release` says)."""
+    release = getattr(printer, "release_motors", None)
+    if release is not None:
+        release()
 
 
 def _emergency_stop(printer) -> None:
@@ -254,9 +253,7 @@ def collect(
             run.probe(bar)
             printer.move_to(z=run.safe_z, feed_mm_s=settings.plunge_feed_mm_s)
             printer.wait_until_idle()
-            release = getattr(printer, "release_motors", None)
-            if release is not None:
-                release()
+            _release_motors(printer)
         except BaseException as exc:
             outcome = make_safe(printer, run.safe_z, settings.plunge_feed_mm_s, exc)
             _keep_what_was_captured(run)
@@ -357,14 +354,7 @@ class _Run:
         # Hop height between two points: `hop_mm` above the higher of their gel surfaces (a domed
         # gel sits lower away from its apex), never above the clearance height.
         surface_z = sensor["mount"]["z_touch_mm"] - dome_sag_mm(sensor, plan["x_mm"], plan["y_mm"])
-        touch_rows = {}
-        if self.touch_search is not None and "phase" in plan:
-            rows = np.flatnonzero(plan["phase"].to_numpy() == "touch")
-            touch_rows = {int(row): k for k, row in enumerate(rows)}
-            for row in rows[rows < first]:  # a resumed search goes on from what it pressed
-                self.touch_search.observe(
-                    touch_rows[int(row)], store.read_depth(row), store.read_point(row)
-                )
+        touch_rows = self._touch_rows(first)
         # a row that goes on with the one before as one press (a quick press after its pause to
         # register): the probe stays down and goes deeper
         continued = continued_presses(plan)
@@ -396,16 +386,7 @@ class _Run:
                 lift_z = min(self.safe_z, max(surface_z[point], lift_to) + settings.hop_mm)
                 printer.move_to(z=lift_z, feed_mm_s=settings.plunge_feed_mm_s)  # lift, then store
             if self.done[point]:
-                self.flush(bar)  # what waits is contiguous: it ends before a replayed point
-                if samples is not None and not np.array_equal(samples, store.read_point(point)):
-                    raise StoreError(
-                        f"{store.path}: replaying point {point} of the simulated bench did not "
-                        "give the samples stored for it (was the simulator changed since?); move "
-                        "the store away to collect it anew"
-                    )
-                if chosen is not None:  # the search goes on from what this press showed
-                    self.touch_search.observe(chosen, depth, store.read_point(point))
-                self.on_row(point + 1, None, reported)
+                self._replayed(point, samples, (chosen, depth), reported, bar)
                 if not self.round_done(point + 1, bar):
                     return
                 continue
@@ -432,6 +413,37 @@ class _Run:
             if not self.round_done(point + 1, bar):
                 return
         self.flush(bar)
+
+    def _touch_rows(self, first: int) -> dict[int, int]:
+        """{plan row: its index among the touch rows} of a searching run, the search told what
+        the rows before `first` pressed (a resumed search goes on from there); {} without one."""
+        plan, store = self.plan, self.store
+        if self.touch_search is None or "phase" not in plan:
+            return {}
+        rows = np.flatnonzero(plan["phase"].to_numpy() == "touch")
+        touch_rows = {int(row): k for k, row in enumerate(rows)}
+        for row in rows[rows < first]:
+            self.touch_search.observe(
+                touch_rows[int(row)], store.read_depth(row), store.read_point(row)
+            )
+        return touch_rows
+
+    def _replayed(self, point: int, samples, search: tuple, reported, bar) -> None:
+        """A stored point passed over on a replay: what waits is written first (it ends before
+        this point), the samples checked against the stored ones, the search told what the press
+        showed. `search`: (its index among the touch rows or None, its depth)."""
+        store = self.store
+        self.flush(bar)
+        if samples is not None and not np.array_equal(samples, store.read_point(point)):
+            raise StoreError(
+                f"{store.path}: replaying point {point} of the simulated bench did not "
+                "give the samples stored for it (was the simulator changed since?); move "
+                "the store away to collect it anew"
+            )
+        chosen, depth = search
+        if chosen is not None:
+            self.touch_search.observe(chosen, depth, store.read_point(point))
+        self.on_row(point + 1, None, reported)
 
     def _touch_depth(self, point: int, k: int, deepest: float) -> float:
         """A searching row's depth: the one stored (a replayed press), or the search's next,

@@ -15,10 +15,10 @@ from threedcal.collect.plan import (
     WHOLE_CONTACT_MARGIN_PX,
     dome_sag_at_px,
     dome_sag_mm,
-    plan_phases,
     touch_search_range,
 )
-from threedcal.collect.store import open_checked
+from threedcal.collect.scene_plan import plan_phases
+from threedcal.collect.store_read import open_checked
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
@@ -180,7 +180,7 @@ def register_store(
 ) -> RegisteredStore:
     """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
     its frames), and each frame's depth below the gel where the affine places it. The store is
-    read whole and checked (`threedcal.collect.store.open_checked`); `rows`: only its first that
+    read whole and checked (`threedcal.collect.store_read.open_checked`); `rows`: only its first that
     many plan rows, captured so far. `prior`: this store registered earlier (a quick calibration's
     last round); its fit is reused when it located the same rows, whose frames a store never
     changes, rather than located and fitted again (most of a round's labelling time)."""

@@ -11,7 +11,7 @@ from threedcal.dataset.contacts import Contact
 from threedcal.dataset.labels import LocalDome
 
 if TYPE_CHECKING:
-    from threedcal.sim.elastic import GelMaterial
+    from threedcal.sim.layer_kernel import GelMaterial
 
 
 class DomedContacts:

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from threedcal.errors import ConfigError
+from threedcal.seeds import replicate_seed
 
 VALIDATION_FRACTION = 0.2
 
@@ -27,18 +28,6 @@ VALIDATION_FRACTION = 0.2
 def subset_size(n_points: int, percent: int) -> int:
     """Coordinates in the P=percent subset: round(P/100 · N), at least one."""
     return max(1, int(round(n_points * percent / 100.0)))
-
-
-def replicate_seed(seed: int, replicate: int) -> int:
-    """The seed of replicate r: the scene's own for r = 0, SeedSequence([seed, r])'s first word after.
-
-    Used for replicate r's subset draw and for its model's initialisation and patch sampling.
-    """
-    if replicate < 0:
-        raise ConfigError(f"replicate must be 0 or more, got {replicate}")
-    if replicate == 0:
-        return int(seed)
-    return int(np.random.SeedSequence([int(seed), int(replicate)]).generate_state(1)[0])
 
 
 def min_p_column(replicate: int) -> str:

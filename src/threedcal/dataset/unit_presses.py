@@ -24,10 +24,10 @@ from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet, downscale, samples_table
 from threedcal.errors import ConfigError
 from threedcal.profiles import with_gel_mechanics
+from threedcal.sim.background_field import background_field
 from threedcal.sim.bench import draw_lens
 from threedcal.sim.camera import make_gel
 from threedcal.sim.indenters import Sphere
-from threedcal.sim.optics import background_field
 from threedcal.sim.units import draw_unit, smooth_field_coefficients
 
 # Blank frames averaged per unit (a calibration averages the profile's probing.n_blank).

@@ -23,14 +23,12 @@ from threedcal.evaluate.ablation import (
 )
 from threedcal.evaluate.learning_curve import (
     BOOTSTRAP,
-    EXPONENTS,
     FLAT,
-    LACK_OF_FIT_P,
     NOT_FITTED,
-    OFF_CURVE,
     LearningCurve,
     learning_curve,
 )
+from threedcal.evaluate.power_law_fit import EXPONENTS, LACK_OF_FIT_P, OFF_CURVE
 
 
 def _pct(value: float) -> str:
@@ -380,44 +378,10 @@ def readings_compared(
             if stop is not None
             else f"the two readings agree: {says}"
         )
-    fitted_on = _fitted_on(curve)
     if tost_n > curve.answer_high:
-        parts = [_tost_reason(rows.loc[stop], curve, stop)]
-        own = [
-            int(p)
-            for p, row in rows.iterrows()
-            if p < stop
-            and str(row["conclusion"]) == "not equivalent: a larger P is not"
-            and -curve.margin < row["ci_low"]
-            and row["ci_high"] < curve.margin
-        ]
-        if own:
-            shown = [f"P = {p} % ({_interval(rows.loc[p])})" for p in own]
-            listed = shown[0] if len(shown) == 1 else ", ".join(shown[:-1]) + " and " + shown[-1]
-            parts.append(
-                "the fixed sequence stops there, so no smaller fraction is called equivalent, "
-                + (
-                    f"though the interval of {listed} lies inside the margin"
-                    if len(own) == 1
-                    else f"though the intervals of {listed} lie inside the margin"
-                )
-            )
-        means = curve.fractions.set_index("P")["mean_mse"]
-        observed = means[stop] / means[reference] - 1
-        share = curve.fractions.set_index("P").loc[stop, "weight"]
-        parts.append(
-            f"the curve, {fitted_on}, each weighted by its spread (P = {stop} % "
-            f"{share * 100:.0f} % of the fit), puts P = {stop} % at "
-            f"{_pct(_relative_to_reference(curve, points_by_p[stop]))} of P = {reference} % "
-            f"(observed {_pct(observed)}) and reaches the margin at {_points(curve.answer)} points"
-        )
-        misfit = _misfit(curve)
-        return (
-            f"the readings differ: {says}: "
-            + "; ".join(parts)
-            + (f"{misfit}: read the curve's number with care" if misfit else "")
-        )
+        return _smaller_suffices(rows, curve, points_by_p, stop, says)
     row = rows.loc[tost_p]
+    fitted_on = _fitted_on(curve)
     return (
         f"the readings differ: {says}: the TOST shows P = {tost_p} % equivalent on its own data "
         f"(change {_pct(row['relative_change'])}, interval {_interval(row)}), while the curve, "
@@ -429,6 +393,48 @@ def readings_compared(
             if _misfit(curve)
             else ""
         )
+    )
+
+
+def _smaller_suffices(rows, curve: LearningCurve, points_by_p, stop: int, says: str) -> str:
+    """Why the readings differ where the curve says fewer points than the TOST's fraction do:
+    the fixed sequence stopped at P = `stop`, and the curve reads that fraction within the margin."""
+    reference = curve.reference
+    fitted_on = _fitted_on(curve)
+    parts = [_tost_reason(rows.loc[stop], curve, stop)]
+    own = [
+        int(p)
+        for p, row in rows.iterrows()
+        if p < stop
+        and str(row["conclusion"]) == "not equivalent: a larger P is not"
+        and -curve.margin < row["ci_low"]
+        and row["ci_high"] < curve.margin
+    ]
+    if own:
+        shown = [f"P = {p} % ({_interval(rows.loc[p])})" for p in own]
+        listed = shown[0] if len(shown) == 1 else ", ".join(shown[:-1]) + " and " + shown[-1]
+        parts.append(
+            "the fixed sequence stops there, so no smaller fraction is called equivalent, "
+            + (
+                f"though the interval of {listed} lies inside the margin"
+                if len(own) == 1
+                else f"though the intervals of {listed} lie inside the margin"
+            )
+        )
+    means = curve.fractions.set_index("P")["mean_mse"]
+    observed = means[stop] / means[reference] - 1
+    share = curve.fractions.set_index("P").loc[stop, "weight"]
+    parts.append(
+        f"the curve, {fitted_on}, each weighted by its spread (P = {stop} % "
+        f"{share * 100:.0f} % of the fit), puts P = {stop} % at "
+        f"{_pct(_relative_to_reference(curve, points_by_p[stop]))} of P = {reference} % "
+        f"(observed {_pct(observed)}) and reaches the margin at {_points(curve.answer)} points"
+    )
+    misfit = _misfit(curve)
+    return (
+        f"the readings differ: {says}: "
+        + "; ".join(parts)
+        + (f"{misfit}: read the curve's number with care" if misfit else "")
     )
 
 

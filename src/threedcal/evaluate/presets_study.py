@@ -117,5 +117,3 @@ def presets_figure(table: pd.DataFrame, path: str | Path, title: str) -> None:
     fig.suptitle(title)
     fig.savefig(path)
     plt.close(fig)
-
-

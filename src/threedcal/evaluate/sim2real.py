@@ -401,5 +401,3 @@ def train_shipped(
     }
     save_checkpoint(Path(out_dir) / "model.pt", checkpoint)
     return checkpoint
-
-

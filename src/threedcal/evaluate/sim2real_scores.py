@@ -61,10 +61,8 @@ def score_models(
     return pd.DataFrame(rows)
 
 
-
 def frame_size(shape: Sequence[int]) -> str:
     return f"{int(shape[0])}x{int(shape[1])} px"
-
 
 
 def predict_frames(
@@ -102,7 +100,6 @@ def predict_frames(
         depth = integrate(grads[..., 0], grads[..., 1], px_per_mm=ts.px_per_mm)
         out[int(frame)] = (grads, depth)
     return out, how.describe() if how is not None else frame_size(ts.image_shape)
-
 
 
 def summarise_k(
@@ -145,7 +142,6 @@ def summarise_k(
             row[f"{metric}_lo"], row[f"{metric}_hi"] = interval(boot[key][metric])
         rows.append(row)
     return pd.DataFrame(rows).reindex(columns=list(ERROR_COLUMNS))
-
 
 
 def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
@@ -192,7 +188,6 @@ def error_figure(errors: pd.DataFrame, path: str | Path, title: str) -> None:
     fig.suptitle(title, fontsize=9)
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)
-
 
 
 def sim2real_eval(

@@ -12,10 +12,8 @@ from threedcal.schema import section
 CONDITIONS = {"sim_real": "sim+real", "real_only": "real-only", "shipped_real": "shipped+real"}
 
 
-
 # The scene's own cross-validated model (ball_eval's, the scene's full training budget) at k = all.
 SCENE_MODEL = "scene model"
-
 
 
 ERROR_COLUMNS = (
@@ -35,10 +33,8 @@ ERROR_COLUMNS = (
 )
 
 
-
 # Evaluation disc of a simulated press: the contact shrunk as the ball importer shrinks it.
 EVAL_SHRINK = 0.9
-
 
 
 @dataclass(frozen=True)
@@ -86,7 +82,6 @@ class SimToRealSettings:
         return cls.of(**(scene.get("sim_to_real") or {}))
 
 
-
 def chosen_folds(settings: SimToRealSettings, n_folds: int) -> list[int]:
     """The evaluated folds: `sim_to_real.folds`, or all `cv.folds` of them."""
     if settings.folds is None:
@@ -97,7 +92,6 @@ def chosen_folds(settings: SimToRealSettings, n_folds: int) -> list[int]:
             f"sim_to_real.folds: {bad} outside the {n_folds} cross-validation folds (cv.folds)"
         )
     return sorted(settings.folds)
-
 
 
 def pretraining_groups(settings: SimToRealSettings, n_folds: int) -> list[tuple[int, ...]]:
@@ -113,11 +107,9 @@ def pretraining_groups(settings: SimToRealSettings, n_folds: int) -> list[tuple[
     return [(fold,) for fold in chosen]
 
 
-
 def group_name(group: Sequence[int]) -> str:
     """A group's name in paths (its folds joined by '-': 0-1-2) and back (:func:`parse_group`)."""
     return "-".join(str(int(f)) for f in group)
-
 
 
 def parse_group(text: str) -> tuple[int, ...]:

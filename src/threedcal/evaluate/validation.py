@@ -369,5 +369,3 @@ def write_reading(reading: AblationReading, out: Mapping[str, str | Path], title
     Path(out["recommendation"]).write_text(reading.recommendation + "\n")
     curve_table(reading.curve).to_csv(out["learning_curve"], index=False, float_format="%.6g")
     learning_curve_figure(reading.curve, out["learning_curve_figure"], title)
-
-

@@ -38,7 +38,6 @@ import torch
 from torch.func import functional_call, stack_module_state, vmap
 from tqdm import tqdm
 
-from threedcal.dataset.splits import replicate_seed
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError, TrainingError
 from threedcal.model.checkpoint import adapt_inputs, save_checkpoint
@@ -46,27 +45,28 @@ from threedcal.model.loss_log import plot_losses, write_losses
 from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import describe as describe_machine
 from threedcal.model.machine import resolve_precision
+from threedcal.model.patches import ModelInputs, input_batches, sample_windows
 from threedcal.model.presets import is_learned, preferred_memory_format
 from threedcal.model.stopping import SNAPSHOT_DIR, TWICE_DIR, Doubling, cycle_ends, snapshot_name
 from threedcal.model.train import (
     RESUME_EVERY_S,
     TRAINING_SEMANTICS,
-    VALIDATION_WINDOWS,
-    ModelInputs,
-    TrainSettings,
     checkpoint_of,
     configure_torch,
-    divergence_hint,
     initial_model,
-    input_batches,
+)
+from threedcal.model.train_settings import TrainSettings
+from threedcal.model.train_step import (
+    VALIDATION_WINDOWS,
+    divergence_hint,
     loss_row,
     make_optimizer,
     optimizer_step,
-    sample_windows,
     training_autocast,
     validation_settings,
     windows_mse,
 )
+from threedcal.seeds import replicate_seed
 
 BATCHINGS = ("auto", "loop", "vmap")
 
@@ -323,6 +323,20 @@ def _resume_key(ts, members, settings, budget, twice, batching, precision) -> st
     return hashlib.sha256(json.dumps(described, sort_keys=True, default=str).encode()).hexdigest()
 
 
+def _checked(ts, members: Sequence[Member], settings: TrainSettings) -> TrainingSet:
+    """The training set (loaded from its folder if need be), once the members and the preset are
+    ones that can train in lockstep."""
+    if not members:
+        raise ConfigError("train_lockstep needs at least one model")
+    if len({(m.percent, m.replicate) for m in members}) < len(members):
+        raise ConfigError("train_lockstep: a model (P, replicate) is listed twice")
+    if not isinstance(ts, TrainingSet):
+        ts = TrainingSet.load(ts)
+    if not is_learned(settings.preset):
+        raise ConfigError(f"model.preset {settings.preset!r} is fitted, not trained in steps")
+    return ts
+
+
 def train_lockstep(
     ts: TrainingSet | str | Path,
     members: Sequence[Member],
@@ -341,14 +355,7 @@ def train_lockstep(
     the budget. `resume`: a file the state is kept in every RESUME_EVERY_S, so that an interrupted
     job goes on where it stopped and ends with the same bytes. Returns the checkpoints at the budget.
     """
-    if not members:
-        raise ConfigError("train_lockstep needs at least one model")
-    if len({(m.percent, m.replicate) for m in members}) < len(members):
-        raise ConfigError("train_lockstep: a model (P, replicate) is listed twice")
-    if not isinstance(ts, TrainingSet):
-        ts = TrainingSet.load(ts)
-    if not is_learned(settings.preset):
-        raise ConfigError(f"model.preset {settings.preset!r} is fitted, not trained in steps")
+    ts = _checked(ts, members, settings)
     ends = cycle_ends(budget, twice)
     device = configure_torch(settings)
     precision = resolve_precision(settings.precision, device, settings.preset)
@@ -368,21 +375,8 @@ def train_lockstep(
         {"first_cycle": ends[0], "min_gain": 0.0, "max_steps": ends[-1]}, settings.lr
     )
     key = _resume_key(ts, members, settings, budget, twice, batching, precision)
-    step, totals = 0, np.zeros(len(models))
-    # every cycle end's checkpoints so far: a resumed job writes again what Snakemake removed
-    written: dict[int, list[dict]] = {}
     state = _read_resume(resume, key)
-    if state is not None:
-        runner.restore(state["runner"])
-        step, totals = int(state["step"]), np.asarray(state["totals"], float)
-        for model, rows in zip(models, state["rows"], strict=True):
-            model.rows = list(rows)
-        written = {int(end): checkpoints for end, checkpoints in state["written"].items()}
-        for end, checkpoints in sorted(written.items()):
-            _write_outputs(models, checkpoints, end, budget)
-    else:
-        for model in models:
-            model.rows = [loss_row(0, 0, float("nan"), _check(model, ts, device), 0.0, settings.lr)]
+    step, totals, written = _start(state, runner, models, ts, device, settings.lr, budget)
     bar = tqdm(
         total=ends[-1],
         initial=step,
@@ -396,12 +390,7 @@ def train_lockstep(
         if step >= end:
             continue
         while step < end:
-            batches = []
-            for model in models:
-                model.stream.seek(step)
-                windows = model.stream.take(settings.batch_size)
-                (x, y), *_ = input_batches(ts, windows, settings.batch_size, model.inputs)
-                batches.append((x, y))
+            batches = _batches(models, ts, step, settings.batch_size)
             try:
                 values = runner.step(batches, _lr(rule, ends, step))
             except _Diverged as exc:
@@ -417,14 +406,7 @@ def train_lockstep(
                 saved = time.monotonic()
         runner.sync()
         seconds = round(time.perf_counter() - began, 3)
-        for i, model in enumerate(models):
-            model.stream.seek(end)
-            train_loss = float(totals[i] / ((end - start) * settings.batch_size))
-            check = _check(model, ts, device)
-            share = seconds / len(models)
-            model.rows.append(
-                loss_row(model.stream.epochs_done, end, train_loss, check, share, rule.lr_at(0, 1))
-            )
+        _log_cycle(models, ts, device, totals, (start, end), settings.batch_size, seconds, rule)
         totals[:] = 0.0
         written[end] = _cycle_checkpoints(models, ts, end, precision, batching)
         _write_outputs(models, written[end], end, budget)
@@ -435,6 +417,50 @@ def train_lockstep(
     if resume is not None:
         Path(resume).unlink(missing_ok=True)
     return written[budget]
+
+
+def _start(state, runner, models, ts, device, lr: float, budget: int):
+    """(step, loss totals, checkpoints written per cycle end) where the run starts: restored from
+    an interrupted run's `state` (its checkpoints written again: Snakemake removed them), else at
+    step 0 with each model's first row the check loss of its initial weights."""
+    step, totals = 0, np.zeros(len(models))
+    written: dict[int, list[dict]] = {}
+    if state is not None:
+        runner.restore(state["runner"])
+        step, totals = int(state["step"]), np.asarray(state["totals"], float)
+        for model, rows in zip(models, state["rows"], strict=True):
+            model.rows = list(rows)
+        written = {int(end): checkpoints for end, checkpoints in state["written"].items()}
+        for end, checkpoints in sorted(written.items()):
+            _write_outputs(models, checkpoints, end, budget)
+    else:
+        for model in models:
+            model.rows = [loss_row(0, 0, float("nan"), _check(model, ts, device), 0.0, lr)]
+    return step, totals, written
+
+
+def _batches(models, ts: TrainingSet, step: int, batch_size: int) -> list:
+    """Every member's (x, y) batch of training step `step`."""
+    batches = []
+    for model in models:
+        model.stream.seek(step)
+        windows = model.stream.take(batch_size)
+        (x, y), *_ = input_batches(ts, windows, batch_size, model.inputs)
+        batches.append((x, y))
+    return batches
+
+
+def _log_cycle(models, ts, device, totals, span, batch_size: int, seconds: float, rule) -> None:
+    """Each member's losses row at the end of the cycle `span` (start, end step)."""
+    start, end = span
+    for i, model in enumerate(models):
+        model.stream.seek(end)
+        train_loss = float(totals[i] / ((end - start) * batch_size))
+        check = _check(model, ts, device)
+        share = seconds / len(models)
+        model.rows.append(
+            loss_row(model.stream.epochs_done, end, train_loss, check, share, rule.lr_at(0, 1))
+        )
 
 
 def _read_resume(path, key) -> dict | None:

@@ -23,7 +23,8 @@ def pretrain(
     """Simulate the units' presses, train the network on them, write model.pt and provenance.json
     into out_dir. `pretraining` is the config's validated `pretraining` section."""
     from threedcal.dataset.unit_presses import simulate_units
-    from threedcal.model.train import TrainSettings, train
+    from threedcal.model.train import train
+    from threedcal.model.train_settings import TrainSettings
     from threedcal.profiles import load_profile
 
     profile = load_profile("sensor", sensor)

@@ -14,10 +14,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 import os
 import time
-from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -32,16 +30,14 @@ from threedcal.model.checkpoint import (
     FORMAT,
     FORMAT_VERSION,
     OUR_NORMALISATION,
-    adapt_inputs,
     model_from_checkpoint,
     read_checkpoint,
     save_checkpoint,
 )
-from threedcal.model.drift import drift_offset, remove_drift
 from threedcal.model.loss_log import plot_losses, write_losses
-from threedcal.model.losses import gradient_loss
 from threedcal.model.machine import describe as describe_machine
 from threedcal.model.machine import resolve_precision, torch_device
+from threedcal.model.patches import FramePairs, ModelInputs, input_batches, sample_windows
 from threedcal.model.presets import (
     build_model,
     is_learned,
@@ -55,155 +51,26 @@ from threedcal.model.stopping import (
     holdout_split,
     snapshot_name,
 )
-from threedcal.schema import load_schema, section
+from threedcal.model.train_settings import TrainSettings, scheduled_lr
+from threedcal.model.train_step import (
+    VALIDATION_WINDOWS,
+    divergence_hint,
+    loss_row,
+    make_optimizer,
+    optimizer_step,
+    train_epoch,
+    validation_epochs,
+    validation_settings,
+    windows_mse,
+)
+from threedcal.pretrained import shipped_weights
+from threedcal.seeds import replicate_seed
 
 RESUME_NAME = "checkpoint.pt"
 # The resume checkpoint is rewritten after an epoch only when this long has passed since the last:
 # a P = 1 % job runs 320 short epochs, and saving after each cost 5 % of its time. An interrupted
 # job redoes at most this much, and ends with the same bytes either way.
 RESUME_EVERY_S = 20.0
-
-
-def _or(value, default):
-    return default if value is None else value
-
-
-@dataclass(frozen=True)
-class TrainSettings:
-    """Every setting a training reads: the scene's `model:` section plus seed and threads.
-
-    No defaults of its own: `from_scene` / `of` fill what a config leaves out from the config
-    schema, so the schema is the one place a default is written.
-    """
-
-    preset: str
-    epochs_base: int
-    batch_size: int
-    lr: float
-    lr_schedule: str  # constant or cosine (scheduled_lr)
-    weight_decay: float
-    loss: str  # per-pixel loss on the gradient (threedcal.model.losses)
-    init: str | None
-    patch_px: int
-    contact_patches: int
-    background_patches: int
-    skirt_reach: float  # contact-patch centres up to this many contact radii off the centre
-    drift: str  # lighting-drift removal of the inputs (threedcal.model.drift)
-    seed: int
-    torch_threads: int
-    device: str  # auto = CUDA when present, else CPU
-    precision: str  # auto (threedcal.model.machine), float32, or bfloat16 autocast of the steps
-    stopping: dict  # the stopping rule (threedcal.model.stopping)
-
-    @classmethod
-    def from_scene(cls, scene: Mapping) -> TrainSettings:
-        return cls.of(
-            seed=scene.get("seed"),
-            torch_threads=scene.get("torch_threads"),
-            **scene.get("model", {}),
-        )
-
-    @classmethod
-    def of(cls, **settings) -> TrainSettings:
-        """Settings from `model:` keys plus seed and torch_threads; the schema fills the rest."""
-        schema = load_schema("config")
-        model = section(
-            "model", {k: v for k, v in settings.items() if k not in ("seed", "torch_threads")}
-        )
-        top = schema["properties"]
-        return cls(
-            seed=int(_or(settings.get("seed"), top["seed"]["default"])),
-            torch_threads=int(_or(settings.get("torch_threads"), top["torch_threads"]["default"])),
-            **model,
-        )
-
-    def epochs(self, percent: int) -> int:
-        """epochs_base · 80 / P (the paper keeps the number of gradient steps roughly constant)."""
-        if not 1 <= percent <= 80:
-            raise ConfigError(f"training fraction P must be 1..80 percent, got {percent}")
-        return max(1, round(self.epochs_base * 80 / percent))
-
-
-def scheduled_lr(
-    settings: TrainSettings, epoch: int, epochs: int, batch: int, batches: int
-) -> float:
-    """Learning rate of batch 0..batches-1 of epoch 1..epochs: constant, or a half cosine over the
-    run's steps from lr down to lr/100.
-
-    Per step, not per epoch: P = 80 % trains 4 epochs, and a rate held for a whole epoch spent its
-    last quarter at lr/100 (its validation MSE about 5 % worse, docs/explanation/statistics.md, The learning-rate
-    schedule), while P = 1 % (320 epochs) annealed smoothly: the fractions did not get the same
-    schedule. A function of the position alone, so a resumed run uses the same rates.
-    """
-    if settings.lr_schedule == "constant":
-        return settings.lr
-    if settings.lr_schedule != "cosine":
-        raise ConfigError(
-            f"model.lr_schedule: {settings.lr_schedule!r} (allowed: constant, cosine)"
-        )
-    progress = ((epoch - 1) + batch / max(batches, 1)) / epochs
-    floor = settings.lr / 100
-    return floor + (settings.lr - floor) * 0.5 * (1 + math.cos(math.pi * progress))
-
-
-def _window(top: int, left: int, size: tuple[int, int]) -> tuple[slice, slice]:
-    return slice(top, top + size[0]), slice(left, left + size[1])
-
-
-def sample_windows(
-    ts: TrainingSet, indices: np.ndarray, settings: TrainSettings, rng: np.random.Generator
-) -> list[tuple[int, tuple[slice, slice]]]:
-    """Contact patches (centre jittered by up to a third of the patch) and background patches."""
-    height, width = ts.image_shape
-    size = (min(settings.patch_px, height), min(settings.patch_px, width))
-    out = []
-    for i in indices:
-        cx, cy = ts.center_px[i]
-        # skirt_reach > 0 lets patches cover the gel outside the contact too: it deforms and changes
-        # colour there, while its label is flat (and integrating wrong slopes there biases depth).
-        reach = settings.skirt_reach * float(ts.eval_radius_px[i])
-        jitter = (max(size[0] / 3, reach), max(size[1] / 3, reach))
-        for _ in range(settings.contact_patches):
-            jx, jy = rng.uniform(-jitter[1], jitter[1]), rng.uniform(-jitter[0], jitter[0])
-            top = int(np.clip(round(cy + jy - size[0] / 2), 0, height - size[0]))
-            left = int(np.clip(round(cx + jx - size[1] / 2), 0, width - size[1]))
-            out.append((int(i), _window(top, left, size)))
-        for _ in range(settings.background_patches):
-            top = int(rng.integers(0, height - size[0] + 1))
-            left = int(rng.integers(0, width - size[1] + 1))
-            out.append((int(i), _window(top, left, size)))
-    return out
-
-
-class ModelInputs:
-    """Network inputs of a TrainingSet's frames or windows, with the frame's lighting drift removed.
-
-    The drift offset is estimated once per frame on the full frame (as inference does), then
-    subtracted from every window of it.
-    """
-
-    def __init__(self, ts: TrainingSet, mode: str) -> None:
-        self.ts, self.mode = ts, mode
-        self._offsets: dict[int, torch.Tensor] = {}
-
-    def offset(self, i: int) -> torch.Tensor:
-        if i not in self._offsets:
-            self._offsets[i] = drift_offset(torch.from_numpy(self.ts.inputs(i))[None])[0]
-        return self._offsets[i]
-
-    def __call__(self, i: int, window: tuple[slice, slice] | None = None) -> torch.Tensor:
-        x = torch.from_numpy(self.ts.inputs(i, window))[None]
-        if self.mode == "none":
-            return x[0]
-        return remove_drift(x, self.mode, self.offset(i)[None])[0]
-
-
-def input_batches(ts, windows, batch_size, inputs: ModelInputs):
-    for start in range(0, len(windows), batch_size):
-        chunk = windows[start : start + batch_size]
-        x = torch.stack([inputs(i, w) for i, w in chunk])
-        y = np.stack([ts.labels(i, w) for i, w in chunk])
-        yield x, torch.from_numpy(y)
 
 
 def configure_torch(settings: TrainSettings) -> torch.device:
@@ -216,9 +83,8 @@ def configure_torch(settings: TrainSettings) -> torch.device:
     return torch_device(settings.device)
 
 
-# Bumped when the same settings train differently: a checkpoint of an interrupted run of the older
-# code is then not resumed under the newer one (2: the cosine rate per batch, no longer per epoch;
-# 3: the stopping rules and the precision resolved per machine; 4: `auto` is float32 on GPUs).
+# Raised whenever the same settings come to train differently, so that an interrupted run's
+# checkpoint is resumed only by the code that wrote it (the changelog says what each step changed).
 TRAINING_SEMANTICS = 4
 
 
@@ -278,26 +144,8 @@ def init_path(init: str, ts: TrainingSet) -> str | Path:
     the dataset's sensor (threedcal.pretrained)."""
     if init != "pretrained":
         return init
-    from threedcal.pretrained import shipped_weights
 
     return shipped_weights((ts.meta or {}).get("sensor"), ts.image_shape)
-
-
-def windows_mse(model, ts, windows, settings, device, normalisation, inputs) -> float:
-    if not windows:
-        return float("nan")
-    model.eval()
-    total, count = 0.0, 0
-    sign = normalisation["gradient_sign"]
-    layout = preferred_memory_format(model)
-    with torch.no_grad():
-        for x, y in input_batches(ts, windows, settings.batch_size, inputs):
-            x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
-            x = x.contiguous(memory_format=layout)
-            pred = model(x) * sign
-            total += float(gradient_loss(pred, y.to(device), settings.loss)) * y.numel()
-            count += y.numel()
-    return total / count
 
 
 @dataclass
@@ -362,8 +210,6 @@ def train(
     `snapshot_every` > 0 writes the best weights so far to out_dir/snapshots/ every that many
     checks (the error-against-time curve). Returns the checkpoint.
     """
-    from threedcal.dataset.splits import replicate_seed
-
     if not isinstance(ts, TrainingSet):
         ts = TrainingSet.load(ts)
     settings = replace(settings, seed=replicate_seed(settings.seed, replicate))
@@ -417,27 +263,12 @@ def _fit_lookup(model, job: _Job) -> list[dict]:
     """The lookup table is fitted by binning, once: one row of losses."""
     began = time.perf_counter()
     rng = np.random.default_rng([job.settings.seed, 1])
-    model.fit(_Pairs(job.ts, job.fit_idx, job.inputs))
+    model.fit(FramePairs(job.ts, job.fit_idx, job.inputs))
     windows = sample_windows(job.ts, job.fit_idx, job.settings, rng)
     args = (job.ts, windows, job.settings, job.device, job.normalisation, job.inputs)
     train_loss = windows_mse(model, *args)
     val_loss = windows_mse(model, job.ts, job.check_windows, *args[2:])
     return [loss_row(1, 0, train_loss, val_loss, _since(began), 0.0)]
-
-
-def loss_row(epoch, step, train_loss, val_loss, seconds, lr) -> dict:
-    return {
-        "epoch": epoch,
-        "step": int(step),
-        "train_loss": train_loss,
-        "val_loss": val_loss,
-        "seconds": seconds,
-        "lr": lr,
-    }
-
-
-def make_optimizer(model, settings: TrainSettings):
-    return torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
 
 
 def _resume(out_dir: Path, key: str, model, optimizer) -> dict | None:
@@ -587,7 +418,7 @@ def _check_loss(model, job: _Job) -> float:
 
 def _guarded_epoch(model, job: _Job, rng, optimizer, position, epoch) -> tuple[float, int]:
     try:
-        return _train_epoch(
+        return train_epoch(
             model,
             job.ts,
             job.fit_idx,
@@ -650,107 +481,6 @@ def _snapshot(out_dir: Path, job: _Job, model, weights: dict, position) -> None:
     snapshot["state_dict"] = weights
     snapshot["training"]["steps"] = int(steps)
     save_checkpoint(out_dir / SNAPSHOT_DIR / snapshot_name(steps), snapshot)
-
-
-# Validation runs on at most this many patches and at most this many epochs (spread evenly, the
-# last always): a P = 1 % model trains 80x the epochs of P = 80 % on 1/80 of the data, and
-# validating every epoch would cost more than its training.
-VALIDATION_WINDOWS = 128
-VALIDATION_POINTS = 25
-
-
-def validation_epochs(epochs: int) -> set[int]:
-    return set(
-        np.unique(
-            np.round(np.linspace(1, epochs, min(epochs, VALIDATION_POINTS))).astype(int)
-        ).tolist()
-    )
-
-
-def validation_settings(settings: TrainSettings) -> TrainSettings:
-    return replace(settings, contact_patches=1, background_patches=1)
-
-
-def _train_epoch(
-    model,
-    ts,
-    train_idx,
-    settings,
-    rng,
-    device,
-    optimizer,
-    normalisation,
-    inputs,
-    position,
-    precision="float32",
-) -> tuple[float, int]:
-    """One pass over patches of the training frames: (mean loss, optimiser steps); the rate
-    scheduled per batch over (epoch, epochs) = `position` (the `epochs` rule)."""
-    windows = sample_windows(ts, train_idx, settings, rng)
-    order = rng.permutation(len(windows))
-    windows = [windows[k] for k in order]
-    total, count = 0.0, 0
-    batches = -(-len(windows) // settings.batch_size)
-    for batch, (x, y) in enumerate(input_batches(ts, windows, settings.batch_size, inputs)):
-        for group in optimizer.param_groups:
-            group["lr"] = scheduled_lr(settings, *position, batch, batches)
-        try:
-            value = optimizer_step(
-                model, ts, settings, device, optimizer, normalisation, x, y, precision
-            )
-        except TrainingError as exc:
-            raise TrainingError(f"the loss of batch {batch + 1} is {exc}") from None
-        total += value * len(x)
-        count += len(x)
-    return total / count, batches
-
-
-def optimizer_step(model, ts, settings, device, optimizer, normalisation, x, y, precision) -> float:
-    """Forward, loss, backward and update on one batch; the loss (a TrainingError holding the
-    value where it is not finite)."""
-    model.train()
-    x = adapt_inputs(x.to(device), normalisation, ts.image_shape)
-    x = x.contiguous(memory_format=preferred_memory_format(model))
-    optimizer.zero_grad(set_to_none=True)
-    with training_autocast(precision, device):
-        prediction = model(x)
-    loss = gradient_loss(
-        prediction.float() * normalisation["gradient_sign"], y.to(device), settings.loss
-    )
-    value = float(loss.detach())
-    if not math.isfinite(value):
-        raise TrainingError(str(value))
-    loss.backward()
-    optimizer.step()
-    return value
-
-
-def divergence_hint(precision: str) -> str:
-    if precision == "bfloat16":
-        return (
-            "model.precision is bfloat16, whose gradients are not finite for some networks on "
-            "some CPUs (multiscale's 24-channel dilated convolutions in channels-last, torch "
-            "2.13): set model.precision: float32 (docs/explanation/models.md)"
-        )
-    return "lower model.lr, or look for non-finite labels in the dataset"
-
-
-def training_autocast(precision: str, device: torch.device):
-    """Mixed precision for a resolved `bfloat16`: convolutions in bfloat16, weights stay float32."""
-    return torch.autocast(
-        device_type=device.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"
-    )
-
-
-class _Pairs:
-    """Re-iterable (inputs, labels) of full frames, read lazily (the lookup fit reads them twice)."""
-
-    def __init__(self, ts: TrainingSet, indices: np.ndarray, inputs: ModelInputs):
-        self.ts, self.indices, self.inputs = ts, indices, inputs
-
-    def __iter__(self):
-        for i in self.indices:
-            yield self.inputs(int(i)).numpy(), self.ts.labels(int(i))
 
 
 def checkpoint_of(model, settings, ts, percent, replicate, epoch, normalisation) -> dict:

@@ -375,6 +375,7 @@ class RigControl:
 
     def find_gel(self, wait: bool = False) -> None:
         """Start finding the gel from where the probe is (over the gel, not touching it)."""
+
         def work(rig) -> None:
             printer = rig.printer
             if not printer.homed:

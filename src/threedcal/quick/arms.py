@@ -381,24 +381,7 @@ def verdicts(
     mse = final[final["metric"] == "validation_mse"].iloc[0]
     objects = final[final["metric"] == "type2_um"]
     presses, minutes = int(mse["presses"]), float(mse["printer_min"])
-    per_object = {
-        row.object: {
-            "difference_um": row.change,
-            "interval95_um": [row.change_lo, row.change_hi],
-            "verdict": judged(row.change_lo, row.change_hi, TYPE2_WITHIN_UM),
-        }
-        for row in objects.itertuples(index=False)
-    }
-    states = [o["verdict"] for o in per_object.values()]
-    object_verdict = (
-        "not met" if "not met" in states else "undecided" if "undecided" in states else "met"
-    )
     mse_verdict = judged(mse["change_lo"], mse["change_hi"], MSE_WITHIN)
-    if not per_object:
-        raise ValueError(
-            f"{scene}: no object presses of {full_scene} to score (objects/presses.csv)"
-        )
-    worst = max(per_object.items(), key=lambda item: item[1]["interval95_um"][1])
     targets = {
         "validation_mse": {
             "verdict": mse_verdict,
@@ -410,16 +393,7 @@ def verdicts(
                 f"{mse['change_lo']:+.1%} to {mse['change_hi']:+.1%})"
             ),
         },
-        "objects": {
-            "verdict": object_verdict,
-            "per_object": per_object,
-            "line": (
-                f"Type 2 MAE within {TYPE2_WITHIN_UM:.0f} µm of {full_scene}'s on every object "
-                f"(printer protocol): {object_verdict} (highest bound: {worst[0]} "
-                f"{worst[1]['difference_um']:+.1f} µm, 95 % interval "
-                f"{worst[1]['interval95_um'][0]:+.1f} to {worst[1]['interval95_um'][1]:+.1f})"
-            ),
-        },
+        "objects": _objects_target(objects, scene, full_scene),
         "presses": {
             "verdict": "met" if presses + setup_presses <= MAX_PRESSES else "not met",
             "value": presses + setup_presses,
@@ -454,6 +428,35 @@ def verdicts(
                 float(scratch["change_hi"].iloc[0]),
             ],
         },
+    }
+
+
+def _objects_target(objects: pd.DataFrame, scene: str, full_scene: str) -> dict:
+    """The Type 2 target: each object's difference from `full_scene`, its verdict, and theirs."""
+    per_object = {
+        row.object: {
+            "difference_um": row.change,
+            "interval95_um": [row.change_lo, row.change_hi],
+            "verdict": judged(row.change_lo, row.change_hi, TYPE2_WITHIN_UM),
+        }
+        for row in objects.itertuples(index=False)
+    }
+    states = [o["verdict"] for o in per_object.values()]
+    object_verdict = (
+        "not met" if "not met" in states else "undecided" if "undecided" in states else "met"
+    )
+    if not per_object:
+        raise ValueError(
+            f"{scene}: no object presses of {full_scene} to score (objects/presses.csv)"
+        )
+    worst = max(per_object.items(), key=lambda item: item[1]["interval95_um"][1])
+    return {
+        "verdict": object_verdict,
+        "per_object": per_object,
+        "line": f"Type 2 MAE within {TYPE2_WITHIN_UM:.0f} µm of {full_scene}'s on every object "
+        f"(printer protocol): {object_verdict} (highest bound: {worst[0]} "
+        f"{worst[1]['difference_um']:+.1f} µm, 95 % interval "
+        f"{worst[1]['interval95_um'][0]:+.1f} to {worst[1]['interval95_um'][1]:+.1f})",
     }
 
 

@@ -1,7 +1,7 @@
 """The quick calibration: rounds of presses, each scored before it trains, until more stop paying.
 
 One collection run (threedcal.collect.run, homed once) stops at the end of every round of the
-quick plan (threedcal.collect.plan.quick_plan) and hands over to `QuickLoop.round_done`, the probe
+quick plan (threedcal.collect.quick_plan) and hands over to `QuickLoop.round_done`, the probe
 held over the gel. There the rows captured so far are registered and labelled
 (threedcal.dataset.build.collected_so_far); the round's presses are scored by the model as it
 stood before them (prequential: no model has seen them) and by the one before that; the model is
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from threedcal.collect.plan import quick_rounds, rows_per_press
+from threedcal.collect.quick_plan import quick_rounds, rows_per_press
 from threedcal.collect.store import StoreError
 from threedcal.dataset.build import collected_so_far
 from threedcal.dataset.splits import replicate_seed

@@ -31,7 +31,7 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.realism.check import halo_radii
-from threedcal.sim.optics import field_terms
+from threedcal.sim.background_field import field_terms
 
 FIELD_DEGREE = 4
 
@@ -61,7 +61,7 @@ def smooth_field(
     image: np.ndarray, keep: np.ndarray | None = None, degree: int = FIELD_DEGREE
 ) -> np.ndarray:
     """(H, W, C) float64: the image's polynomial field of `degree` per channel, fitted on the kept
-    pixels (threedcal.sim.optics.field_terms) and evaluated everywhere."""
+    pixels (threedcal.sim.background_field.field_terms) and evaluated everywhere."""
 
     image = np.asarray(image, dtype=np.float64)
     if image.ndim != 3:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from threedcal.collect.store import open_checked
+from threedcal.collect.store_read import open_checked
 from threedcal.errors import ConfigError
 
 

@@ -42,11 +42,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+import yaml
+from scipy.linalg import qr
+from scipy.optimize import least_squares, lsq_linear
 
 from threedcal.errors import ConfigError
 from threedcal.realism.check import HALO_MAX_RADII
-from threedcal.sim.optics import field_terms
+from threedcal.sim.background_field import field_terms
+from threedcal.sim.optics import GelSimulator
 
 FIELD_BLUR_PX = 4.0  # the background field is fitted at low frequency ...
 FIELD_STRIDE = 4  # ... on every 4th pixel
@@ -72,8 +77,6 @@ class OpticsFit:
 
     def write_profile(self, path) -> None:
         """The whole fitted profile as YAML, headed by what it was fitted on."""
-
-        import yaml
 
         head = self.summary().splitlines()[0]
         body = yaml.safe_dump(_plain(self.profile), sort_keys=False, width=100)
@@ -195,8 +198,6 @@ def fit_optics(
 # ------------------------------------------------------------------------- background field
 def _field_target(bg, frames, labels, ball_px) -> np.ndarray:
     """Median of background.png and the frames outside their contacts, low-passed and sampled."""
-    import cv2
-
     h, w = bg.shape[:2]
     yy, xx = np.mgrid[:h, :w]
     stack = [bg]
@@ -206,10 +207,10 @@ def _field_target(bg, frames, labels, ball_px) -> np.ndarray:
         stack.append(np.where(far[..., None], f, np.nan))
     med = np.nanmedian(np.stack(stack), axis=0)
     med = np.where(np.isnan(med), bg, med).astype(np.float32)
-    return _low(cv2, med)
+    return _low(med)
 
 
-def _low(cv2, img: np.ndarray) -> np.ndarray:
+def _low(img: np.ndarray) -> np.ndarray:
     blurred = cv2.GaussianBlur(img, (0, 0), FIELD_BLUR_PX, borderType=cv2.BORDER_REPLICATE)
     return blurred[::FIELD_STRIDE, ::FIELD_STRIDE]
 
@@ -219,8 +220,6 @@ class _FieldModel:
     light's irradiance (scatter) and irradiance x response (directional), each hot spot."""
 
     def __init__(self, profile, data, degree: int):
-        from threedcal.sim.optics import GelSimulator
-
         quiet = _quiet(profile)
         self.sim = GelSimulator(
             quiet, 0, image_size=(data.width_px, data.height_px), px_per_mm=data.px_per_mm
@@ -271,8 +270,6 @@ class _FieldModel:
         return out
 
     def fit(self, target: np.ndarray) -> np.ndarray:
-        from scipy.optimize import least_squares
-
         b = target.reshape(-1, 3).astype(np.float64)
 
         def residual(x):
@@ -409,8 +406,6 @@ def _contact_bases(profile, data, labels) -> list[np.ndarray]:
 def _solve_levels(geo: _FieldModel, target, contacts, bases, blur: float):
     """Per channel NNLS of the field and the contacts together; (levels (3, K), field rms, contact
     rms), each half of the rows weighted equally."""
-    import cv2
-
     n = len(geo.lights)
     field_cols = geo.columns(geo.lights, geo.vignetting)
     k = len(field_cols)
@@ -439,8 +434,6 @@ def _solve_levels(geo: _FieldModel, target, contacts, bases, blur: float):
 def _bounded_lstsq(a: np.ndarray, b: np.ndarray, lower: np.ndarray) -> np.ndarray:
     """argmin ||a x - b|| with x >= lower for each column of b, through a's QR (||a x - b||^2 =
     ||r x - q'b||^2 + const): the tall problem's answer at the small one's cost."""
-    from scipy.linalg import qr
-    from scipy.optimize import lsq_linear
 
     k = a.shape[1]
     # R of [a | b] holds a's R and q'b side by side; Q itself is never formed
@@ -510,141 +503,3 @@ def _fit_noise(profile, data, frames, labels, ball_px, correlation_range_px) -> 
     profile["optics"]["noise_dn"] = _r(sigma, 3)
     profile["optics"]["noise_correlation_px"] = round(float(corr), 3)
     return {"hf_noise_std_rgb": _r(real_std, 3), "noise_acf1": round(real_acf, 3)}
-
-
-# ------------------------------------------------------------------------- the split
-MIN_IMAGES = 4
-
-
-def split_halves(labels: Sequence, seed: int, group_px: float = 4.0, *, where: str = ""):
-    """(fitting, evaluation) label lists: the press groups shuffled by `seed`, alternately dealt to
-    the half that has fewer images so far, so no press (and no image) is in both."""
-    if len(labels) < MIN_IMAGES:
-        raise ConfigError(
-            f"{where or 'dataset'}: {len(labels)} contact images; fitting on one half and "
-            f"comparing on the other needs at least {MIN_IMAGES}"
-        )
-    from threedcal.realism.check import image_groups
-
-    groups = image_groups(labels, group_px)
-    if len(groups) < 2:
-        raise ConfigError(f"{where or 'dataset'}: every image is one press; cannot split")
-    order = np.random.default_rng(int(seed)).permutation(len(groups))
-    halves: tuple[list[int], list[int]] = ([], [])
-    for g in order:
-        target = 0 if len(halves[0]) <= len(halves[1]) else 1
-        halves[target].extend(groups[g])
-    return tuple([labels[i] for i in sorted(half)] for half in halves)
-
-
-# ------------------------------------------------------------------------- the report
-@dataclass
-class RealismRun:
-    """A realism check of one folder: the table as text, whether every figure passed, and the 2-D
-    halo comparison (threedcal.realism.halo2d; None in sample)."""
-
-    text: str
-    ok: bool
-    halo: Any = None
-
-
-def realism_report(
-    real: str | Path,
-    sensor: str,
-    seed: int = 0,
-    out: str | Path | None = None,
-    **kwargs,
-) -> tuple[str, bool]:
-    """The side-by-side table as text (and written to `out`), and whether every figure passed:
-    `realism_run`'s text and verdict."""
-    run = realism_run(real, sensor, seed, out, **kwargs)
-    return run.text, run.ok
-
-
-def realism_run(
-    real: str | Path,
-    sensor: str,
-    seed: int = 0,
-    out: str | Path | None = None,
-    *,
-    split_seed: int = 0,
-    fit: bool = True,
-    fitted_out: str | Path | None = None,
-    gel_mechanics: str | None = None,
-) -> RealismRun:
-    """The realism check of one real folder.
-
-    `fit` (the default): the real images are split into two halves by press (`split_seed`), the
-    profile's photometric constants are fitted to one half and background.png
-    (threedcal.sim.fit), and the table compares the fitted optics with the *other* half only: out
-    of sample, the radial figures (threedcal.realism.check) and the 2-D halo (threedcal.realism.halo2d,
-    the fitting half's real frames as its reference); `fitted_out` receives the fitted profile
-    (YAML). `fit=False`: the profile as it is, against every image (and the background frame), no
-    2-D halo (it needs two real halves). `gel_mechanics`: the gel's model in place of the profile's
-    (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
-    from threedcal.profiles import load_profile, with_gel_mechanics
-    from threedcal.realism.check import (
-        LABELLED_ONLY,
-        compare,
-        format_table,
-        load_ball_dataset,
-        render_presses,
-    )
-    from threedcal.realism.halo2d import folder_halos, format_halos
-
-    data = load_ball_dataset(real)
-    profile = with_gel_mechanics(load_profile("sensor", sensor), gel_mechanics)
-    head = (
-        f"realism: {profile['name']} optics ({profile['gel'].get('mechanics', 'geometric')} gel) "
-        f"at {data.width_px}x{data.height_px}, "
-        f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} "
-        f"{'labelled' if data.labelled else 'unlabelled (contacts located from frame - background)'}"
-        f" images of {data.root}"
-    )
-    lines = [head]
-    halo = None
-    if fit:
-        fit_half, test_half = split_halves(data.labels, split_seed, where=str(data.root))
-        fitted = fit_optics(profile, data, fit_half)
-        if fitted_out is not None:
-            fitted.write_profile(fitted_out)
-        renders = render_presses(data, fitted.profile, seed, test_half)
-        rows = compare(
-            data,
-            fitted.profile,
-            seed=seed,
-            labels=test_half,
-            background_is_real=False,
-            renders=renders,
-        )
-        halo = folder_halos(data, test_half, fit_half, renders, seed=seed)
-        lines += [
-            f"OUT OF SAMPLE: optics fitted on {len(fit_half)} images + background.png "
-            f"(split_seed {split_seed}, presses kept together), figures on the other "
-            f"{len(test_half)} images only ({', '.join(lb.image for lb in test_half)}); "
-            "background.png is the reference for contact changes, not a real figure",
-        ]
-    else:
-        rows = compare(data, profile, seed=seed)
-        lines.append("IN SAMPLE: the profile as it is, against every image and background.png")
-    if not data.labelled:
-        lines.append(
-            "not checked without labels: "
-            + ", ".join(LABELLED_ONLY)
-            + " (true normals and a contact radius not measured from the image)"
-        )
-    bad = [r["figure"] for r in rows if not r["ok"]]
-    lines += [
-        format_table(rows),
-        f"realism: FAIL, out of the real range by more than the tolerance: {', '.join(bad)}"
-        if bad
-        else "realism: ok, every simulated figure within the real range and tolerance",
-    ]
-    if halo is not None:
-        lines.append(format_halos(halo))
-    if fit:
-        lines.append(fitted.summary())
-    text = "\n".join(lines) + "\n"
-    if out is not None:
-        Path(out).write_text(text)
-    return RealismRun(text, not bad and (halo is None or halo.ok), halo)

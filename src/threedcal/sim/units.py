@@ -70,7 +70,7 @@ def legendre_terms(degree: int) -> list[tuple[int, int]]:
 def smooth_field_coefficients(
     rng: np.random.Generator, rms_dn: float, degree: int = FIELD_DEGREE
 ) -> np.ndarray:
-    """(3, T) coefficients in threedcal.sim.optics.field_terms' monomial basis of a random smooth
+    """(3, T) coefficients in threedcal.sim.background_field.field_terms' monomial basis of a random smooth
     field per channel whose mean square over the frame (u, v uniform in -1..1) is rms_dn² in
     expectation and whose mean is zero: independent normal weights on the normalised Legendre
     products sqrt((2i+1)(2j+1)) P_i(u) P_j(v), each of which has mean 0 and mean square 1."""

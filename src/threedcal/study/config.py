@@ -11,15 +11,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from threedcal.collect.plan import (
-    plan_from_config,
-    quick_plan,
-    quick_problems,
-    registration_presses_of,
-    rows_per_press,
-    validate_plan,
-    whole_contacts,
-)
+from threedcal.collect.plan import validate_plan, whole_contacts
+from threedcal.collect.quick_plan import quick_plan, quick_problems, rows_per_press
+from threedcal.collect.scene_plan import plan_from_config, registration_presses_of
 from threedcal.dataset.importers import check_import, load_imported
 from threedcal.dataset.reframe import reframe_problem
 from threedcal.errors import ConfigError

@@ -22,8 +22,9 @@ import pandas as pd
 import zarr
 
 from threedcal.collect.figures import coverage_figure, mosaic_figure
-from threedcal.collect.plan import plan_from_config, touch_search_range, validate_plan
+from threedcal.collect.plan import touch_search_range, validate_plan
 from threedcal.collect.run import MotionSettings, RunResult, collect
+from threedcal.collect.scene_plan import plan_from_config
 from threedcal.collect.store import (
     IMAGE_LAYOUT,
     RawStore,
@@ -32,12 +33,12 @@ from threedcal.collect.store import (
     canonical_json,
     check_settings,
     frame_offsets,
-    open_raw,
     plan_digest,
     readings_layout,
     settings_digest,
     store_summary,
 )
+from threedcal.collect.store_read import open_raw
 from threedcal.dataset.touch import planned_touch_search
 from threedcal.errors import ConfigError
 from threedcal.hardware.printer import MarlinHost
