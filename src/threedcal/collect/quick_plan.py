@@ -9,7 +9,6 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from threedcal.collect.design import halton_design, round_order
 from threedcal.collect.plan import camera_view_mm, check_plan_size, dome_sag_mm, plan_area_mm
 from threedcal.errors import ConfigError
 from threedcal.seeds import replicate_seed
@@ -97,6 +96,11 @@ def quick_plan(sensor: Mapping, plan_config: Mapping, run: int = 1) -> pd.DataFr
     area (threedcal.collect.design), each `depth_mm` deep (dome compensated) for `frames` frames,
     in rounds of `round_presses` (each round's prefix spreads evenly), each round a short path.
     Run r of a calibration (`quick.run`) scrambles with plan.seed's replicate r − 1."""
+    from threedcal.collect.design import (  # local: scipy stays out of the Snakefile's parse
+        halton_design,
+        round_order,
+    )
+
     problems = quick_problems(plan_config, sensor)
     if problems:
         raise ConfigError("; ".join(problems))
