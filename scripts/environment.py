@@ -3,7 +3,7 @@
 import json
 
 from threedcal.logs import stage_log
-from threedcal.report.summary import environment
+from threedcal.report.environment import environment
 
 with stage_log(snakemake.log[0]):
     record = environment(snakemake.params.config)

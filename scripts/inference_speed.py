@@ -3,7 +3,7 @@
 import torch
 
 from threedcal.logs import stage_log
-from threedcal.report.summary import measure_inference
+from threedcal.report.inference_speed import measure_inference
 
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.params.threads)

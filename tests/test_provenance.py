@@ -20,9 +20,9 @@ def test_closure_follows_imports_inside_functions_and_through_packages():
     collect = _names(REPO / "scripts/collect.py")
     assert {"reskin/figures.py", "study/paths.py", "study/session.py"} <= collect
     assert {"__init__.py", "collect/__init__.py"} <= collect  # parents run on import
-    summary = _names(REPO / "scripts/summary.py")
-    assert any(n.startswith("dataset/") for n in summary)
-    assert any(n.startswith("model/") for n in summary)
+    speed = _names(REPO / "scripts/inference_speed.py")
+    assert any(n.startswith("dataset/") for n in speed)
+    assert any(n.startswith("model/") for n in speed)
     # the collection never runs the model or the depth integrators: a model change keeps it cached
     assert not any(n.startswith(("model/", "depth/", "evaluate/")) for n in collect)
 

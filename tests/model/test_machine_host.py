@@ -7,9 +7,8 @@ from test_model import TINY, fresh_checkpoint, synthetic_set
 from threedcal.errors import ConfigError
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.machine import cpu_capability, cpu_flags, host_line, isa_limits, torch_device
-from threedcal.model.train import train
-from threedcal.model.train_settings import TrainSettings
-from threedcal.report.summary import environment
+from threedcal.model.train import TrainSettings, train
+from threedcal.report.environment import environment
 
 
 def test_an_emulated_avx2_machine_says_so(monkeypatch):

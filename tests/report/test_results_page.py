@@ -12,17 +12,16 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from threedcal.cli import main
+from threedcal.depth.study import reading
+from threedcal.errors import ConfigError
 from threedcal.evaluate.ablation import TEST_COLUMNS
+from threedcal.evaluate.real_check import FINETUNED, SHIPPED, TABLE_COLUMNS
 from threedcal.evaluate.sim2real_settings import ERROR_COLUMNS
-from threedcal.report.results_page import (
-    SIM_COLUMN,
-    SIM_READINGS,
-    _table,
-    page_layout,
-    results_page,
-    short_equivalence,
-    write_results_page,
-)
+from threedcal.quick.arms import arms_table, verdicts
+from threedcal.report.results_page import page_layout, results_page, write_results_page
+from threedcal.report.sections.ablation import short_equivalence
+from threedcal.report.sections.markdown import SIM_COLUMN, SIM_READINGS, markdown_table
 from threedcal.report.stage_times import study_span
 from threedcal.study.config import load_config, validate_config
 from threedcal.study.paths import (
@@ -201,8 +200,6 @@ def write_reskin(root: Path) -> None:
 
 def write_real_check(results: Path, config: Mapping) -> None:
     """real_check/table.csv: the shipped weights on every set, fine-tuned where it has labels."""
-    from threedcal.evaluate.real_check import FINETUNED, SHIPPED, TABLE_COLUMNS
-
     rows = []
     for i, entry in enumerate(config["real_check"]["sets"]):
         reads = [(SHIPPED, "held-out half", 21), (SHIPPED, "all", 42)]
@@ -250,8 +247,6 @@ def build_results(results: Path, config: Mapping, skip: tuple[str, ...] = ()) ->
     environment |= {"software": {"python": "3.11.7", "threedcal": "0.1.0", "torch": "2.13.0"}}
     (results / "environment.json").write_text(json.dumps(environment))
     if config.get("integration_study", {}).get("enabled"):
-        from threedcal.depth.study import reading
-
         table = pd.DataFrame(
             {
                 "method": ["poisson_dst", "poisson_dct"],
@@ -368,13 +363,15 @@ def test_every_table_names_its_protocol_and_whether_the_simulator_made_its_frame
 
 def test_a_column_the_same_on_every_row_becomes_a_line_and_one_that_varies_stays():
     header = ["scene", SIM_COLUMN, "protocol", "figure"]
-    same = _table(header, [["`a`", "yes", "printer", "1"], ["`b`", "yes", "printer", "2"]])
+    same = markdown_table(header, [["`a`", "yes", "printer", "1"], ["`b`", "yes", "printer", "2"]])
     assert same[0] == f"Every row: *{SIM_COLUMN}* yes; *protocol* printer."
     assert same[2] == "| scene | figure |"
-    varies = _table(header, [["`a`", "yes", "printer", "1"], ["`b`", "no (real images)", "x", "2"]])
+    varies = markdown_table(
+        header, [["`a`", "yes", "printer", "1"], ["`b`", "no (real images)", "x", "2"]]
+    )
     assert varies[0] == f"| scene | {SIM_COLUMN} | protocol | figure |"
     # a measured column the same on every row stays a column
-    assert _table(["P %", "figure"], [["1", "5"], ["2", "5"]])[0] == "| P % | figure |"
+    assert markdown_table(["P %", "figure"], [["1", "5"], ["2", "5"]])[0] == "| P % | figure |"
 
 
 def test_equivalence_verdicts_in_short():
@@ -533,8 +530,6 @@ def test_sections_follow_what_the_scenes_ran(tmp_path):
 def test_write_refuses_a_folder_without_scene_records_and_the_cli_writes_the_page(
     small, tmp_path, capsys
 ):
-    from threedcal.cli import main
-    from threedcal.errors import ConfigError
 
     with pytest.raises(ConfigError, match="no scene records"):
         write_results_page(tmp_path / "empty", tmp_path / "page.md")
@@ -555,8 +550,6 @@ def test_the_study_span_runs_from_the_first_jobs_start_to_the_last_jobs_end(tmp_
 
 def write_arms(root: Path, full: str, mse_change: tuple, pawn: tuple) -> None:
     """quick/arms.json as the quick_arms stage writes it (threedcal.quick.arms.verdicts)."""
-    from threedcal.quick.arms import arms_table, verdicts
-
     rows = []
     points = (("quick", 5, 50), ("stopped", None, 50), ("scratch", 5, 50), ("full", None, 2956))
     for arm, round_, presses in points:

@@ -2,7 +2,10 @@ import json
 
 import pandas as pd
 
-from threedcal.report.summary import write_summary
+from threedcal.evaluate.ablation import TEST_COLUMNS
+from threedcal.quick.arms import arms_table, verdicts
+from threedcal.report.sections.convergence import convergence_lines
+from threedcal.report.summary import write_study_summary
 
 
 def test_summary_collects_each_scenes_headline_numbers(tmp_path):
@@ -85,7 +88,7 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
             },
         }
     }
-    text = write_summary(config, root, tmp_path / "summary.md")
+    text = write_study_summary(config, root, tmp_path / "summary.md")
     # the scene on real frames leads, though the config lists it second
     assert "Scenes on real sensor frames first (b); every other scene is" in text
     assert text.index("## b") < text.index("## a")
@@ -115,8 +118,6 @@ def test_summary_collects_each_scenes_headline_numbers(tmp_path):
 
 
 def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreements(tmp_path):
-    from threedcal.evaluate.ablation import TEST_COLUMNS
-
     stats_dir = tmp_path / "results/a/stats"
     stats_dir.mkdir(parents=True)
     rows = []
@@ -210,7 +211,7 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
             for r, s, n, power in ((3, 0.5, 160, 0.4), (5, 0.5, 160, 0.85), (5, 1.0, 40, 0.6))
         ]
     ).to_csv(stats_dir / "power.csv", index=False)
-    text = write_summary(
+    text = write_study_summary(
         {"scenes": {"a": {"sensor": "digit"}}}, tmp_path / "results", tmp_path / "summary.md"
     )
     assert "| 5 | +30.0 % | 3/3 / 3/3 | worse (p = 0.002, interval +10.0 % to +50.0 %)" in text
@@ -230,8 +231,6 @@ def test_summary_sets_the_three_test_families_side_by_side_and_names_disagreemen
 
 
 def test_summary_states_the_convergence_check_per_fraction(tmp_path):
-    from threedcal.report.summary import convergence_lines
-
     path = tmp_path / "convergence.csv"
     assert convergence_lines(path) == []
     pd.DataFrame(
@@ -256,8 +255,6 @@ def test_summary_states_the_convergence_check_per_fraction(tmp_path):
 
 
 def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):
-    from threedcal.quick.arms import arms_table, verdicts
-
     root = tmp_path / "results"
     (root / "q/quick").mkdir(parents=True)
     rows = []
@@ -279,7 +276,7 @@ def test_a_compared_quick_scene_has_its_verdicts_in_one_line(tmp_path):
         json.dumps(verdicts(arms_table(rows), "q", "full_scene"))
     )
     config = {"scenes": {"q": {"sensor": "digit", "description": "quick"}}}
-    text = write_summary(config, root, tmp_path / "summary.md")
+    text = write_study_summary(config, root, tmp_path / "summary.md")
     line = next(x for x in text.splitlines() if "quick against full_scene's P = 80" in x)
     assert "mean validation MSE within 10% of full_scene's P = 80: not met (+20.0%" in line
     assert "every object (printer protocol): met (highest bound: pill +2.0 µm" in line

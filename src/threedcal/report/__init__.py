@@ -1,1 +1,2 @@
-"""Study-wide outputs: the one-page summary and the run environment."""
+"""Study-wide outputs: the results page and the one-page summary (both drawn from the section
+builders in threedcal.report.sections), the run environment and the inference speed."""
