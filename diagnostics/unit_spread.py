@@ -2,7 +2,7 @@
 
 Per unit (threedcal.realism.unit_measure): the blank's smooth field (level and shape, DN), its brighter
 side per channel (deg, image frame), and where the unit has labelled or locatable contacts, on the
-fitting half of its frames only (threedcal.sim.realism_check.split_halves, seed 0: the half the check never
+fitting half of its frames only (threedcal.realism.folder.split_halves, seed 0: the half the check never
 scores): each light's direction, the halo (r50 and r10 over the ball's radius) and how far its
 frames drift from its blank (smooth part, away from the contact). Then, per sensor model, what
 its two units differ by and the spread of one unit (the difference over √2).
@@ -26,7 +26,7 @@ import numpy as np
 from threedcal.images import read_rgb
 from threedcal.realism import unit_measure as um
 from threedcal.realism.check import load_ball_dataset
-from threedcal.sim.realism_check import split_halves
+from threedcal.realism.folder import split_halves
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MARKER_CONTACT_REACH_PX = 100  # the marker frames' contact and its colour, left out of their field

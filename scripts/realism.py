@@ -6,7 +6,7 @@ from pathlib import Path
 
 from threedcal.logs import stage_log
 from threedcal.realism import halo2d
-from threedcal.sim.realism_check import realism_run
+from threedcal.realism.folder import realism_run
 
 with stage_log(snakemake.log[0]):
     runs = [

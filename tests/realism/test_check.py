@@ -6,8 +6,8 @@ import pytest
 from threedcal.cli import main
 from threedcal.profiles import load_profile
 from threedcal.realism.check import BallLabel, compare, image_figures, load_ball_dataset
+from threedcal.realism.folder import realism_report
 from threedcal.sim.normals import sphere_normals
-from threedcal.sim.realism_check import realism_report
 
 # The figures that the built-in Mini profile does not meet in sample: its noise is white (no
 # noise_correlation_px), the geometric gel has no broad halo around a contact, and its red contrast
@@ -31,12 +31,12 @@ def test_write_fitted_never_overwrites_a_file_and_is_checked_before_the_fit(
 ):
     """Repro: `--write-fitted my_mini.yaml` replaced an existing (hand-tuned) profile after the
     fit, silently; a path in a missing folder raised FileNotFoundError only after the fit."""
-    import threedcal.sim.realism_check
+    import threedcal.realism.folder
 
     def no_fit(*args, **kwargs):
         raise AssertionError("the fit ran before the output path was checked")
 
-    monkeypatch.setattr(threedcal.sim.realism_check, "realism_report", no_fit)
+    monkeypatch.setattr(threedcal.realism.folder, "realism_report", no_fit)
     mine = tmp_path / "my_mini.yaml"
     mine.write_text("name: my_mini  # tuned by hand\n")
     real = ["sim", "realism", "--real", str(real_data / "gelsight_ball_fots")]

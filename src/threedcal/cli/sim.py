@@ -45,7 +45,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
 
 def _realism(args: argparse.Namespace) -> int:
     from threedcal.errors import ConfigError
-    from threedcal.sim.realism_check import realism_report
+    from threedcal.realism.folder import realism_report
 
     if args.in_sample and args.write_fitted:
         raise ConfigError("--write-fitted needs the fit: leave out --in-sample")

@@ -13,7 +13,7 @@ side: threedcal.dataset.reframe) and read with the folder's own blank. Each fram
 - its peak depth against what the press allows: the cap depth of the located contact's radius
   (never more than the ball's radius).
 
-The frames are split into two halves by place (threedcal.sim.realism_check.split_halves, seed 0: the
+The frames are split into two halves by place (threedcal.realism.folder.split_halves, seed 0: the
 realism check's and the fitted optics' split). A quick fine-tune of the weights trains on the
 first half only; both read the second.
 """
@@ -43,7 +43,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import train
 from threedcal.pretrained import provenance, shipped_weights
 from threedcal.realism.check import load_ball_dataset
-from threedcal.sim.realism_check import split_halves
+from threedcal.realism.folder import split_halves
 
 SPLIT_SEED = 0  # the realism check's split: the DIGIT optics were fitted on half 0
 FIT, CHECK = "fit", "check"

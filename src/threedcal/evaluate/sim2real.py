@@ -61,7 +61,7 @@ from threedcal.model.checkpoint import save_checkpoint
 from threedcal.model.train import TrainSettings, train
 from threedcal.pretrained import provenance, shipped_sensors, shipped_weights
 from threedcal.realism.check import BallLabel
-from threedcal.sim.fit import fit_optics
+from threedcal.realism.fit import fit_optics
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 
@@ -132,7 +132,7 @@ MIN_FIT_IMAGES = 3
 
 @dataclass(frozen=True)
 class _SetImages:
-    """A model-ready set seen as the ball folder threedcal.sim.fit reads: frames by name, its
+    """A model-ready set seen as the ball folder threedcal.realism.fit reads: frames by name, its
     blank as background.png. Works for every import format, and takes the set's own (possibly
     refined) contact circles."""
 
@@ -180,7 +180,7 @@ def fold_profile(
 
 
 def fitted_to_frames(profile: Mapping, ts: TrainingSet, frames: Sequence[int], where: str):
-    """`profile` with its optics fitted (threedcal.sim.fit.fit_optics) to these frames of the
+    """`profile` with its optics fitted (threedcal.realism.fit.fit_optics) to these frames of the
     model-ready set, with their contact circles, and its blank."""
     names = tuple(f"frame{i:05d}" for i in range(len(ts.frames)))
     radius = contact_radius_px(ts)

@@ -1,5 +1,5 @@
 """The realism check of one real folder: the profile's optics fitted on one half of its presses
-(threedcal.sim.fit) and compared, figure by figure, with the other half (threedcal.realism.check,
+(threedcal.realism.fit) and compared, figure by figure, with the other half (threedcal.realism.check,
 threedcal.realism.halo2d)."""
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from threedcal.realism.check import (
     load_ball_dataset,
     render_presses,
 )
+from threedcal.realism.fit import fit_optics
 from threedcal.realism.halo2d import folder_halos, format_halos
-from threedcal.sim.fit import fit_optics
 
 # ------------------------------------------------------------------------- the split
 MIN_IMAGES = 4
@@ -86,7 +86,7 @@ def realism_run(
 
     `fit` (the default): the real images are split into two halves by press (`split_seed`), the
     profile's photometric constants are fitted to one half and background.png
-    (threedcal.sim.fit), and the table compares the fitted optics with the *other* half only: out
+    (threedcal.realism.fit), and the table compares the fitted optics with the *other* half only: out
     of sample, the radial figures (threedcal.realism.check) and the 2-D halo (threedcal.realism.halo2d,
     the fitting half's real frames as its reference); `fitted_out` receives the fitted profile
     (YAML). `fit=False`: the profile as it is, against every image (and the background frame), no

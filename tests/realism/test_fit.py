@@ -1,4 +1,4 @@
-"""The optics fit (threedcal.sim.fit) and the out-of-sample realism split."""
+"""The optics fit (threedcal.realism.fit) and the out-of-sample realism split."""
 
 import copy
 import math
@@ -16,10 +16,10 @@ from threedcal.realism.check import (
     load_ball_dataset,
     locate_ball,
 )
-from threedcal.sim.fit import fit_optics
+from threedcal.realism.fit import fit_optics
+from threedcal.realism.folder import realism_report, split_halves
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator, background_field
-from threedcal.sim.realism_check import realism_report, split_halves
 
 W, H, PX_PER_MM, BALL_MM = 160, 200, 12.0, 2.35
 CENTRES = [(60, 70), (100, 80), (70, 130), (105, 135), (80, 100), (95, 60), (60, 150), (110, 110)]

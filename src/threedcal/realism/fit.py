@@ -86,7 +86,7 @@ class OpticsFit:
         """The fitted constants, as profile YAML lines with where they came from."""
         p = self.profile
         lines = [
-            f"# fitted by threedcal.sim.fit.fit_optics on {len(self.images)} images "
+            f"# fitted by threedcal.realism.fit.fit_optics on {len(self.images)} images "
             f"({', '.join(self.images)}) + background.png: background-field rms "
             f"{self.field_rms_dn:.2f} DN, contact-change rms {self.contact_rms_dn:.2f} DN",
             "lights:",
