@@ -3,8 +3,9 @@
 import pytest
 
 from threedcal.errors import ConfigError
+from threedcal.hardware.clock import WallClock
 from threedcal.profiles import load_profile
-from threedcal.rig import BenchClock, Rig, RigError, WallClock, check_devices, open_rig
+from threedcal.rig import BenchClock, Rig, RigError, check_devices, open_rig
 from threedcal.study.config import validate_config
 
 

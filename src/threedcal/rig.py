@@ -14,13 +14,13 @@ terminal itself, and a real rig without `ask` refuses the step instead of hangin
 from __future__ import annotations
 
 import contextlib
-import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.hardware.camera import OpenCVCamera
+from threedcal.hardware.clock import Clock, WallClock
 from threedcal.hardware.printer import MarlinHost
 from threedcal.profiles import load_profile
 
@@ -30,22 +30,6 @@ Ask = Callable[[str], None]
 
 class RigError(ThreedcalError):
     """The rig cannot do what was asked of it (a step needs a person and nobody can be asked)."""
-
-
-class Clock(Protocol):
-    def now(self) -> float: ...
-
-    def sleep(self, seconds: float) -> None: ...
-
-
-class WallClock:
-    """A real rig's time: monotonic seconds, real waits."""
-
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep(self, seconds: float) -> None:
-        time.sleep(seconds)
 
 
 class BenchClock:

@@ -34,13 +34,13 @@ from threedcal.collect.plan import clearance_z, dome_sag_mm, plan_area_mm, plan_
 from threedcal.collect.quick_plan import continued_presses
 from threedcal.collect.store import PointRecord, RawStore, StoreError
 from threedcal.errors import ConfigError
+from threedcal.hardware.clock import Clock, WallClock
 from threedcal.hardware.printer import (
     PrinterDisconnected,
     PrinterHalted,
     PrinterReset,
     PrinterTimeout,
 )
-from threedcal.rig import Clock, WallClock
 
 # Captured points are written to the store together, once FLUSH_EVERY_S has passed since the last
 # write or FLUSH_MAX_POINTS wait: a zarr write costs about a millisecond whatever its size, ten
