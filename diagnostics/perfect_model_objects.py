@@ -45,6 +45,7 @@ from threedcal.profiles import load_profile, with_gel_mechanics
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
 from threedcal.study.config import validate_config
+from threedcal.study.scene import objects_setup
 
 
 class GelGradients:
@@ -103,7 +104,7 @@ def smoke_study(results: Path) -> str:
     }
     registration = root / "dataset" / "registration.json"
     registration.write_text(json.dumps(record))
-    press_objects(scene, registration, root / "objects" / "pressing", progress=False)
+    press_objects(objects_setup(scene), registration, root / "objects" / "pressing", progress=False)
     return "smoke"
 
 
@@ -138,7 +139,7 @@ def score(args: argparse.Namespace, out: Path) -> pd.DataFrame:
     if args.no_mount_errors:
         scene["pressing"]["bench"] = {k: 0.0 for k in scene["pressing"]["bench"]}
         pressing = out / "pressing"
-        press_objects(scene, registration, pressing, progress=False)
+        press_objects(objects_setup(scene), registration, pressing, progress=False)
     lens = RadialLens.from_record(read_registration(registration).get("lens"))
     if args.gel:
         if args.gel != "scene":
@@ -148,7 +149,7 @@ def score(args: argparse.Namespace, out: Path) -> pd.DataFrame:
         dome = load_profile("sensor", scene["sensor"])["gel"].get("dome")
         perfect = TruthGradients(pressing, px_per_mm, lens=lens, dome=dome)
     errors = evaluate_objects(
-        scene,
+        objects_setup(scene),
         {80: "perfect"},
         pressing,
         registration,

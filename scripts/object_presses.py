@@ -5,10 +5,11 @@ from pathlib import Path
 from threedcal.cli import ask_on_console
 from threedcal.evaluate.object_presses import press_objects
 from threedcal.logs import stage_log
+from threedcal.study.scene import objects_setup
 
 with stage_log(snakemake.log[0]) as log:
     summary = press_objects(
-        snakemake.params.scene,
+        objects_setup(snakemake.params.scene, f"scenes.{snakemake.wildcards.scene}"),
         snakemake.input.registration,
         Path(snakemake.output.frames).parent,
         name=snakemake.wildcards.scene,

@@ -7,6 +7,7 @@ import torch
 
 from threedcal.evaluate.object_scores import evaluate_objects
 from threedcal.logs import stage_log
+from threedcal.study.scene import objects_setup
 
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.params.scene["torch_threads"])
@@ -14,7 +15,7 @@ with stage_log(snakemake.log[0]):
     for p, r in sorted(snakemake.params.models):
         models.setdefault(p, []).append(snakemake.input[f"P{p}_r{r}"])
     evaluate_objects(
-        snakemake.params.scene,
+        objects_setup(snakemake.params.scene),
         models,
         Path(snakemake.input.frames).parent,
         snakemake.input.registration,

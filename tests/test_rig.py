@@ -5,8 +5,9 @@ import pytest
 from threedcal.errors import ConfigError
 from threedcal.hardware.clock import WallClock
 from threedcal.profiles import load_profile
-from threedcal.rig import BenchClock, Rig, RigError, check_devices, open_rig
+from threedcal.rig import BenchClock, Rig, RigError, RigSettings, check_devices, open_rig
 from threedcal.study.config import validate_config
+from threedcal.study.scene import rig_settings
 
 
 def test_a_real_rig_asks_through_its_callback_and_refuses_without_one():
@@ -23,7 +24,7 @@ def test_the_bench_opens_as_a_rig_and_needs_nobody():
     scene = validate_config({"scenes": {"s": {"sensor": "digit", "printer": "ender3"}}})
     scene = scene["scenes"]["s"]
     sensor, printer = load_profile("sensor", "digit"), load_profile("printer", "ender3")
-    with open_rig(scene, sensor, printer) as rig:
+    with open_rig(rig_settings(scene), sensor, printer) as rig:
         assert rig.simulated and isinstance(rig.clock, BenchClock)
         rig.prompt("Mount the pill")  # the bench mounts its own objects: nothing asked
         rig.printer.home()
@@ -36,9 +37,12 @@ def test_the_bench_opens_as_a_rig_and_needs_nobody():
 
 
 def test_a_real_printer_needs_a_real_sensor():
+    def real(**devices):
+        return RigSettings("digit", 1.0, 0, port="/dev/ttyUSB0", **devices)
+
     digit, reskin = load_profile("sensor", "digit"), load_profile("sensor", "reskin")
     with pytest.raises(ConfigError, match=r"scenes.x.camera: port '/dev/ttyUSB0' is a real"):
-        check_devices({"port": "/dev/ttyUSB0", "camera": "sim"}, digit, "scenes.x")
+        check_devices(real(camera="sim"), digit, "scenes.x")
     with pytest.raises(ConfigError, match=r"scenes.x.reader: .*ReSkin board's serial device"):
-        check_devices({"port": "/dev/ttyUSB0"}, reskin, "scenes.x")
-    check_devices({"port": "/dev/ttyUSB0", "camera": "0"}, digit, "scenes.x")  # accepted
+        check_devices(real(), reskin, "scenes.x")
+    check_devices(real(camera="0"), digit, "scenes.x")  # accepted

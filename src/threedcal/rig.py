@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from threedcal.errors import ConfigError, ThreedcalError
@@ -72,6 +72,23 @@ class Rig:
         self.ask(message)
 
 
+@dataclass(frozen=True)
+class RigSettings:
+    """Which rig a scene runs on, as the study layer parsed it (threedcal.study.scene.rig_settings)."""
+
+    sensor_ref: str  # the sensor profile's name or path: the bench seats the sensor as it says
+    probe_radius_mm: float
+    seed: int  # the simulated bench's draws
+    bench: Mapping = field(default_factory=dict)  # the simulated bench's settings
+    port: str = "sim"  # "sim": the simulated bench; else the printer's serial device
+    camera: int | str = "sim"  # the sensor's video device on a real rig
+    reader: str = "sim"  # a ReSkin board's serial device on a real rig
+
+    @property
+    def simulated(self) -> bool:
+        return self.port == "sim"
+
+
 def is_magnetic(sensor: Mapping) -> bool:
     """Magnetic sensors (ReSkin) stream readings over serial instead of camera frames."""
     return sensor.get("type") == "magnetic"
@@ -82,28 +99,28 @@ def camera_device(spec: int | str) -> int | str:
     return int(spec) if isinstance(spec, str) and spec.isdigit() else spec
 
 
-def check_devices(scene: Mapping, sensor: Mapping, source: str = "scene") -> None:
+def check_devices(settings: RigSettings, sensor: Mapping, source: str = "scene") -> None:
     """A real printer needs a real sensor: its camera or its ReSkin board, named in the scene."""
-    if scene.get("port", "sim") == "sim":
+    if settings.simulated:
         return
     key = "reader" if is_magnetic(sensor) else "camera"
-    if str(scene.get(key, "sim")) == "sim":
+    if str(getattr(settings, key)) == "sim":
         device = (
             "set the scene's `reader` to the ReSkin board's serial device (e.g. /dev/ttyACM0)"
             if is_magnetic(sensor)
             else "give the sensor's video device (index or /dev/v4l/by-id path)"
         )
         raise ConfigError(
-            f"{source}.{key}: port {scene['port']!r} is a real printer but {key} is 'sim': {device}, "
+            f"{source}.{key}: port {settings.port!r} is a real printer but {key} is 'sim': {device}, "
             "or use port: sim"
         )
 
 
-def bench_sensor(scene: Mapping, sensor: Mapping) -> dict:
+def bench_sensor(settings: RigSettings, sensor: Mapping) -> dict:
     """The sensor as the simulated bench seats it: in the base its profile describes (the
     profile's `mount`, give or take the bench's hidden seating). A scene's own `mount`
     (threedcal.mount) is what its user measured of the rig, not where the bench put the sensor."""
-    return {**sensor, "mount": load_profile("sensor", scene["sensor"])["mount"]}
+    return {**sensor, "mount": load_profile("sensor", settings.sensor_ref)["mount"]}
 
 
 def open_camera(sensor: Mapping, device: int | str | None):
@@ -113,42 +130,42 @@ def open_camera(sensor: Mapping, device: int | str | None):
 
 @contextlib.contextmanager
 def open_rig(
-    scene: Mapping, sensor: Mapping, printer: Mapping, *, ask: Ask | None = None
+    settings: RigSettings, sensor: Mapping, printer: Mapping, *, ask: Ask | None = None
 ) -> Iterator[Rig]:
     """The scene's rig, opened: the simulated bench (`port: sim`, seated by the scene's `seed` and
     `bench` settings) or the printer at `port` with the sensor at `camera` / `reader`."""
-    if scene.get("port", "sim") == "sim":
-        with _bench_rig(scene, sensor, printer) as rig:
+    if settings.simulated:
+        with _bench_rig(settings, sensor, printer) as rig:
             yield rig
         return
 
     if is_magnetic(sensor):
         from threedcal.hardware.reskin import ReSkinReader
 
-        reader = ReSkinReader(sensor, str(scene["reader"]))
+        reader = ReSkinReader(sensor, str(settings.reader))
     else:
-        reader = open_camera(sensor, scene["camera"])
-    with reader as reading, MarlinHost(scene["port"], printer) as host:
+        reader = open_camera(sensor, settings.camera)
+    with reader as reading, MarlinHost(settings.port, printer) as host:
         clock = WallClock()
         yield Rig(host, reading, clock, clock.now, ask=ask)
 
 
 @contextlib.contextmanager
-def _bench_rig(scene: Mapping, sensor: Mapping, printer: Mapping) -> Iterator[Rig]:
+def _bench_rig(rig: RigSettings, sensor: Mapping, printer: Mapping) -> Iterator[Rig]:
     """The fake printer and the simulated sensor, coupled through the head pose: the gel camera,
     or the ReSkin board behind its own serial URL."""
     if is_magnetic(sensor):
         from threedcal.sim.reskin import ReSkinBench as Bench
     else:
         from threedcal.sim.bench import SimBench as Bench
-    settings = scene["bench"]
+    settings = rig.bench
     with contextlib.ExitStack() as stack:
         bench = stack.enter_context(
             Bench(
-                bench_sensor(scene, sensor),
-                scene["probe"]["radius_mm"],
+                bench_sensor(rig, sensor),
+                rig.probe_radius_mm,
                 settings,
-                scene["seed"],
+                rig.seed,
                 printer=printer,
                 faults=settings.get("faults", ""),
                 fault_rate=settings.get("fault_rate", 0.0),

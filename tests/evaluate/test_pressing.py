@@ -26,7 +26,6 @@ from threedcal.evaluate.press_plan import (
     Mount,
     PrinterFrame,
     plan_presses,
-    pressing_seed,
     read_registration,
     session_draws,
     true_mount,
@@ -37,6 +36,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
 from threedcal.study.config import validate_config
+from threedcal.study.scene import objects_setup, pressing_seed
 
 PRESSING = {"presses": 3, "tuning_presses": 2, "depth_mm": 1.0, "depth_jitter": 0.1}
 PRESSING["offset_fraction"] = 0.12
@@ -145,7 +145,9 @@ def test_a_test_session_keeps_the_gel_but_not_the_noise():
 def score_exact_gradients(scene, registration, folder):
     """Press the scene's objects with `registration` and score a perfect model (the exact
     gradients of the true surface, integrated with the scene's integrator, poisson_dst)."""
-    press_objects(scene, registration, folder / "pressing", progress=False)
+    press_objects(
+        objects_setup(scene, "scenes.scene"), registration, folder / "pressing", progress=False
+    )
     plan, frames, blanks, truth = read_presses(folder / "pressing")
     assert len(frames) == len(plan) == 2 and set(blanks) == set(SETS)
     lens = RadialLens.from_record(read_registration(registration).get("lens"))
@@ -154,7 +156,7 @@ def score_exact_gradients(scene, registration, folder):
         folder / "pressing", sensor["px_per_mm"], lens=lens, dome=sensor["gel"].get("dome")
     )
     errors = evaluate_objects(
-        scene,
+        objects_setup(scene),
         {80: "exact"},
         folder / "pressing",
         registration,
@@ -406,11 +408,15 @@ def test_bad_input_is_refused_before_any_motion(tmp_path):
     scene = scene_config("gelsight_mini")
     scene["objects"] = [str(big)]
     with pytest.raises(ConfigError, match=r"long_pill spans 30.*gel.width_mm"):
-        press_objects(scene, registration, tmp_path / "out", progress=False)
+        press_objects(
+            objects_setup(scene, "scenes.scene"), registration, tmp_path / "out", progress=False
+        )
     # a press beyond the gel's maximum penetration (3.5 mm on the Mini)
     scene = scene_config("gelsight_mini", depth_mm=3.4)
     with pytest.raises(ConfigError, match=r"pressing.depth_mm.*gel.max_penetration_mm"):
-        press_objects(scene, registration, tmp_path / "out", progress=False)
+        press_objects(
+            objects_setup(scene, "scenes.scene"), registration, tmp_path / "out", progress=False
+        )
     assert not (tmp_path / "out").exists()  # nothing moved, nothing written
     # a real rig without the mount offset: refused by the config and by the stage
     raw = {**_raw(), "port": "/dev/ttyUSB0", "camera": 0}
@@ -419,12 +425,24 @@ def test_bad_input_is_refused_before_any_motion(tmp_path):
     scene = scene_config()
     scene["port"] = "/dev/ttyUSB0"
     with pytest.raises(ConfigError, match=r"scenes.rig.pressing.mount"):
-        press_objects(scene, registration, tmp_path / "out", name="rig", progress=False)
+        press_objects(
+            objects_setup(scene, "scenes.rig"),
+            registration,
+            tmp_path / "out",
+            name="rig",
+            progress=False,
+        )
     with_mount = {**raw, "pressing": {"mount": {"x_mm": 0, "y_mm": 0, "z_mm": -3}}}
     validate_config({"scenes": {"s": with_mount}})  # accepted
     scene["pressing"]["mount"], scene["camera"] = with_mount["pressing"]["mount"], "sim"
     with pytest.raises(ConfigError, match=r"scenes.rig.camera: .*real printer"):
-        press_objects(scene, registration, tmp_path / "out", name="rig", progress=False)
+        press_objects(
+            objects_setup(scene, "scenes.rig"),
+            registration,
+            tmp_path / "out",
+            name="rig",
+            progress=False,
+        )
     assert not (tmp_path / "out").exists()
 
 
@@ -455,7 +473,13 @@ def test_a_real_rig_asks_for_each_object_and_records_no_truth(tmp_path, monkeypa
         monkeypatch.setattr(threedcal.rig, "open_camera", bench_camera)
         scene.update(port=bench.url, camera="0")
         scene["pressing"]["mount"] = {"x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0, "rotation_deg": 0.0}
-        press_objects(scene, registration, tmp_path / "out", progress=False, ask=asked.append)
+        press_objects(
+            objects_setup(scene, "scenes.scene"),
+            registration,
+            tmp_path / "out",
+            progress=False,
+            ask=asked.append,
+        )
     assert opened == ["0"]
     mounts = [text.split(" on the print head")[0] for text in asked]
     assert mounts == ["Mount hemispheres", "Mount pill"] * len(SETS)  # each object, each session

@@ -24,6 +24,7 @@ from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.refine import refine_labels
 from threedcal.dataset.registration import register_camera
+from threedcal.dataset.settings import DatasetSettings
 from threedcal.dataset.splits import in_field_of_view, min_p_column, split_points
 from threedcal.dataset.touch import (
     TOUCH_FIT_SPAN_MM,
@@ -38,24 +39,6 @@ from threedcal.plotting import pyplot
 from threedcal.profiles import with_gel_mechanics
 from threedcal.sim.bench import BenchTruth
 from threedcal.sim.elastic import GelMaterial
-
-
-@dataclass(frozen=True)
-class DatasetSettings:
-    """What the dataset stage reads of a scene, as the study layer parsed it
-    (threedcal.study.scene.dataset_settings)."""
-
-    seed: int
-    fractions: tuple[int, ...]  # the data fractions P trained, ascending
-    replicates: int  # nested subset draws per fraction
-    downscale: int
-    max_slope_deg: float | None  # as configured: check_max_slope reads it
-    max_depth_over_radius: float | None = None
-    refine_labels: bool = False
-    sensor: Mapping | None = None  # the sensor profile, seated as the scene's mount says
-    probe_radius_mm: float | None = None  # a collected scene's ball
-    bench_gel_mechanics: str | None = None  # a simulated bench's gel (None on a real rig)
-    simulated: bool = False  # collected on the simulated bench
 
 
 def write_splits(trainset: TrainingSet, path: str | Path, xy_mm=None) -> None:

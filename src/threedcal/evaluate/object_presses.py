@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,13 +25,12 @@ from threedcal.evaluate.objects import object_label
 from threedcal.evaluate.press_plan import (
     SETS,
     ObjectPress,
+    ObjectsSetup,
     PrinterFrame,
     check_presses,
     object_mesh,
     plan_presses,
-    pressing_seed,
     read_registration,
-    scene_mount,
     session_draws,
     true_mount,
 )
@@ -126,7 +125,7 @@ def _press_record(commanded, reported, rig: Rig) -> dict:
 
 
 def press_objects(
-    scene: Mapping,
+    setup: ObjectsSetup,
     registration_path: str | Path,
     out_dir: str | Path,
     *,
@@ -143,25 +142,21 @@ def press_objects(
     Everything is checked before the printer moves.
     """
     from threedcal.collect.run import MotionSettings
-    from threedcal.mount import scene_sensor
-    from threedcal.profiles import load_profile
     from threedcal.rig import check_devices
 
     source = f"scenes.{name}"
-    sensor = scene_sensor(scene, source)
+    sensor, printer = setup.sensor, setup.printer
     if sensor.get("type") != "vision":
         raise ConfigError(f"{source}: test objects need a vision sensor, not {sensor['name']!r}")
-    printer = load_profile("printer", scene["printer"])
-    mount = scene_mount(scene, source)
-    check_devices(scene, sensor, source)
-    frame = PrinterFrame(sensor, read_registration(registration_path), mount)
-    seed = pressing_seed(scene)
-    presses = plan_presses(scene["objects"], sensor, scene["pressing"], seed)
+    check_devices(setup.rig, sensor, source)
+    frame = PrinterFrame(sensor, read_registration(registration_path), setup.mount)
+    seed = setup.seed
+    presses = plan_presses(list(setup.objects), sensor, setup.pressing, seed)
     check_presses(presses, frame, sensor, printer, source)  # before anything moves
     settings = MotionSettings.from_profile(sensor)
     started = time.perf_counter()
-    with open_rig(scene, sensor, printer, ask=ask) as rig:
-        results, truth = _press_sessions(rig, scene, frame, presses, seed, settings, progress)
+    with open_rig(setup.rig, sensor, printer, ask=ask) as rig:
+        results, truth = _press_sessions(rig, setup, frame, presses, seed, settings, progress)
     seconds = time.perf_counter() - started
     summary = {
         "presses": len(presses),
@@ -173,13 +168,15 @@ def press_objects(
     return summary
 
 
-def _press_sessions(rig: Rig, scene, frame: PrinterFrame, presses, seed: int, settings, progress):
+def _press_sessions(
+    rig: Rig, setup: ObjectsSetup, frame: PrinterFrame, presses, seed: int, settings, progress
+):
     """Both sessions on one rig. The bench stays seated as in the calibration (same seed and bench
     settings); each session gets its own camera noise and lighting and each object its true mount."""
     results, truth = {}, {"simulated": rig.simulated}
     if rig.simulated:
         truth.update(sessions={}, presses=[])
-    hidden = scene["pressing"]["bench"]
+    hidden = setup.pressing["bench"]
     reliefs = {}
     for set_index, name in enumerate(SETS):
         mounts = {}

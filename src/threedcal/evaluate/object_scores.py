@@ -19,11 +19,11 @@ from threedcal.evaluate.object_presses import read_presses
 from threedcal.evaluate.objects import object_label
 from threedcal.evaluate.press_plan import (
     SETS,
+    ObjectsSetup,
     Placement,
     PrinterFrame,
     object_mesh,
     read_registration,
-    scene_mount,
 )
 from threedcal.lens import RadialLens, rectify_if
 
@@ -38,7 +38,7 @@ def _checkpoint_estimator(model: str | Path, blank: np.ndarray):
 
 
 def evaluate_objects(
-    scene: Mapping,
+    setup: ObjectsSetup,
     models: Mapping[int, object | Sequence[object]],
     pressing_dir: str | Path,
     registration_path: str | Path,
@@ -62,7 +62,7 @@ def evaluate_objects(
     from tqdm import tqdm
 
     started = time.perf_counter()
-    scoring = _Scoring(scene, models, pressing_dir, registration_path, Path(out_dir), estimator)
+    scoring = _Scoring(setup, models, pressing_dir, registration_path, Path(out_dir), estimator)
     scoring.plots = plots
     plan = scoring.plan
     for press in tqdm(
@@ -87,24 +87,23 @@ def evaluate_objects(
 class _Scoring:
     """One objects stage: the presses and models it scores, and the rows and figures it gathers."""
 
-    def __init__(self, scene, models, pressing_dir, registration_path, out_dir: Path, estimator):
-        from threedcal.mount import scene_sensor
+    def __init__(self, setup, models, pressing_dir, registration_path, out_dir: Path, estimator):
 
         self.out_dir = out_dir
         self.figures = out_dir / "figures"
         self.figures.mkdir(parents=True, exist_ok=True)
-        sensor = scene_sensor(scene)
+        sensor = setup.sensor
         self.limit = float(sensor["gel"]["max_penetration_mm"])
         self.dome = sensor["gel"].get("dome")  # the truth is the depth below the undeformed gel
         registration = read_registration(registration_path)
-        self.frame_map = PrinterFrame(sensor, registration, scene_mount(scene, "scene"))
+        self.frame_map = PrinterFrame(sensor, registration, setup.mount)
         self.plan, frames, blanks, truth = read_presses(pressing_dir)
         # into the ideal frame the models were trained in, through the lens the registration fitted
         lens = RadialLens.from_record(read_registration(registration_path).get("lens"))
         self.frames = rectify_if(lens, frames)
         blanks = {name: rectify_if(lens, blank) for name, blank in blanks.items()}
         self.true_presses = truth.get("presses") if truth.get("simulated") else None
-        self.integrators = list(scene["integrators"])
+        self.integrators = list(setup.integrators)
         self.replicates = {
             p: list(m) if isinstance(m, (list, tuple)) else [m] for p, m in models.items()
         }

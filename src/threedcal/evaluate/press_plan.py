@@ -20,14 +20,14 @@ import json
 import math
 import zlib
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.evaluate.objects import load_object, object_label
-from threedcal.object_refs import mount_problem
+from threedcal.rig import RigSettings
 
 SETS = ("tuning", "reporting")  # settings may be chosen on the first, never on the second
 # The simulated bench's default mount: the object's origin exactly where the ball's tip was.
@@ -53,18 +53,19 @@ class Mount:
         return (self.x_mm, self.y_mm, self.z_mm)
 
 
-def scene_mount(scene: Mapping, source: str = "scene") -> Mount:
-    """`pressing.mount`; on the simulated bench it defaults to `SIM_MOUNT`, a real rig must say."""
-    problem = mount_problem(scene)
-    if problem:
-        raise ConfigError(f"{source}.{problem}")
-    mount = scene.get("pressing", {}).get("mount") or SIM_MOUNT
-    return Mount(**{k: float(mount.get(k, 0.0)) for k in asdict(Mount())})
+@dataclass(frozen=True)
+class ObjectsSetup:
+    """What pressing and scoring a scene's test objects read of it, as the study layer parsed it
+    (threedcal.study.scene.objects_setup)."""
 
-
-def pressing_seed(scene: Mapping) -> int:
-    """`pressing.seed`, else the scene's: either way drawn through the pressing streams only."""
-    return int(scene.get("pressing", {}).get("seed", scene["seed"]))
+    sensor: Mapping  # the sensor profile, seated as the scene's mount says
+    printer: Mapping  # the printer profile
+    mount: Mount  # where an object sits on the head
+    seed: int  # the pressing streams' seed
+    objects: tuple[str, ...]  # built-in names or mesh files
+    pressing: Mapping  # the scene's `pressing` section
+    integrators: tuple[str, ...]  # the depth integrators scored
+    rig: RigSettings  # the rig the presses run on
 
 
 @functools.lru_cache(maxsize=16)

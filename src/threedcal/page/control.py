@@ -42,6 +42,7 @@ from threedcal.page.gel import Presser, find_gel
 from threedcal.profiles import load_profile
 from threedcal.rig import open_rig
 from threedcal.study.config import load_config, scene_config
+from threedcal.study.scene import rig_settings
 from threedcal.study.session import collect_scene, prepare
 
 AXES = ("x", "y", "z")
@@ -140,7 +141,7 @@ class RigControl:
         printer = load_profile("printer", self.scene["printer"])
         self._stack = contextlib.ExitStack()
         self.rig = self._stack.enter_context(
-            self._open_rig(self.scene, self.sensor, printer, ask=self._tell)
+            self._open_rig(rig_settings(self.scene), self.sensor, printer, ask=self._tell)
         )
         return self
 

@@ -62,7 +62,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import train
 from threedcal.plotting import pyplot
 from threedcal.quick.loop import QuickLoop
-from threedcal.study.scene import dataset_settings
+from threedcal.study.scene import dataset_settings, objects_setup
 from threedcal.study.session import prepare
 
 LEVEL = 0.95
@@ -272,7 +272,7 @@ def object_presses(
     unique = list(dict.fromkeys(path for model in models for path in model.paths))
     with tempfile.TemporaryDirectory() as scratch:
         evaluate_objects(
-            objects_scene,
+            objects_setup(objects_scene),
             {j: [path] for j, path in enumerate(unique)},  # each file pressed once
             pressing_dir,
             registration,

@@ -25,6 +25,7 @@ from threedcal.rig import check_devices
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
 from threedcal.study.fractions import FULL_TRAINING_P, normalise_ablation, training_fractions
+from threedcal.study.scene import rig_settings
 
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
 IMPORT_IRRELEVANT = (
@@ -176,7 +177,7 @@ def _run_problems(scene: Mapping, check_files: bool, new_mount: bool = False) ->
         return _shipped_problems(scene, sensor, frames=True)
     problems = []
     try:  # a real printer with the simulated camera: refused by collect, so named here first
-        check_devices(scene, sensor, source="scene")
+        check_devices(rig_settings(scene), sensor, source="scene")
     except ConfigError as exc:
         problems.append(str(exc).removeprefix("scene."))
     try:

@@ -60,6 +60,7 @@ from threedcal.sim.marlin import FIRMWARES, SimMarlin, parse_faults
 from threedcal.sim.reskin import draw_reskin_truth
 from threedcal.study.config import quick_run
 from threedcal.study.paths import package_versions
+from threedcal.study.scene import rig_settings
 
 
 @dataclass
@@ -82,7 +83,7 @@ def prepare(scene: Mapping, source: str = "scene") -> ScenePlan:
             parse_faults(scene.get("bench", {}).get("faults", ""))
         except ConfigError as exc:
             raise ConfigError(f"{source}.bench.faults: {exc}") from None
-    check_devices(scene, sensor, source)
+    check_devices(rig_settings(scene), sensor, source)
     return ScenePlan(sensor, printer, plan, MotionSettings.from_profile(sensor))
 
 
@@ -257,7 +258,9 @@ def simulated_truth(scene: Mapping, prepared: ScenePlan):
     if is_magnetic(prepared.sensor):
         return draw_reskin_truth(scene["bench"], scene["seed"])
 
-    return draw_truth(bench_sensor(scene, prepared.sensor), scene["bench"], scene["seed"])
+    return draw_truth(
+        bench_sensor(rig_settings(scene), prepared.sensor), scene["bench"], scene["seed"]
+    )
 
 
 def _sample_layout(prepared: ScenePlan):
@@ -288,7 +291,7 @@ def collect_on_rig(
     opened = (
         contextlib.nullcontext(rig)
         if rig is not None
-        else open_rig(scene, prepared.sensor, prepared.printer, ask=ask)
+        else open_rig(rig_settings(scene), prepared.sensor, prepared.printer, ask=ask)
     )
     with opened as rig:
         # Replay on the bench: a resumed run goes through the plan from the start, so the
