@@ -18,7 +18,7 @@ from threedcal.depth import (
     py3dcal_fast_poisson,
     sanitize_gradients,
 )
-from threedcal.depth.scenarios import gaussian, grid, make_scene, pawn, sphere_cap
+from threedcal.depth.scenarios import gaussian, make_scene, pawn_press, pixel_centres_mm, sphere_cap
 from threedcal.depth.spectral import dirichlet_edges_px
 from threedcal.errors import ConfigError
 
@@ -131,7 +131,7 @@ def test_py3dcal_mode_misses_a_field_its_own_model_solves_exactly():
     theirs = py3dcal_fast_poisson(fx, fy)
     assert np.linalg.norm(theirs - z) / np.linalg.norm(z) > 0.10
     # ... and on a smooth zero-border bump (their intended use) still several percent.
-    x, y = grid(240, 320, 19.5)
+    x, y = pixel_centres_mm(240, 320, 19.5)
     bump, bx, by = gaussian(x, y, 0.5, 1.5)
     fx, fy = forward_differences(bump * 19.5)
     err = rel(py3dcal_fast_poisson(fx, fy), bump * 19.5)
@@ -170,7 +170,7 @@ CASES = {
 @pytest.mark.parametrize("case", list(CASES))
 def test_analytic_surfaces(case, shape):
     surface, tolerances = CASES[case]
-    x, y = grid(*shape, 19.5)
+    x, y = pixel_centres_mm(*shape, 19.5)
     z, gx, gy = surface(x, y)
     for method, tol in tolerances.items():
         depth = integrate(gx, gy, method, px_per_mm=19.5)
@@ -195,7 +195,7 @@ def test_ramp_and_step_along_each_axis(shape):
 
 @pytest.mark.parametrize("shape", SHAPES)
 def test_contact_crossing_the_border_needs_neumann(shape):
-    x, y = grid(*shape, 19.5)
+    x, y = pixel_centres_mm(*shape, 19.5)
     z, gx, gy = sphere_cap(x, y, 4.0, 1.0, cx=x.min() + 1.0)
     err = {m: np.sqrt(np.mean((integrate(gx, gy, m, px_per_mm=19.5) - z) ** 2)) for m in FAST}
     assert err["poisson_dct"] < 1.5e-3
@@ -206,7 +206,7 @@ def test_pawn_is_finite_and_loses_only_its_walls():
     sc = make_scene("pawn", 120, 160)
     depth = integrate(sc.gx, sc.gy, "poisson_dct", px_per_mm=sc.px_per_mm)
     assert np.isfinite(depth).all()
-    _, gx, gy = pawn(*grid(120, 160, sc.px_per_mm))
+    _, gx, gy = pawn_press(*pixel_centres_mm(120, 160, sc.px_per_mm))
     assert np.abs(depth - sc.depth_mm).max() < sc.depth_mm.max()
 
 
@@ -218,7 +218,7 @@ def test_second_order_convergence(method):
     errors = []
     for n in (32, 64, 128):
         px = n / 12.0  # a 12 x 12 mm field sampled ever finer (the bump is 0 at its border)
-        x, y = grid(n, n, px)
+        x, y = pixel_centres_mm(n, n, px)
         z, gx, gy = gaussian(x, y, 0.5, 1.0)
         depth = integrate(
             gx, gy, method, px_per_mm=px, offset="none" if method == "poisson_dst" else "mean"

@@ -20,7 +20,7 @@ from threedcal.evaluate.object_errors import (
     printer_press,
 )
 from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
-from threedcal.evaluate.object_scores import evaluate_objects, summarise
+from threedcal.evaluate.object_scores import evaluate_objects, object_error_summary
 from threedcal.evaluate.objects import load_object, make_object
 from threedcal.evaluate.press_plan import (
     SETS,
@@ -356,7 +356,7 @@ def test_summarise_pools_replicates_and_counts_presses():
         for r in range(3)
         for k in range(4)
     ]
-    table = summarise(pd.DataFrame(rows)).iloc[0]
+    table = object_error_summary(pd.DataFrame(rows)).iloc[0]
     assert (table["presses"], table["replicates"]) == (4, 3)
     assert table["type2_um"] == pytest.approx(
         np.mean([10.0 * r + k for r in range(3) for k in range(4)])

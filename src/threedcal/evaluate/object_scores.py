@@ -56,7 +56,7 @@ def evaluate_objects(
     (drawn from replicate 0). Every press is rendered once (by the object_presses rule); the
     printer protocol's ground truth is rasterised once per press and frame size. errors.csv:
     reporting presses only, per object, P and protocol, the mean over presses and replicates with
-    its 95 % interval (`summarise`); tuning.csv: the same over the tuning presses, under the
+    its 95 % interval (`object_error_summary`); tuning.csv: the same over the tuning presses, under the
     printer protocol only (the one settings are chosen on).
     """
     from tqdm import tqdm
@@ -201,9 +201,9 @@ class _Scoring:
         out_dir = self.out_dir
         per_press = pd.DataFrame(self.rows)
         per_press.to_csv(out_dir / "presses.csv", index=False)
-        errors = summarise(per_press[per_press["set"] == "reporting"])
+        errors = object_error_summary(per_press[per_press["set"] == "reporting"])
         errors.to_csv(out_dir / "errors.csv", index=False)
-        tuning = summarise(per_press[per_press["set"] == "tuning"])
+        tuning = object_error_summary(per_press[per_press["set"] == "tuning"])
         tuning.to_csv(out_dir / "tuning.csv", index=False)
         pd.DataFrame(self.comparison).to_csv(out_dir / "integrators.csv", index=False)
         if self.pixel_tables:
@@ -308,7 +308,7 @@ def _press_facts(press, placed: Placement, true: Mapping | None) -> dict:
 SUMMARY_METRICS = ("overall_um", "type1_um", "type2_um")
 
 
-def summarise(per_press: pd.DataFrame) -> pd.DataFrame:
+def object_error_summary(per_press: pd.DataFrame) -> pd.DataFrame:
     """Per object, P and protocol: the number of presses and replicate models, each metric's mean
     over both with its 95 % interval (`_lo`, `_hi`; `crossed_mean_interval`: presses and models
     both random, a t interval over presses when there is one replicate), and the mean depth ratio

@@ -62,7 +62,7 @@ class Camera(ABC):
         self.close()
 
 
-class FrameSource(Protocol):
+class VideoCaptureLike(Protocol):
     """What we use of cv2.VideoCapture (a fake implements the same for tests)."""
 
     def isOpened(self) -> bool: ...
@@ -117,7 +117,7 @@ class OpenCVCamera(Camera):
         *,
         mode: str | None = None,
         fps: float | None = None,
-        source_factory: Callable[[int | str], FrameSource] | None = None,
+        source_factory: Callable[[int | str], VideoCaptureLike] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ):
         cam = profile.get("camera")
@@ -142,7 +142,7 @@ class OpenCVCamera(Camera):
         self.timeout_s = float(cam.get("timeout_s", 2.0))
         self._factory = source_factory
         self._clock = clock
-        self._src: FrameSource | None = None
+        self._src: VideoCaptureLike | None = None
         self.locked: dict[str, bool] = {}
 
     def open(self) -> None:
@@ -169,7 +169,7 @@ class OpenCVCamera(Camera):
         }
         self._src = src
 
-    def _source(self) -> FrameSource:
+    def _source(self) -> VideoCaptureLike:
         if self._src is None:
             raise CameraError("camera is not open (call open() first)")
         return self._src

@@ -10,10 +10,10 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from threedcal.errors import ConfigError
-from threedcal.pretrained import settings_digest
+from threedcal.pretrained import pretraining_digest
 
 
-def pretrain(
+def pretrain_shipped_weights(
     sensor: str,
     pretraining: Mapping,
     out_dir: str | Path,
@@ -61,7 +61,7 @@ def pretrain(
         "preset": checkpoint["preset"],
         "units": [units[0], units[-1]],
         "frames": int(len(trainset.frames)),
-        "settings_digest": settings_digest(pretraining, profile),
+        "settings_digest": pretraining_digest(pretraining, profile),
         "code_digest": code_digest,
         "pretraining": dict(pretraining),
         "training": {

@@ -32,7 +32,8 @@ import pandas as pd
 
 from threedcal.collect.plan import quick_rounds, rows_per_press
 from threedcal.errors import ConfigError, ThreedcalError
-from threedcal.quick.stop_rule import Improvement, decide, mean_interval, rule_problems
+from threedcal.evaluate.object_errors import mean_interval
+from threedcal.quick.stop_rule import Improvement, decide, rule_problems
 
 
 @dataclass(frozen=True)

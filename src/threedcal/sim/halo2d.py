@@ -47,7 +47,7 @@ LEVEL = 0.95
 FIGURES = ("halo_nrms", "halo_m1_up", "halo_m1_right", "halo_m3_up")
 
 
-def grid(reach: float = REACH, step: float = STEP) -> tuple[np.ndarray, np.ndarray]:
+def radius_grid(reach: float = REACH, step: float = STEP) -> tuple[np.ndarray, np.ndarray]:
     """(u, v) in contact radii, each (n, n), n = 2 round(reach / step) + 1; v down the image."""
     half = int(round(reach / step))
     axis = np.arange(-half, half + 1, dtype=np.float64) * step
@@ -84,7 +84,7 @@ def cutout(
         img = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
         if img.ndim == 2:
             img = img[..., None]
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     mx = (cx + u * r).astype(np.float32)
     my = (cy + v * r).astype(np.float32)
     out = np.stack(
@@ -125,7 +125,7 @@ def annulus(shape: tuple[int, int], reach: float = REACH, inner: float = 1.0) ->
     if shape[0] != shape[1] or n % 2 == 0:
         raise ConfigError(f"a halo grid is square with an odd side, got {shape}")
     step = reach / ((n - 1) // 2) if n > 1 else 1.0
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     rho = np.hypot(u, v)
     return (rho > inner) & (rho <= reach + 1e-9)
 
@@ -150,7 +150,7 @@ def first_moments(image: np.ndarray, reach: float = REACH) -> tuple[float, float
     n = image.shape[0]
     ring = annulus(image.shape[:2], reach)
     step = reach / ((n - 1) // 2) if n > 1 else 1.0
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     rho = np.hypot(u, v)
     mag = np.abs(np.asarray(image, dtype=np.float64)).sum(axis=-1) if image.ndim == 3 else image
     keep = ring & np.isfinite(mag)
@@ -167,7 +167,7 @@ def third_moment(image: np.ndarray, reach: float = REACH) -> float:
     n = image.shape[0]
     ring = annulus(image.shape[:2], reach)
     step = reach / ((n - 1) // 2) if n > 1 else 1.0
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     mag = np.abs(np.asarray(image, dtype=np.float64)).sum(axis=-1) if image.ndim == 3 else image
     keep = ring & np.isfinite(mag)
     total = float(mag[keep].sum())
