@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError, ThreedcalError
@@ -85,8 +86,6 @@ def find_device(profile: Mapping[str, Any], by_id: str | Path = "/dev/v4l/by-id"
 
 def convert_frame(bgr: np.ndarray, profile: Mapping[str, Any]) -> np.ndarray:
     """Native camera frame → the library's RGB frame, by the profile's crop/rotate/flip/resize rules."""
-    import cv2
-
     cam, image = profile["camera"], profile["image"]
     frame = bgr
     if cam.get("native_channel_order", "BGR") == "BGR":
@@ -146,8 +145,6 @@ class OpenCVCamera(Camera):
         self.locked: dict[str, bool] = {}
 
     def open(self) -> None:
-        import cv2
-
         device = self.device
         if device is None:
             device = find_device(self.profile)

@@ -19,6 +19,8 @@ from threedcal.dataset.labels import sphere_depth
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.depth import integrate
 from threedcal.errors import ConfigError
+from threedcal.model import crossval
+from threedcal.model import folds as cv_folds
 from threedcal.model.inference import DepthEstimator
 
 
@@ -66,9 +68,6 @@ def ball_eval(
     interval, the per-fold figures, the label-uncertainty spread and the protocol
     (threedcal.model.crossval).
     """
-    from threedcal.model import crossval
-    from threedcal.model import folds as cv_folds
-
     settings = cv_folds.CVSettings.of(**cv)
     ts = TrainingSet.load(trainset_dir)
     folds = cv_folds.read_folds(folds_path, ts)

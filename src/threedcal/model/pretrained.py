@@ -9,8 +9,12 @@ import json
 from collections.abc import Mapping
 from pathlib import Path
 
+from threedcal.dataset.unit_presses import simulate_units
 from threedcal.errors import ConfigError
+from threedcal.model.checkpoint import save_checkpoint
+from threedcal.model.train import TrainSettings, train
 from threedcal.pretrained import pretraining_digest
+from threedcal.profiles import load_profile
 
 
 def pretrain_shipped_weights(
@@ -22,10 +26,6 @@ def pretrain_shipped_weights(
 ) -> dict:
     """Simulate the units' presses, train the network on them, write model.pt and provenance.json
     into out_dir. `pretraining` is the config's validated `pretraining` section."""
-    from threedcal.dataset.unit_presses import simulate_units
-    from threedcal.model.train import TrainSettings, train
-    from threedcal.profiles import load_profile
-
     profile = load_profile("sensor", sensor)
     first, count = int(pretraining["first_unit"]), int(pretraining["units"])
     units = list(range(first, first + count))
@@ -50,7 +50,6 @@ def pretrain_shipped_weights(
     checkpoint = train(trainset, out_dir, 80, settings, progress)
     # A unit's blank means nothing to another unit: a calibration brings its own. Without it
     # the shipped file is the weights and their record, a few tens of KB.
-    from threedcal.model.checkpoint import save_checkpoint
 
     checkpoint["blank"] = None
     save_checkpoint(out_dir / "model.pt", checkpoint)

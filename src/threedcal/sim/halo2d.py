@@ -31,13 +31,17 @@ bootstrap interval (presses resampled; the simulator's renders resampled with th
 
 from __future__ import annotations
 
+import csv
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.plotting import pyplot
+from threedcal.sim.realism import contact_change, image_groups
 
 REACH = 3.0  # cut-outs reach 3 contact radii (realism.HALO_MAX_RADII)
 STEP = 0.1  # grid step, contact radii: 61 x 61 points
@@ -66,8 +70,6 @@ def cutout(
     """`change` (H, W, C) resampled on the contact-radius grid around `center_px` (x, y): (n, n, C)
     float32, NaN where the grid leaves the frame. Raises ConfigError for an empty contact (radius
     not a positive finite number) or a centre that is not finite."""
-    import cv2
-
     where = name or "contact"
     r = float(radius_px)
     if not (math.isfinite(r) and r > 0):
@@ -319,8 +321,6 @@ def folder_halos(
     of `test_labels`, the real frames of `other_labels` as the reference. Each press is cut out
     around its label (centre and radius) in real and render alike; presses are grouped by place
     (`realism.image_groups`) for the bootstrap."""
-    from threedcal.sim.realism import contact_change, image_groups
-
     sim_bg, frames = renders
     if len(frames) != len(test_labels):
         raise ConfigError(f"{len(frames)} renders for {len(test_labels)} held-out presses")
@@ -399,8 +399,6 @@ CSV_COLUMNS = (
 def write_csv(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
     """One row per (folder, sensor, figure): CSV_COLUMNS; a folder without a 2-D comparison (None)
     has no rows."""
-    import csv
-
     with open(path, "w", newline="") as fh:
         out = csv.writer(fh)
         out.writerow(CSV_COLUMNS)
@@ -428,8 +426,6 @@ def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
     real half, each as 128 + gain x change (RGB; the gain maps the real mean's 99th percentile of
     |change| on the halo to 100 DN: the contact saturates), the contact (1 radius) and the halo's
     edge (REACH) drawn."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
     n = max(len(results), 1)
     fig, axes = plt.subplots(n, 4, figsize=(10, 2.8 * n), squeeze=False)
