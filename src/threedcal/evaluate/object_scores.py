@@ -69,8 +69,8 @@ def evaluate_objects(
     (drawn from replicate 0). Every press is rendered once (by the object_presses rule); the
     printer protocol's ground truth is rasterised once per press and frame size. errors.csv:
     reporting presses only, per object, P and protocol, the mean over presses and replicates with
-    its 95 % interval (`object_error_summary`); tuning.csv: the same over the tuning presses, under the
-    printer protocol only (the one settings are chosen on).
+    its 95 % interval (`object_error_summary`); tuning.csv: the same over the tuning presses,
+    under the printer protocol only (the one settings are chosen on).
     """
     started = time.perf_counter()
     scoring = _Scoring(scene, models, pressing_dir, registration_path, Path(out_dir), estimator)
