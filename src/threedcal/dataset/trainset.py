@@ -63,7 +63,8 @@ def coordinate_channels(
     """(2, h, w) float32: x and y of each pixel of `window`, normalised to [-1, 1] over the full image.
 
     A read-only view of the image's grid, built once per image size: a training job cuts tens of
-    thousands of windows, and building the grid for each cost about 1 s of its 28 s (P = 80 %).
+    thousands of windows, and building the grid for each would cost about 1 s of its 28 s
+    (P = 80 %).
     """
     grid = _coordinate_grid(int(height), int(width))
     return grid if window is None else grid[:, window[0], window[1]]
