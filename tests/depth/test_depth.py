@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.fft as sfft
 
 from threedcal.depth import (
     METHODS,
@@ -19,7 +20,7 @@ from threedcal.depth import (
     sanitize_gradients,
 )
 from threedcal.depth.scenarios import gaussian, make_scene, pawn_press, pixel_centres_mm, sphere_cap
-from threedcal.depth.spectral import dirichlet_edges_px
+from threedcal.depth.spectral import _dst1_columns, _dst1_matrix, _solve_modes, dirichlet_edges_px
 from threedcal.errors import ConfigError
 
 # The authors' file, where `make bench` unpacks it (tests never download it; they skip without it).
@@ -334,10 +335,6 @@ def test_bad_shapes_are_refused():
 
 @pytest.mark.parametrize("shape", [(238, 318), (317, 9), (12, 10), (1278, 40)])
 def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
-    import scipy.fft as sfft
-
-    from threedcal.depth.spectral import _dst1_columns, _dst1_matrix
-
     x = np.random.default_rng(3).normal(size=shape)
     forward = _dst1_columns(x.copy(), workers=None)
     np.testing.assert_allclose(forward, sfft.dst(x, type=1, axis=0), rtol=1e-12, atol=1e-10)
@@ -372,8 +369,6 @@ def test_dst_modes_never_go_subnormal_and_stay_exact(dtype):
     line, through float32's and float64's subnormal range (where every operation is ~20-100x
     slower). The floor added before the tridiagonal solve keeps every mode normal; the depth stays
     exact, and a zero field stays exactly zero."""
-    from threedcal.depth.spectral import _dst1_columns, _solve_modes
-
     z = np.zeros((40, 1500))
     z[1:-1, 1:6] = np.random.default_rng(11).normal(size=(38, 5))
     gx, gy = consistent_gradients(z)

@@ -17,6 +17,7 @@ from threedcal.evaluate.real_check import (
     check_sets,
     frame_rows,
     load_real_set,
+    table_figures,
 )
 from threedcal.model.inference import DepthEstimator
 
@@ -141,8 +142,6 @@ def test_the_stage_reads_every_set_and_fine_tunes_where_it_has_labels(tmp_path, 
 
 
 def test_frames_without_a_located_contact_count_for_area_not_for_centroid():
-    from threedcal.evaluate.real_check import table_figures
-
     rows = pd.DataFrame(
         {
             "area_ratio": [0.5, 0.9, 1.2, 0.8],

@@ -5,6 +5,7 @@ import json
 import pytest
 from test_model import TINY, synthetic_set
 
+import threedcal.pretrained as pretrained
 from threedcal.cli import main
 from threedcal.config import load_config
 from threedcal.errors import ConfigError
@@ -44,8 +45,6 @@ def test_weights_are_found_by_sensor_and_refused_for_another_frame(tmp_path):
 
 
 def test_init_pretrained_starts_from_the_shipped_weights_of_the_sets_sensor(tmp_path, monkeypatch):
-    import threedcal.pretrained as pretrained
-
     shipped = fake_shipped(tmp_path / "p")
     monkeypatch.setattr(pretrained, "SHIPPED_DIR", shipped)
     ts = synthetic_set()
@@ -76,8 +75,6 @@ def test_the_shipped_weights_are_what_the_repositorys_recipe_makes(sensor):
 def test_the_command_installs_rebuilt_weights_and_says_whether_they_changed(
     tmp_path, monkeypatch, capsys
 ):
-    import threedcal.pretrained as pretrained
-
     built = fake_shipped(tmp_path / "built_flat")
     results = tmp_path / "results"
     (results / "mini").mkdir(parents=True)

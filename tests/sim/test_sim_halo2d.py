@@ -1,6 +1,7 @@
 """The realism check's 2-D halo figures (threedcal.sim.halo2d) against synthetic halos with known
 answers, and its tolerance logic."""
 
+import csv
 import math
 
 import numpy as np
@@ -178,7 +179,6 @@ def test_table_csv_and_figure(tmp_path):
     text = halo2d.format_halos(res)
     assert "4 held-out real images (3 presses)" in text and "halo 2-D: FAIL" in text
     halo2d.write_csv([("data/x", "digit", res)], tmp_path / "h.csv")
-    import csv
 
     rows = list(csv.DictReader(open(tmp_path / "h.csv")))
     assert [r["figure"] for r in rows] == list(halo2d.FIGURES)

@@ -2,12 +2,14 @@
 
 import numpy as np
 import pytest
+from numpy.polynomial import legendre
 
 from threedcal.dataset.trainset import TrainingSet, downscale
-from threedcal.dataset.unit_presses import simulate_units
+from threedcal.dataset.unit_presses import DRIFT_DEGREE, drifted_frames, simulate_units
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
-from threedcal.sim.units import draw_unit
+from threedcal.sim.optics import field_terms
+from threedcal.sim.units import FIELD_DEGREE, draw_unit, legendre_terms, smooth_field_coefficients
 
 
 @pytest.fixture(scope="module")
@@ -88,10 +90,6 @@ def test_unit_presses_refuse_depths_past_the_ball(mini):
 
 def _legendre_field(weights, degree, u, v):
     """sum_t w_t sqrt((2i+1)(2j+1)) P_i(u) P_j(v), per channel, straight from Legendre's series."""
-    from numpy.polynomial import legendre
-
-    from threedcal.sim.units import legendre_terms
-
     out = np.zeros((3, *u.shape))
     for t, (i, j) in enumerate(legendre_terms(degree)):
         pi = legendre.legval(u, np.eye(i + 1)[i]) * np.sqrt(2 * i + 1)
@@ -102,9 +100,6 @@ def _legendre_field(weights, degree, u, v):
 
 @pytest.mark.parametrize("degree", [1, 2, 4])
 def test_a_units_own_field_is_its_legendre_series_in_the_simulators_basis(degree):
-    from threedcal.sim.optics import field_terms
-    from threedcal.sim.units import legendre_terms, smooth_field_coefficients
-
     coefficients = smooth_field_coefficients(np.random.default_rng(5), 6.0, degree)
     count = len(legendre_terms(degree))
     weights = np.random.default_rng(5).normal(0, 6.0 / np.sqrt(count), (3, count))
@@ -121,8 +116,6 @@ def test_a_units_own_field_is_its_legendre_series_in_the_simulators_basis(degree
 
 
 def test_a_units_own_field_has_the_stated_rms_over_units():
-    from threedcal.sim.units import smooth_field_coefficients
-
     nodes, w = np.polynomial.legendre.leggauss(6)
     uu, vv = np.meshgrid(nodes, nodes)
     terms = np.stack([uu ** (k - j) * vv**j for k in range(5) for j in range(k + 1)])
@@ -135,8 +128,6 @@ def test_a_units_own_field_has_the_stated_rms_over_units():
 
 
 def test_a_unit_gets_its_own_background_field_on_top_of_the_profiles():
-    from threedcal.sim.units import FIELD_DEGREE
-
     digit = load_profile("sensor", "digit_fots")
     spread = {"background_field_dn": 10.0}
     unit = draw_unit({**digit, "unit_variation": spread}, 4)
@@ -165,9 +156,6 @@ def test_a_units_skin_is_drawn_in_its_range_and_a_bad_range_refused():
 
 
 def test_pretraining_frames_drift_from_their_blank_by_a_smooth_field_of_the_stated_rms(mini):
-    from threedcal.dataset.unit_presses import DRIFT_DEGREE, drifted_frames
-    from threedcal.sim.optics import field_terms
-
     bare = {k: v for k, v in mini.items() if k != "lens"}  # no lens: the frames as rendered
     still = {**bare, "unit_variation": {"light_gain": 0.1}}
     drifted = {**bare, "unit_variation": {"light_gain": 0.1, "blank_drift_dn": 6.0}}
