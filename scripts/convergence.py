@@ -10,7 +10,7 @@ from threedcal.evaluate.ablation import spatial_blocks
 from threedcal.evaluate.convergence import (
     convergence_table,
     curve_figure,
-    curve_table,
+    error_vs_time_table,
     snapshot_scores,
 )
 from threedcal.evaluate.validation import scoring_disc_mm
@@ -27,7 +27,7 @@ with stage_log(snakemake.log[0]):
         snapshots[keys[index // per_model]].append(path)
     budget = (steps, pd.read_csv(inputs.budget_mse))
     twice = (2 * steps, pd.read_csv(inputs.twice_mse))
-    curve = curve_table(
+    curve = error_vs_time_table(
         snapshot_scores(snapshots, trainset),
         budget,
         twice,

@@ -2,6 +2,7 @@
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -93,8 +94,6 @@ def test_the_lens_is_opencvs_camera_matrix_and_distortion():
     """OpenCV's own answers for the lens as `opencv()` writes it: projectPoints distorts as
     `distort`, undistortPoints inverts as `undistort`, initUndistortRectifyMap gives the maps
     `rectify` uses; and the form round-trips."""
-    import cv2
-
     lens = RadialLens(centre_px=(121.3, 157.8), kappa1=-1.1e-6, kappa2=0.0, shape=(320, 240))
     matrix, coeffs = lens.opencv(focal_px=250.0)
     assert RadialLens.from_opencv(matrix, coeffs, lens.shape) == lens

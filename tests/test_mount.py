@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from threedcal.errors import ConfigError
-from threedcal.mount import Mount, read_mount_file, scene_sensor, write_mount_file
+from threedcal.mount import SensorMount, read_mount_file, scene_sensor, write_mount_file
 from threedcal.profiles import load_profile
 from threedcal.study.config import validate_config
 from threedcal.study.paths import stage_config
@@ -32,7 +32,7 @@ def test_a_scene_mount_replaces_only_the_keys_it_gives():
 
 def test_a_mount_file_is_read_and_stages_see_its_values(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    found = Mount(95.25, 101.5, 121.0375, 2.5)
+    found = SensorMount(95.25, 101.5, 121.0375, 2.5)
     assert write_mount_file("base.yaml", found, "measured by hand") is None
     text = (tmp_path / "base.yaml").read_text()
     assert text.startswith("# measured by hand\n")
@@ -52,11 +52,11 @@ def test_a_mount_file_is_never_overwritten_silently(tmp_path):
     path = tmp_path / "base.yaml"
     path.write_text("x_offset_mm: 1.0\n")
     with pytest.raises(ConfigError, match="refusing to overwrite"):
-        write_mount_file(path, Mount(1, 2, 3, 4), "new")
+        write_mount_file(path, SensorMount(1, 2, 3, 4), "new")
     assert path.read_text() == "x_offset_mm: 1.0\n"
-    kept = write_mount_file(path, Mount(1, 2, 3, 4), "new", replace=True)
+    kept = write_mount_file(path, SensorMount(1, 2, 3, 4), "new", replace=True)
     assert kept.read_text() == "x_offset_mm: 1.0\n" and kept.name.startswith("base.yaml.")
-    assert read_mount_file(path) == Mount(1, 2, 3, 4).as_dict()
+    assert read_mount_file(path) == SensorMount(1, 2, 3, 4).as_dict()
 
 
 def test_bad_mounts_are_named(tmp_path, monkeypatch):
@@ -90,7 +90,7 @@ def test_the_bench_seats_the_sensor_in_the_profiles_base_whatever_the_scene_says
 
 def test_a_custom_base_keeps_the_shipped_weights(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    write_mount_file("base.yaml", Mount(60.0, 70.0, 100.0, 2.0), "my base")
+    write_mount_file("base.yaml", SensorMount(60.0, 70.0, 100.0, 2.0), "my base")
     config = {
         "scenes": {
             "s": {

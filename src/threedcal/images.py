@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
@@ -13,8 +14,6 @@ def read_rgb(path: Path) -> np.ndarray:
     """An 8-bit colour image as (H, W, 3) uint8 RGB. Grey, 16-bit or transparent images are refused
     (naming the file) rather than converted: a silently rescaled or replicated channel would train
     a model on something no sensor gives it."""
-    import cv2
-
     path = Path(path)
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
     if image is None:

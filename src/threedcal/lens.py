@@ -25,6 +25,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
@@ -195,8 +196,6 @@ class RadialLens:
         """cv2.remap tables: for each ideal pixel of a frame `shape` (H, W), the camera pixel it
         was imaged at (float32 column and row): cv2.initUndistortRectifyMap's, with the ideal
         frame's camera matrix that of the camera itself."""
-        import cv2
-
         height, width = shape
         matrix, coeffs = self.opencv(math.hypot(width - 1, height - 1) / 2)
         return cv2.initUndistortRectifyMap(
@@ -208,8 +207,6 @@ class RadialLens:
 
         Ideal pixels the camera did not see (beyond its frame: a pincushion lens's corners) repeat
         the nearest edge pixel."""
-        import cv2
-
         images = np.asarray(images)
         if images.ndim not in (2, 3, 4) or images.size == 0:
             raise ConfigError(

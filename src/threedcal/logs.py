@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import sys
+import traceback
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TextIO
@@ -46,8 +47,6 @@ def stage_log(path: str | Path | None) -> Iterator[logging.Logger]:
         try:
             yield logger
         except BaseException:
-            import traceback
-
             traceback.print_exc()
             raise
         finally:

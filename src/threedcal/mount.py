@@ -23,7 +23,7 @@ MOUNT_KEYS = ("x_offset_mm", "y_offset_mm", "z_touch_mm", "z_clearance_mm")
 
 
 @dataclass(frozen=True)
-class Mount:
+class SensorMount:
     """The printer position of the probe area's origin (x, y), the Z at which the ball first
     touches the gel's apex, and how far above that the probe lifts between points (mm)."""
 
@@ -33,7 +33,7 @@ class Mount:
     z_clearance_mm: float
 
     @classmethod
-    def of(cls, values: Mapping[str, Any]) -> Mount:
+    def of(cls, values: Mapping[str, Any]) -> SensorMount:
         return cls(*(float(values[k]) for k in MOUNT_KEYS))
 
     def as_dict(self) -> dict[str, float]:
@@ -93,14 +93,14 @@ def scene_sensor(scene: Mapping, source: str | None = "scene", missing_ok: bool 
     return with_mount(sensor, scene_mount_values(scene, source, missing_ok))
 
 
-def mount_yaml(mount: Mount, about: str) -> str:
+def mount_yaml(mount: SensorMount, about: str) -> str:
     """A mount file's text: one comment line saying what measured it, then the four values."""
     lines = [f"# {about}"] + [f"{k}: {v}" for k, v in mount.as_dict().items()]
     return "\n".join(lines) + "\n"
 
 
 def write_mount_file(
-    path: str | Path, mount: Mount, about: str, replace: bool = False
+    path: str | Path, mount: SensorMount, about: str, replace: bool = False
 ) -> Path | None:
     """Write `mount` to `path`. A file there is never overwritten silently: without `replace` it
     is refused, with it the old file is kept beside (returned; None when there was none)."""

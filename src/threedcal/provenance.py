@@ -38,7 +38,7 @@ def module_file(module: str, root: Path = PACKAGE_ROOT) -> Path | None:
 
 
 # What a file's imports are, by the sha256 of its content, kept across processes: every `snakemake`
-# call parses the Snakefile, which digests ~30 scripts' closures (~140 modules); parsing them cost
+# call parses the Snakefile, which digests ~30 scripts' closures (~140 modules); parsing them costs
 # ~0.65 s of CPU a call (AMD EPYC), reading the cached summaries ~0.02 s. A summary is exactly what
 # the syntax tree gave (see `_summarise`); a missing, unreadable or unwritable cache is parsed anew.
 
@@ -199,7 +199,7 @@ def _closure(script: Path, root: Path) -> tuple[Path, ...]:
 def _module_imports(name: str, root: Path) -> tuple[Path | None, frozenset[str]]:
     """A module's file (None: not a module) and the threedcal modules it imports, looked up once
     per process: a Snakefile parse walks ~30 scripts' closures, which share most modules, and
-    finding and reading each module again for every script cost ~0.1 s of CPU per parse."""
+    finding and reading each module again for every script would cost ~0.1 s of CPU per parse."""
     path = module_file(name, root)
     if path is None:
         return None, frozenset()

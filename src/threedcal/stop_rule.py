@@ -68,20 +68,6 @@ def paired_improvement(before, after, confidence: float) -> Improvement:
     )
 
 
-def mean_interval(values, confidence: float) -> tuple[float, float, float]:
-    """(mean, low, high): the mean of per-press errors and its two-sided t interval."""
-    values = np.asarray(values, dtype=float)
-    mean = float(values.mean())
-    if values.size < 2:
-        return mean, math.nan, math.nan
-    half = (
-        float(stats.t.ppf(0.5 + confidence / 2, values.size - 1))
-        * float(values.std(ddof=1))
-        / math.sqrt(values.size)
-    )
-    return mean, mean - half, mean + half
-
-
 @dataclass(frozen=True)
 class Decision:
     go_on: bool

@@ -1,6 +1,7 @@
 """Registration with the camera's lens: the fit itself, the simulated camera, and the dataset stage
 that rectifies frames through the fitted lens."""
 
+import copy
 import json
 
 import numpy as np
@@ -11,6 +12,7 @@ from threedcal.collect.store_read import open_checked
 from threedcal.dataset.build import build_collected
 from threedcal.dataset.camera_fit import fit_affine, fit_camera, fit_lensed
 from threedcal.dataset.contacts import locate_contact
+from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import RegistrationError
 from threedcal.lens import RadialLens
@@ -18,6 +20,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.bench import BenchTruth, draw_lens
 from threedcal.sim.camera import LensedGel
 from threedcal.sim.indenters import Sphere
+from threedcal.sim.optics import GelSimulator
 from threedcal.study.scene import dataset_settings
 
 SHAPE = (240, 320)
@@ -175,8 +178,6 @@ def test_on_the_elastic_digit_centres_moved_by_the_elastic_pressure_register_wit
     axis (DomedContacts, the profile's dome and gel constants), the lens and affine register the
     view within 0.3 px. The rigid overlap's centroid, which places a rim on a gel that follows the
     ball, moves them less well."""
-    from threedcal.dataset.dome_contacts import DomedContacts
-
     plan = REGISTRATION_PRESSES_PLAN
     record = collect_and_register(tmp_path, elastic_gel("digit"), plan, 11)
     assert record["locator"] == "symmetry", record
@@ -228,10 +229,6 @@ def test_a_distortion_free_lens_keeps_the_frames_constants_hot_spots_field_marke
     """With k1 = k2 = 0 the lens only crops the canvas: the background must equal the plain
     simulator's, so hot spots, the fitted colour field, the LEDs' vignetting and the markers stay
     where the frame has them, not where the wider canvas would put them."""
-    import copy
-
-    from threedcal.sim.optics import GelSimulator
-
     profile = copy.deepcopy(load_profile("sensor", "digit_fots"))  # a fitted colour field
     profile["optics"].update(
         texture_dn=0.0,  # drawn per canvas pixel: not comparable

@@ -1,8 +1,11 @@
+import copy
 import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
+from threedcal.dataset.build import contact_material
 from threedcal.dataset.camera_fit import fit_affine
 from threedcal.dataset.contacts import (
     Contact,
@@ -15,8 +18,17 @@ from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import register_camera
 from threedcal.dataset.symmetry import _levenberg_marquardt, refine_by_symmetry
-from threedcal.dataset.touch import ChangeDetector, estimate_touch, fit_touch_onset
+from threedcal.dataset.touch import (
+    TOUCH_FIT_SPAN_MM,
+    ChangeDetector,
+    estimate_touch,
+    fit_touch_onset,
+    measure_touch_search,
+)
 from threedcal.errors import RegistrationError
+from threedcal.profiles import load_profile
+from threedcal.sim.indenters import Sphere
+from threedcal.sim.optics import GelSimulator
 
 PPM = 19.0
 SHAPE = (320, 240)
@@ -134,10 +146,6 @@ def test_one_depth_takes_an_edge_offset_for_depth_several_depths_separate_them()
 
 def sim_contacts(sensor, n=3, seed=1, margin=50):
     """Frames (mean of 3) of a 2 mm sphere 1 mm deep on an n x n grid of known sub-pixel centres."""
-    from threedcal.profiles import load_profile
-    from threedcal.sim.indenters import Sphere
-    from threedcal.sim.optics import GelSimulator
-
     sim = GelSimulator(load_profile("sensor", sensor), seed=seed)
     blank = np.mean([sim.blank(i).astype(np.float32) for i in range(10)], axis=0)
     rng = np.random.default_rng(seed)
@@ -212,8 +220,6 @@ def test_register_uses_only_the_rim_on_a_domed_gel_and_moves_its_centres_to_the_
     """The DIGIT's domed blank is shaded on a slope, which breaks each LED image's symmetry: only
     the rim runs. Its contacts lean toward the dome's apex (the dome falls away from the ball);
     DomedContacts moves each centre back to its press's axis."""
-    from threedcal.profiles import load_profile
-
     sim, centres, frames, blank = sim_contacts("digit", margin=60)
     xy_mm = (centres - [120, 160]) / 19.5
     dome = DomedContacts(
@@ -392,17 +398,12 @@ def test_a_search_that_misses_the_onset_says_which_setting_to_change(change, mes
 
 @pytest.fixture(scope="module")
 def mini_sim():
-    from threedcal.profiles import load_profile
-    from threedcal.sim.optics import GelSimulator
-
     sim = GelSimulator(load_profile("sensor", "gelsight_mini"), seed=2)
     blanks = np.stack([sim.blank(frame_index=100 + i) for i in range(10)])
     return sim, blanks
 
 
 def test_change_detector_sees_no_contact_in_blank_frames(mini_sim):
-    from scipy import stats
-
     sim, blanks = mini_sim
     detector = ChangeDetector.from_blanks(blanks, smooth_px=1.0)
     assert detector.threshold >= stats.chi2.isf(1e-6, 3)
@@ -413,9 +414,6 @@ def test_change_detector_sees_no_contact_in_blank_frames(mini_sim):
 def shallow_search(sim, blanks, delta=-0.03, centre=(120.3, 159.6)):
     """measure_touch_search on one place of 0.01 mm steps rendered by `sim` (commanded c, true
     depth c + δ)."""
-    from threedcal.dataset.touch import TOUCH_FIT_SPAN_MM, measure_touch_search
-    from threedcal.sim.indenters import Sphere
-
     c = np.round(np.arange(-0.1, 0.2501, 0.01), 4)
     frames = [
         sim.render(Sphere(2.0), centre, 0.0, max(d + delta, 0.0), frame_index=20 + i)
@@ -438,10 +436,6 @@ def test_touch_signal_is_the_same_through_a_sharp_and_a_blurred_camera(mini_sim)
     """The contact signal projects each step's change on the deepest steps': linear in the image, so
     a 6 px camera blur changes neither where it grows from nor how (a contact's half-peak size,
     which the search used before, is mostly blur there). Both find δ within 0.01 mm."""
-    import copy
-
-    from threedcal.sim.optics import GelSimulator
-
     sim, blanks = mini_sim
     results = []
     for blur in (0.8, 6.0):
@@ -460,9 +454,6 @@ def test_touch_signal_is_the_same_through_a_sharp_and_a_blurred_camera(mini_sim)
 def test_contacts_are_modelled_as_elastic_where_the_gel_is(caplog):
     """A simulated bench's contacts are elastic when it renders the elastic gel; a real gel's always,
     unless its profile lacks the constants (then the rim alone, with a warning naming them)."""
-    from threedcal.dataset.build import contact_material
-    from threedcal.profiles import load_profile
-
     digit = load_profile("sensor", "digit")
     assert contact_material(digit, simulated=True, bench_gel_mechanics=None) is None  # geometric
     elastic = contact_material(digit, simulated=True, bench_gel_mechanics="elastic")

@@ -3,6 +3,7 @@ import pandas as pd
 import pytest
 
 from threedcal.dataset.build import build_imported
+from threedcal.dataset.labels import local_dome, sphere_gradients
 from threedcal.dataset.trainset import TrainingSet, coordinate_channels, downscale, model_inputs
 from threedcal.errors import ConfigError
 from threedcal.study.scene import dataset_settings
@@ -115,8 +116,6 @@ def test_build_imported_real_folder(tmp_path, real_data):
 def test_a_domed_sets_labels_are_measured_from_its_dome_in_every_window_and_after_saving(tmp_path):
     """meta `dome` (the profile's gel.dome, which the dataset stage records) makes each frame's
     labels the depth below the undeformed dome about that frame's press, window or not."""
-    from threedcal.dataset.labels import local_dome, sphere_gradients
-
     ts = small_set()
     dome = {"kx_per_mm": 0.05, "ky_per_mm": 0.02, "apex_x_mm": 0.3, "apex_y_mm": 0.0}
     ts.meta = {"dome": dome}
@@ -141,8 +140,6 @@ def test_kept_labels_equal_the_labels_computed_for_each_window_to_the_bit():
     """Labels are computed once per frame over the box its press can reach, then cut per window:
     every window, one that crosses the box's edge or lies outside it included, equals the labels
     computed for that window alone (so a model trains to the same bits either way)."""
-    from threedcal.dataset.labels import sphere_gradients
-
     ts = small_set(shape=(120, 110))
     ts.meta = {"dome": {"kx_per_mm": 0.05, "ky_per_mm": 0.02}}
     for i in range(4):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.fft as sfft
 
 from threedcal.depth import (
     METHODS,
@@ -18,8 +19,8 @@ from threedcal.depth import (
     py3dcal_fast_poisson,
     sanitize_gradients,
 )
-from threedcal.depth.scenarios import gaussian, grid, make_scene, pawn, sphere_cap
-from threedcal.depth.spectral import dirichlet_edges_px
+from threedcal.depth.scenarios import gaussian, make_scene, pawn_press, pixel_centres_mm, sphere_cap
+from threedcal.depth.spectral import _dst1_columns, _dst1_matrix, _solve_modes, dirichlet_edges_px
 from threedcal.errors import ConfigError
 
 # The authors' file, where `make bench` unpacks it (tests never download it; they skip without it).
@@ -131,7 +132,7 @@ def test_py3dcal_mode_misses_a_field_its_own_model_solves_exactly():
     theirs = py3dcal_fast_poisson(fx, fy)
     assert np.linalg.norm(theirs - z) / np.linalg.norm(z) > 0.10
     # ... and on a smooth zero-border bump (their intended use) still several percent.
-    x, y = grid(240, 320, 19.5)
+    x, y = pixel_centres_mm(240, 320, 19.5)
     bump, bx, by = gaussian(x, y, 0.5, 1.5)
     fx, fy = forward_differences(bump * 19.5)
     err = rel(py3dcal_fast_poisson(fx, fy), bump * 19.5)
@@ -170,7 +171,7 @@ CASES = {
 @pytest.mark.parametrize("case", list(CASES))
 def test_analytic_surfaces(case, shape):
     surface, tolerances = CASES[case]
-    x, y = grid(*shape, 19.5)
+    x, y = pixel_centres_mm(*shape, 19.5)
     z, gx, gy = surface(x, y)
     for method, tol in tolerances.items():
         depth = integrate(gx, gy, method, px_per_mm=19.5)
@@ -195,7 +196,7 @@ def test_ramp_and_step_along_each_axis(shape):
 
 @pytest.mark.parametrize("shape", SHAPES)
 def test_contact_crossing_the_border_needs_neumann(shape):
-    x, y = grid(*shape, 19.5)
+    x, y = pixel_centres_mm(*shape, 19.5)
     z, gx, gy = sphere_cap(x, y, 4.0, 1.0, cx=x.min() + 1.0)
     err = {m: np.sqrt(np.mean((integrate(gx, gy, m, px_per_mm=19.5) - z) ** 2)) for m in FAST}
     assert err["poisson_dct"] < 1.5e-3
@@ -206,7 +207,7 @@ def test_pawn_is_finite_and_loses_only_its_walls():
     sc = make_scene("pawn", 120, 160)
     depth = integrate(sc.gx, sc.gy, "poisson_dct", px_per_mm=sc.px_per_mm)
     assert np.isfinite(depth).all()
-    _, gx, gy = pawn(*grid(120, 160, sc.px_per_mm))
+    _, gx, gy = pawn_press(*pixel_centres_mm(120, 160, sc.px_per_mm))
     assert np.abs(depth - sc.depth_mm).max() < sc.depth_mm.max()
 
 
@@ -218,7 +219,7 @@ def test_second_order_convergence(method):
     errors = []
     for n in (32, 64, 128):
         px = n / 12.0  # a 12 x 12 mm field sampled ever finer (the bump is 0 at its border)
-        x, y = grid(n, n, px)
+        x, y = pixel_centres_mm(n, n, px)
         z, gx, gy = gaussian(x, y, 0.5, 1.0)
         depth = integrate(
             gx, gy, method, px_per_mm=px, offset="none" if method == "poisson_dst" else "mean"
@@ -334,10 +335,6 @@ def test_bad_shapes_are_refused():
 
 @pytest.mark.parametrize("shape", [(238, 318), (317, 9), (12, 10), (1278, 40)])
 def test_dst1_by_matrix_or_fft_equals_scipy_both_ways(shape):
-    import scipy.fft as sfft
-
-    from threedcal.depth.spectral import _dst1_columns, _dst1_matrix
-
     x = np.random.default_rng(3).normal(size=shape)
     forward = _dst1_columns(x.copy(), workers=None)
     np.testing.assert_allclose(forward, sfft.dst(x, type=1, axis=0), rtol=1e-12, atol=1e-10)
@@ -372,8 +369,6 @@ def test_dst_modes_never_go_subnormal_and_stay_exact(dtype):
     line, through float32's and float64's subnormal range (where every operation is ~20-100x
     slower). The floor added before the tridiagonal solve keeps every mode normal; the depth stays
     exact, and a zero field stays exactly zero."""
-    from threedcal.depth.spectral import _dst1_columns, _solve_modes
-
     z = np.zeros((40, 1500))
     z[1:-1, 1:6] = np.random.default_rng(11).normal(size=(38, 5))
     gx, gy = consistent_gradients(z)

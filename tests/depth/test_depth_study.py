@@ -61,8 +61,6 @@ def test_study_target_only_when_enabled():
 
 
 def test_method_pixel_limit_skips_large_grids_for_that_method_only():
-    from threedcal.depth.study import run_study
-
     table = run_study(
         sizes=[(8, 10), (16, 20)],
         scenarios=["cap"],

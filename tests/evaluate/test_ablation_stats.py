@@ -3,10 +3,12 @@ paired spatial-block test's false-positive rate, the TOST, the recommendation an
 
 import itertools
 import math
+import warnings
 
 import numpy as np
 import pandas as pd
 import pytest
+import statsmodels.formula.api as smf
 from scipy import stats
 
 from threedcal.errors import ConfigError
@@ -261,10 +263,6 @@ def test_contrast_is_statsmodels_mixed_model_on_the_same_blocks():
     (REML; replicate and block crossed variance components, the residual its scale): with every
     component positive, REML's estimates are the ANOVA's, so the grand mean, its standard error and
     the components agree."""
-    import warnings
-
-    import statsmodels.formula.api as smf
-
     rng = np.random.default_rng(1)
     replicates, blocks = 4, 12
     d = 0.3 + rng.normal(0, 0.5, (replicates, 1)) + rng.normal(0, 0.8, (1, blocks))
@@ -616,8 +614,6 @@ def test_the_tests_figure_cuts_intervals_at_its_axis_and_writes_their_true_bound
 
 
 def test_arms_that_do_not_differ_at_all_give_no_change_and_a_point_interval():
-    from threedcal.evaluate.ablation import difference_test, ratio_interval
-
     base = np.random.default_rng(3).uniform(0.01, 0.02, (4, 6))
     t, _, p = difference_test(base, base)
     assert float(t) == 0.0 and float(p) == pytest.approx(1.0)

@@ -17,7 +17,7 @@ from threedcal.evaluate.convergence import (  # noqa: E402
     CURVE_COLUMNS,
     convergence_table,
     curve_figure,
-    curve_table,
+    error_vs_time_table,
     snapshot_scores,
 )
 from threedcal.evaluate.validation import coordinate_mse  # noqa: E402
@@ -57,7 +57,7 @@ def test_every_cycle_end_is_scored_as_the_stats_stage_scores_and_timed(runs):
     )
     twice = budget.assign(mse=budget["mse"] * 0.9)
     losses = {key: root / f"P{key[0]}/r{key[1]}/twice/losses.csv" for key in KEYS}
-    curve = curve_table(scores, (8, budget), (16, twice), losses)
+    curve = error_vs_time_table(scores, (8, budget), (16, twice), losses)
     assert list(curve.columns) == list(CURVE_COLUMNS)
     assert curve.groupby(["P", "replicate"])["steps"].apply(list).map(tuple).unique().tolist() == [
         (2, 4, 8, 16)

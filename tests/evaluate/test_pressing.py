@@ -7,8 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import _profile_variant, lens_free
-from scipy import ndimage
+from scipy import ndimage, stats
 
+import threedcal.rig
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import surface_height
 from threedcal.evaluate.mesh import write_stl
@@ -19,7 +20,7 @@ from threedcal.evaluate.object_errors import (
     printer_press,
 )
 from threedcal.evaluate.object_presses import press_objects, read_presses, relief_indenter
-from threedcal.evaluate.object_scores import evaluate_objects, summarise
+from threedcal.evaluate.object_scores import evaluate_objects, object_error_summary
 from threedcal.evaluate.objects import load_object, make_object
 from threedcal.evaluate.press_plan import (
     SETS,
@@ -335,7 +336,6 @@ def test_crossed_interval_with_one_replicate_or_missing_presses():
     assert mean == 2.5 and lo < mean < hi
     # 2 x 2, by hand: press means 2, 3 (MS_press 1), replicate means 1.5, 3.5 (MS_rep 4), no
     # residual; variance (4 + 1 - 0) / 4, Satterthwaite df 25 / (16 + 1) = 25 / 17
-    from scipy import stats
 
     half = stats.t.ppf(0.975, 25 / 17) * np.sqrt(5 / 4)
     assert hi - mean == pytest.approx(half, rel=1e-9)
@@ -358,7 +358,7 @@ def test_summarise_pools_replicates_and_counts_presses():
         for r in range(3)
         for k in range(4)
     ]
-    table = summarise(pd.DataFrame(rows)).iloc[0]
+    table = object_error_summary(pd.DataFrame(rows)).iloc[0]
     assert (table["presses"], table["replicates"]) == (4, 3)
     assert table["type2_um"] == pytest.approx(
         np.mean([10.0 * r + k for r in range(3) for k in range(4)])
@@ -454,8 +454,6 @@ def test_a_real_rig_asks_for_each_object_and_records_no_truth(tmp_path, monkeypa
     """The real rig's path (threedcal.rig.open_rig): a Marlin printer at `port` (here the bench's
     simulated one, behind its serial URL) and the sensor's camera (here the bench's, in place of
     OpenCV's); the user is asked through `ask` to mount each object, once per session."""
-    import threedcal.rig
-
     # A real rig waits probing.settle_s (0.3 s) at every pose, on the wall clock; the bench's
     # printer and camera run on its virtual clock, so the wait only took time (2.4 s): the
     # profile with a 10 ms settle presses and records the same frames.

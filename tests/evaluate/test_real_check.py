@@ -17,6 +17,7 @@ from threedcal.evaluate.real_check import (
     check_sets,
     frame_rows,
     load_real_set,
+    table_figures,
 )
 from threedcal.model.inference import DepthEstimator
 
@@ -141,8 +142,6 @@ def test_the_stage_reads_every_set_and_fine_tunes_where_it_has_labels(tmp_path, 
 
 
 def test_frames_without_a_located_contact_count_for_area_not_for_centroid():
-    from threedcal.evaluate.real_check import summarise
-
     rows = pd.DataFrame(
         {
             "area_ratio": [0.5, 0.9, 1.2, 0.8],
@@ -153,10 +152,10 @@ def test_frames_without_a_located_contact_count_for_area_not_for_centroid():
             "peak_within": [True, True, True, True],
         }
     )
-    figures = summarise(rows)
+    figures = table_figures(rows)
     assert figures["frames"] == 4 and figures["within_bound"] == 0.75
     assert figures["centroid_frames"] == 3
     assert figures["centroid_error_mm_median"] == pytest.approx(0.15)
     assert figures["centroid_within_0p2mm"] == pytest.approx(2 / 3)
-    none = summarise(rows.assign(centroid_error_mm=np.nan))
+    none = table_figures(rows.assign(centroid_error_mm=np.nan))
     assert none["centroid_frames"] == 0 and math.isnan(none["centroid_error_mm_median"])

@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -12,6 +13,7 @@ from threedcal.hardware.camera import (
     convert_frame,
     find_device,
 )
+from threedcal.model.sources import MAX_MISSED_FRAMES, camera_frames, open_source
 from threedcal.profiles import load_profile
 
 
@@ -118,8 +120,6 @@ def test_find_device_by_v4l_id_name(tmp_path):
 
 
 def test_a_real_video_file_plays_through_the_same_interface(tmp_path):
-    import cv2
-
     path = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25, (640, 480))
     for k in range(12):
@@ -135,8 +135,6 @@ def test_a_real_video_file_plays_through_the_same_interface(tmp_path):
 def test_live_reads_a_camera_through_its_checks():
     """`threedcal live` on a camera: frames converted by the profile; a dropped or black frame
     passed over, ten in a row or one past the timeout end the stream with the camera's error."""
-    from threedcal.model.sources import MAX_MISSED_FRAMES, camera_frames, open_source
-
     cam, _ = camera(script={2: "drop", 4: "black"})
     frames = camera_frames(cam)
     first = [next(frames) for _ in range(3)]  # reads 1, 3 and 5: 2 and 4 passed over

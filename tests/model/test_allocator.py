@@ -5,6 +5,8 @@ import sys
 
 import pytest
 
+from threedcal.model.allocator import reuse_freed_memory
+
 # Allocates six 8 MB buffers at once and frees them, 20 times (what a training step does with its
 # activations), and prints the minor page faults that cost.
 CHURN = """
@@ -37,8 +39,6 @@ def test_freed_buffers_are_reused_instead_of_faulted_in_again():
 
 
 def test_the_setting_is_made_once_and_reported():
-    from threedcal.model.allocator import reuse_freed_memory
-
     first = reuse_freed_memory()
     assert reuse_freed_memory() is first
     assert first == sys.platform.startswith("linux")

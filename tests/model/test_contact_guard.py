@@ -4,10 +4,14 @@ import logging
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
+import threedcal.model.inference as inference
+from threedcal.dataset.trainset import TrainingSet, samples_table
 from threedcal.errors import ConfigError
 from threedcal.model.contact_guard import (
+    check_calibration_presses,
     contact_figures,
     oversized_message,
     probe_bound_px,
@@ -84,12 +88,6 @@ def test_a_trained_model_is_checked_on_its_calibrations_validation_presses(monke
     """Up to `limit` validation presses, evenly spread, read by the model; their median contact
     over the probe's disc is returned and warned of above 1 (the training presses stand in for a
     set without validation ones)."""
-    import pandas as pd
-
-    import threedcal.model.inference as inference
-    from threedcal.dataset.trainset import TrainingSet, samples_table
-    from threedcal.model.contact_guard import check_calibration_presses
-
     n, shape = 10, (30, 40)
     frames = np.zeros((n, *shape, 3), np.uint8)
     frames[:, 0, 0, 0] = np.arange(n)  # each frame says which it is

@@ -8,6 +8,7 @@ import onnx
 import pytest
 import torch
 from conftest import DATA, write_untrained_model
+from PIL import Image
 
 from threedcal.cli import main
 from threedcal.depth import integrate
@@ -101,7 +102,6 @@ def test_export_cli_writes_the_graph_and_its_sidecar(tmp_path, real_frames, caps
     assert sidecar["input"]["dtype"] == "uint8" and sidecar["output"]["name"] == "gradients"
     assert len(sidecar["checkpoint"]["sha256"]) == 64
     # a new blank is a re-export: the graph then compares frames with it
-    from PIL import Image
 
     Image.fromarray(frames[0]).save(tmp_path / "new_blank.png")
     args = ["export", "--checkpoint", str(model), "--out", str(out)]

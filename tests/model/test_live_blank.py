@@ -4,12 +4,14 @@ when the no-contact region drifts from it, and each frame's points as PLY."""
 import os
 import signal
 
+import cv2
 import numpy as np
 import pytest
 import torch
 import trimesh
 from conftest import DATA, write_untrained_model
 
+import threedcal.model.sources
 from threedcal.cli import main
 from threedcal.images import read_rgb
 from threedcal.model import BACKGROUND_DRIFT_WARN_DN
@@ -93,8 +95,6 @@ def test_live_warns_on_drift_and_a_signal_retakes_the_blank(
                 os.kill(os.getpid(), signal.SIGUSR1)  # as `kill -USR1 PID` from a shell
             yield frame
 
-    import threedcal.model.sources
-
     monkeypatch.setattr(threedcal.model.sources, "open_source", source)
     before = signal.getsignal(signal.SIGUSR1)
     points = tmp_path / "points"
@@ -136,7 +136,6 @@ def test_live_checks_its_new_options_before_the_first_frame(
     monkeypatch.chdir(tmp_path)
     (tmp_path / "frames").mkdir()
     read = tmp_path / "frames" / "0.png"
-    import cv2
 
     cv2.imwrite(str(read), BLANK)
     args = ["live", "--checkpoint", flat_model, "--source", str(tmp_path / "frames")]
@@ -183,7 +182,6 @@ def test_live_with_a_stated_probe_warns_when_the_contact_outgrows_it(
         return np.full(frame.shape[:2], next(reads), np.float32)
 
     monkeypatch.setattr(DepthEstimator, "depth", depth)
-    import threedcal.model.sources
 
     monkeypatch.setattr(threedcal.model.sources, "open_source", lambda spec, sensor=None: frames)
     args = ["live", "--checkpoint", flat_model, "--source", "stream", "--device", "cpu"]

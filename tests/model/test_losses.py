@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from test_model import TINY, synthetic_set
 
 from threedcal.model.losses import gradient_loss, unit_normals
 from threedcal.model.train import train
@@ -62,8 +63,6 @@ def test_unknown_loss_is_refused():
 
 
 def test_the_loss_setting_trains_another_model_and_is_recorded(tmp_path):
-    from test_model import TINY, synthetic_set
-
     ts = synthetic_set()
     models = {}
     for loss in ("mse", "normal"):

@@ -3,6 +3,7 @@ bench at a known printer position coming back there, the CLI's PLY, and what is 
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -229,7 +230,6 @@ def test_a_trained_models_points_of_a_bench_press_come_back_at_the_printers_ball
 def test_predict_writes_the_points_a_user_opens_in_trimesh(tmp_path, bench_model, capsys):
     folder, model = bench_model
     frame, ball, *_ = bench_press(0.0, 0.0, 1.0)
-    import cv2
 
     cv2.imwrite(str(tmp_path / "press.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     args = ["predict", "--checkpoint", str(model), "--image", str(tmp_path / "press.png")]
@@ -264,7 +264,6 @@ def test_a_checkpoint_without_registration_names_what_to_pass(tmp_path, capsys, 
     assert estimator.points(frame).points.shape == (frame.shape[0] * frame.shape[1], 3)
     with pytest.raises(ConfigError, match="registration"):
         estimator.points(frame, "printer")
-    import cv2
 
     cv2.imwrite(str(tmp_path / "f.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     args = ["predict", "--checkpoint", str(tmp_path / "old.pt"), "--image", str(tmp_path / "f.png")]

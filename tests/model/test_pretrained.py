@@ -5,6 +5,7 @@ import json
 import pytest
 from test_model import TINY, synthetic_set
 
+import threedcal.pretrained as pretrained
 from threedcal.cli import main
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import read_checkpoint
@@ -12,8 +13,8 @@ from threedcal.model.train import train
 from threedcal.model.train_settings import TrainSettings
 from threedcal.pretrained import (
     SHIPPED_DIR,
+    pretraining_digest,
     provenance,
-    settings_digest,
     shipped_sensors,
     shipped_weights,
 )
@@ -45,8 +46,6 @@ def test_weights_are_found_by_sensor_and_refused_for_another_frame(tmp_path):
 
 
 def test_init_pretrained_starts_from_the_shipped_weights_of_the_sets_sensor(tmp_path, monkeypatch):
-    import threedcal.pretrained as pretrained
-
     shipped = fake_shipped(tmp_path / "p")
     monkeypatch.setattr(pretrained, "SHIPPED_DIR", shipped)
     ts = synthetic_set()
@@ -66,7 +65,7 @@ def test_the_shipped_weights_are_what_the_repositorys_recipe_makes(sensor):
     assert sensor in shipped_sensors()
     record = provenance(sensor)
     recipe = load_config("config.yaml")["pretraining"]
-    assert record["settings_digest"] == settings_digest(recipe, load_profile("sensor", sensor))
+    assert record["settings_digest"] == pretraining_digest(recipe, load_profile("sensor", sensor))
     checkpoint = read_checkpoint(SHIPPED_DIR / f"{sensor}.pt")
     assert checkpoint["preset"] == record["preset"] == recipe["model"]["preset"]
     assert list(checkpoint["image_shape"]) == record["image_shape"]
@@ -77,8 +76,6 @@ def test_the_shipped_weights_are_what_the_repositorys_recipe_makes(sensor):
 def test_the_command_installs_rebuilt_weights_and_says_whether_they_changed(
     tmp_path, monkeypatch, capsys
 ):
-    import threedcal.pretrained as pretrained
-
     built = fake_shipped(tmp_path / "built_flat")
     results = tmp_path / "results"
     (results / "mini").mkdir(parents=True)
@@ -98,9 +95,9 @@ def test_the_settings_digest_is_the_recipes_not_where_the_clone_lies():
     profile = load_profile("sensor", "digit_fots")
     moved = {**profile, "source": "/elsewhere/digit_fots.yaml"}
     recipe = load_config("config.yaml")["pretraining"]
-    assert settings_digest(recipe, moved) == settings_digest(recipe, profile)
+    assert pretraining_digest(recipe, moved) == pretraining_digest(recipe, profile)
     changed = {**profile, "name": "another"}
-    assert settings_digest(recipe, changed) != settings_digest(recipe, profile)
+    assert pretraining_digest(recipe, changed) != pretraining_digest(recipe, profile)
 
 
 def test_the_settings_digest_ignores_the_profiles_citations_not_its_constants():
@@ -108,6 +105,6 @@ def test_the_settings_digest_ignores_the_profiles_citations_not_its_constants():
     profile = load_profile("sensor", "digit_fots")
     recipe = load_config("config.yaml")["pretraining"]
     cited = {**profile, "unit_variation": {**profile["unit_variation"], "source": "elsewhere"}}
-    assert settings_digest(recipe, cited) == settings_digest(recipe, profile)
+    assert pretraining_digest(recipe, cited) == pretraining_digest(recipe, profile)
     moved = {**profile, "px_per_mm": profile["px_per_mm"] + 0.1}
-    assert settings_digest(recipe, moved) != settings_digest(recipe, profile)
+    assert pretraining_digest(recipe, moved) != pretraining_digest(recipe, profile)

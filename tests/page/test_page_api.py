@@ -165,9 +165,9 @@ def test_collect_refuses_a_found_mount_that_was_not_saved(tmp_path, monkeypatch)
     monkeypatch.chdir(tmp_path)
     config, scene = write_scene(tmp_path, saved=True)
     with RigControl(config, scene) as control:
-        from threedcal.mount import Mount
+        from threedcal.mount import SensorMount
 
-        control.found = Mount(109.0, 111.0, 135.1, 2.0)
+        control.found = SensorMount(109.0, 111.0, 135.1, 2.0)
         with pytest.raises(Exception, match="save the mount"):
             control.collect()
 

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from threedcal.evaluate.object_errors import mean_interval
 from threedcal.stop_rule import (
     Improvement,
     decide,
-    mean_interval,
     paired_improvement,
     rule_problems,
 )

@@ -1,6 +1,7 @@
 """The realism check's 2-D halo figures (threedcal.realism.halo2d) against synthetic halos with known
 answers, and its tolerance logic."""
 
+import csv
 import math
 
 import numpy as np
@@ -13,10 +14,10 @@ from threedcal.realism.halo2d import (
     compare_halos,
     cutout,
     first_moments,
-    grid,
     mean_image,
     nrms,
     passes,
+    radius_grid,
     third_moment,
     tolerance,
 )
@@ -42,7 +43,7 @@ def halo_frame(shape, center, radius, kind, amplitude=30.0):
 
 
 def test_grid_is_centred_and_spans_the_reach():
-    u, v = grid(3.0, 0.1)
+    u, v = radius_grid(3.0, 0.1)
     assert u.shape == (61, 61) and u[30, 30] == 0 and v[30, 30] == 0
     assert u[0, 0] == pytest.approx(-3.0) and v[-1, 0] == pytest.approx(3.0)  # v down the image
 
@@ -54,7 +55,7 @@ def test_cutout_samples_the_frame_in_contact_radii_and_leaves_the_frame_out():
     yy, xx = np.mgrid[:h, :w].astype(np.float32)
     ramp = np.stack([xx, yy, 2 * xx - yy + 7], axis=-1)
     cut = cutout(ramp, (6.0, 11.0), 5.0)
-    u, v = grid()
+    u, v = radius_grid()
     x, y = 6.0 + 5 * u, 11.0 + 5 * v
     inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
     assert np.isnan(cut[~inside]).all() and np.isfinite(cut[inside]).all()
@@ -118,7 +119,7 @@ def test_first_moments_of_a_round_halo_are_zero_and_of_a_triangle_up_positive():
     down = cutout(halo_frame((201, 151), centre, 20.0, "up")[::-1], (75.0, 100.0), 20.0)
     assert first_moments(down)[0] == pytest.approx(-t_up, abs=1e-3)
     # a halo only straight up: +1; one half-annulus uniformly lit: 2 / pi (continuous value)
-    u, v = grid()
+    u, v = radius_grid()
     rho = np.hypot(u, v)
     spike = np.where((np.abs(u) < 1e-9) & (v < -1) & (rho <= 3), 1.0, 0.0)[..., None]
     assert first_moments(spike) == pytest.approx((1.0, 0.0), abs=1e-12)
@@ -178,7 +179,6 @@ def test_table_csv_and_figure(tmp_path):
     text = halo2d.format_halos(res)
     assert "4 held-out real images (3 presses)" in text and "halo 2-D: FAIL" in text
     halo2d.write_csv([("data/x", "digit", res)], tmp_path / "h.csv")
-    import csv
 
     rows = list(csv.DictReader(open(tmp_path / "h.csv")))
     assert [r["figure"] for r in rows] == list(halo2d.FIGURES)
@@ -188,7 +188,7 @@ def test_table_csv_and_figure(tmp_path):
 
 
 def test_third_moment_sees_a_three_lobed_triangle_about_its_centre():
-    u, v = grid()
+    u, v = radius_grid()
     rho = np.hypot(u, v)
     alpha = np.arctan2(-v, u)  # counter-clockwise from the right, up = 90 degrees
     ring = (rho > 1) & (rho <= 3)

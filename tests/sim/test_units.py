@@ -2,12 +2,13 @@
 
 import numpy as np
 import pytest
+from numpy.polynomial import legendre
 
 from threedcal.dataset.trainset import TrainingSet, downscale
 from threedcal.dataset.unit_presses import simulate_units
 from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
-from threedcal.sim.units import draw_unit
+from threedcal.sim.units import FIELD_DEGREE, draw_unit, legendre_terms, smooth_field_coefficients
 
 
 @pytest.fixture(scope="module")
@@ -88,10 +89,6 @@ def test_unit_presses_refuse_depths_past_the_ball(mini):
 
 def _legendre_field(weights, degree, u, v):
     """sum_t w_t sqrt((2i+1)(2j+1)) P_i(u) P_j(v), per channel, straight from Legendre's series."""
-    from numpy.polynomial import legendre
-
-    from threedcal.sim.units import legendre_terms
-
     out = np.zeros((3, *u.shape))
     for t, (i, j) in enumerate(legendre_terms(degree)):
         pi = legendre.legval(u, np.eye(i + 1)[i]) * np.sqrt(2 * i + 1)
@@ -121,8 +118,6 @@ def test_a_units_own_field_is_its_legendre_series_in_the_simulators_basis(degree
 
 
 def test_a_units_own_field_has_the_stated_rms_over_units():
-    from threedcal.sim.units import smooth_field_coefficients
-
     nodes, w = np.polynomial.legendre.leggauss(6)
     uu, vv = np.meshgrid(nodes, nodes)
     terms = np.stack([uu ** (k - j) * vv**j for k in range(5) for j in range(k + 1)])
@@ -135,8 +130,6 @@ def test_a_units_own_field_has_the_stated_rms_over_units():
 
 
 def test_a_unit_gets_its_own_background_field_on_top_of_the_profiles():
-    from threedcal.sim.units import FIELD_DEGREE
-
     digit = load_profile("sensor", "digit_fots")
     spread = {"background_field_dn": 10.0}
     unit = draw_unit({**digit, "unit_variation": spread}, 4)

@@ -110,7 +110,7 @@ class RegisteredStore:
     phase: np.ndarray  # per plan row: "touch", "register" or "grid"
     first: np.ndarray
     last: np.ndarray
-    registration: object  # threedcal.dataset.registration.Registration (of `registered_rows`)
+    registration: object  # threedcal.dataset.registration.CameraRegistration (of `registered_rows`)
     registered_rows: np.ndarray  # the plan rows the registration located contacts in
     centres: np.ndarray  # (frames, 2) where the affine puts each frame's probe, px
     nominal_depth: np.ndarray  # (frames,) commanded depth below the gel surface there, mm

@@ -43,7 +43,7 @@ def difference_magnitude(frame: np.ndarray, blank: np.ndarray, blur_px: float = 
     diff = colour_change(frame, blank)
     if diff.ndim == 3:
         # the channels' squares added in turn, as .sum(axis=-1) adds them (the same float32
-        # values): a reduction over a 3-long axis cost 1.2 ms a 240x320 frame, this 0.2 ms
+        # values): a reduction over a 3-long axis costs 1.2 ms a 240x320 frame, this 0.2 ms
         squared = diff * diff
         magnitude = np.sqrt(sum(squared[..., k] for k in range(diff.shape[-1])))
     else:

@@ -3,15 +3,12 @@ Domed gels)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
+from scipy.interpolate import RegularGridInterpolator
 
 from threedcal.dataset.contacts import Contact
 from threedcal.dataset.labels import LocalDome
-
-if TYPE_CHECKING:
-    from threedcal.sim.layer_kernel import GelMaterial
+from threedcal.sim.elastic import ElasticGel, GelMaterial
 
 
 class DomedContacts:
@@ -91,8 +88,6 @@ class DomedContacts:
         return np.array([self._dx[inside].mean(), self._dy[inside].mean()])
 
     def _pressure_shift(self, ax: float, ay: float, depth_mm: float) -> np.ndarray:
-        from threedcal.sim.elastic import ElasticGel
-
         if self._gel is None:
             self._gel = ElasticGel(self.material, self._LATTICE_MM)
         reach = self.radius_mm
@@ -108,8 +103,6 @@ class DomedContacts:
         return np.array([(p * (X - ax)).sum(), (p * (Y - ay)).sum()]) / p.sum()
 
     def _pressure_field(self, depth_mm: float):
-        from scipy.interpolate import RegularGridInterpolator
-
         key = round(float(depth_mm), 4)
         if key not in self._fields:
             rows, cols = self._FIELD

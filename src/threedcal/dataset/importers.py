@@ -95,7 +95,7 @@ def _require(path: Path, what: str) -> Path:
 
 
 def _read_csv(path: Path, columns) -> pd.DataFrame:
-    import pandas as pd
+    import pandas as pd  # optional (workflow extra), loaded where a table is read
 
     _require(path, "table")
     try:
@@ -112,7 +112,7 @@ def _read_csv(path: Path, columns) -> pd.DataFrame:
 
 
 def _numeric(table: pd.DataFrame, path: Path, columns, positive=()) -> None:
-    import pandas as pd
+    import pandas as pd  # optional (workflow extra), loaded where a table is read
 
     for column in columns:
         values = pd.to_numeric(table[column], errors="coerce")

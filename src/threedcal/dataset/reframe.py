@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from threedcal.dataset.trainset import TrainingSet, downscale
@@ -54,8 +55,6 @@ class Reframe:
         d/dx = -(network d/dy) and d/dy = network d/dx. Gradients are dimensionless: pooling leaves
         their values alone, and they are interpolated back to the original pixel centres (rows and
         columns the pooling cropped take the nearest edge's value)."""
-        import cv2
-
         grads = np.asarray(grads, dtype=np.float32)
         if grads.shape != (*self.shape, 2):
             raise ValueError(f"gradients of shape {grads.shape}, expected {(*self.shape, 2)}")

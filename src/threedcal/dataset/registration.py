@@ -30,7 +30,7 @@ from threedcal.lens import RadialLens
 
 
 @dataclass(frozen=True)
-class Registration:
+class CameraRegistration:
     """The affine of the chosen contact locator, and what the choice rested on."""
 
     fit: AffineFit
@@ -52,7 +52,7 @@ def register_camera(
     progress: bool = False,
     lens: bool | RadialLens = False,
     dome: DomedContacts | None = None,
-) -> Registration:
+) -> CameraRegistration:
     """Locate the contact in every frame by rim and, on a flat gel, by symmetry; fit the affine
     (and with `lens`, the camera lens's radial distortion with it: `fit_lensed`; given a
     RadialLens, the sensor profile's, from it: `fit_camera` chooses how much of it to refit).
@@ -149,7 +149,7 @@ def _locate_and_fit(
                     unmixing, symmetry_start = again.unmixing, "fit"
     locator = min(candidates, key=lambda name: candidates[name][1].residual_px)
     contacts, fit = candidates[locator]
-    return Registration(
+    return CameraRegistration(
         fit=fit,
         contacts=contacts,
         locator=locator,

@@ -96,8 +96,8 @@ class _Disk:
         qx, qy = np.meshgrid(g, g)
         # Each row shifted by a golden-ratio fraction of the spacing: on an integer lattice every
         # sample crosses a pixel boundary at the same centre, and the bilinear residuals kink
-        # there together. Spread out, the objective is smoother (on the 9 contacts of
-        # tests/dataset/test_registration.py: 15.3 -> 14.4 iterations, max error 0.181 -> 0.178 px).
+        # there together. Spread out, the objective is smoother: fewer iterations, a slightly
+        # smaller error (the 9 contacts of tests/dataset/test_registration.py).
         qx = qx + spacing * ((np.arange(g.size)[:, None] * 0.6180339887) % 1.0 - 0.5)
         inside = qx * qx + qy * qy <= reach_px * reach_px
         return cls(qx=qx[inside], qy=qy[inside], radius_px=contact.radius_px)
@@ -284,14 +284,12 @@ def _levenberg_marquardt(problem, start: np.ndarray, scale: np.ndarray, toleranc
     return x, False
 
 
-# Evaluations one symmetry fit may spend (scipy's least_squares allowed 100 per unknown).
+# Evaluations one symmetry fit may spend (as many as scipy's least_squares allows per unknown).
 MAX_FIT_EVALUATIONS = 100
 # The fit samples the disk every SAMPLE_SPACING_PX pixels (each row still shifted by a fraction):
-# a quarter of the samples, a quarter of the cost. Error against the known centres, every pixel →
-# every 2nd (max / RMS px): the 25 contacts of benchmarks/bench_registration.py 0.202 / 0.106 →
-# 0.225 / 0.110; the 9 of tests/dataset/test_registration.py 0.224 / 0.119 → 0.196 / 0.116; 49
-# Mini contacts at 1, 2 and 3 mm, seeds 2 and 3: 0.395 / 0.137 → 0.443 / 0.144 and 0.238 / 0.114
-# → 0.245 / 0.122. About 4 % more noise per contact, which an affine over many contacts averages.
+# a quarter of the samples and of the cost, for about 4 % more noise per contact against the known
+# centres (benchmarks/bench_registration.py, tests/dataset/test_registration.py, Mini contacts at
+# 1-3 mm), which an affine over many contacts averages.
 SAMPLE_SPACING_PX = 2
 # A fit has converged once a step would move the centre by less than this (px). The axes may
 # still creep then; the centre no longer follows them by more than noise.

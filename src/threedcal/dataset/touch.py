@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage, optimize
+from scipy import ndimage, optimize, stats
 from tqdm import tqdm
 
 from threedcal.collect.plan import TOUCH_BISECTION_MIN_PRESSES
@@ -89,8 +89,6 @@ class ChangeDetector:
     def from_blanks(
         cls, blank_frames: np.ndarray, smooth_px: float = 1.5, false_alarm: float = 1e-6
     ) -> ChangeDetector:
-        from scipy import stats
-
         frames = np.asarray(blank_frames, dtype=np.float32)
         if frames.ndim != 4 or frames.shape[-1] != 3 or len(frames) < 3:
             raise RegistrationError(

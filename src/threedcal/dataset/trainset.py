@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from threedcal.dataset.labels import (
@@ -62,7 +63,8 @@ def coordinate_channels(
     """(2, h, w) float32: x and y of each pixel of `window`, normalised to [-1, 1] over the full image.
 
     A read-only view of the image's grid, built once per image size: a training job cuts tens of
-    thousands of windows, and building the grid for each cost about 1 s of its 28 s (P = 80 %).
+    thousands of windows, and building the grid for each would cost about 1 s of its 28 s
+    (P = 80 %).
     """
     grid = _coordinate_grid(int(height), int(width))
     return grid if window is None else grid[:, window[0], window[1]]
@@ -92,7 +94,7 @@ def samples_table(
     point, center_px, depth_mm, eval_radius_px, split, min_p, **replicate_columns
 ) -> pd.DataFrame:
     """samples.csv's table (SAMPLE_COLUMNS, then min_p_r1 ...): one row per frame, numbered 0.."""
-    import pandas as pd
+    import pandas as pd  # optional (workflow extra); the inference core imports this module
 
     center_px = np.asarray(center_px, dtype=float)
     return pd.DataFrame(
@@ -263,7 +265,7 @@ class TrainingSet:
                     f"{directory / name}: missing (not a threedcal model-ready dataset)"
                 )
         meta = json.loads((directory / "meta.json").read_text())
-        import pandas as pd
+        import pandas as pd  # optional (workflow extra); the inference core imports this module
 
         samples = pd.read_csv(directory / "samples.csv")
         frames = np.load(directory / "frames.npy", mmap_mode="r" if mmap else None)
@@ -292,7 +294,6 @@ def pool_to(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     (a camera in another mode, a portrait/landscape mix-up) is a FrameSizeError giving both sizes."""
     if image.shape[:2] == tuple(shape):
         return image
-    import cv2
 
     height, width = shape
     factor = image.shape[0] // height
@@ -312,7 +313,6 @@ def downscale(trainset: TrainingSet, factor: int) -> TrainingSet:
         return trainset
     if factor < 1:
         raise ConfigError(f"downscale factor must be a whole number >= 1, got {factor}")
-    import cv2
 
     n, height, width, _ = trainset.frames.shape
     h, w = height // factor, width // factor
@@ -354,9 +354,9 @@ def from_imported(
     replicates: int = 1,
 ) -> TrainingSet:
     """An imported dataset → TrainingSet with a seeded split by probe coordinate (by image for ball folders)."""
-    import pandas as pd
+    import pandas as pd  # optional (workflow extra); the inference core imports this module
 
-    from threedcal.dataset.splits import min_p_column, split_points
+    from threedcal.dataset.splits import min_p_column, split_points  # pandas, as above
 
     points = (
         pd.DataFrame({"point": data.point, "x_mm": data.xy_mm[:, 0], "y_mm": data.xy_mm[:, 1]})

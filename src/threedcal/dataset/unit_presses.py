@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet, downscale, samples_table
@@ -51,8 +52,6 @@ def simulate_units(
 ) -> TrainingSet:
     """Presses of every unit in `units` (the last `val_units` of them split 'val'), pooled by
     `factor`; blank per unit (TrainingSet.unit_blanks)."""
-    from tqdm import tqdm
-
     lo, hi = (float(v) for v in depth_mm)
     if not 0 < lo <= hi <= probe_radius_mm:
         raise ConfigError(

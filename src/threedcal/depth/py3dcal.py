@@ -15,7 +15,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from threedcal.depth.convention import apply_offset
-from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, prepare
+from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, integrator_inputs
 from threedcal.errors import ConfigError
 
 
@@ -47,7 +47,7 @@ def py3dcal(
     workers: int | None = None,
 ) -> np.ndarray:
     """Depth (mm) as the authors' pipeline gives it: fast_poisson, negative depth clipped to 0."""
-    gx, gy, scale, _ = prepare(gx, gy, "py3dcal", px_per_mm, offset, max_angle_deg)
+    gx, gy, scale, _ = integrator_inputs(gx, gy, "py3dcal", px_per_mm, offset, max_angle_deg)
     z = np.clip(py3dcal_fast_poisson(gx, gy, workers), 0, None).astype(gx.dtype, copy=False)
     z /= z.dtype.type(scale)
     return apply_offset(z, offset)

@@ -89,7 +89,9 @@ def sanitize_gradients(
     return gx, gy, SanitizeReport(n_nonfinite, n_clamped, nonfinite)
 
 
-def prepare(gx, gy, name: str, px_per_mm: float, offset: str, max_angle_deg: float | None):
+def integrator_inputs(
+    gx, gy, name: str, px_per_mm: float, offset: str, max_angle_deg: float | None
+):
     """The shared front of every integrator: validate, sanitise, check the scale and offset policy."""
     check_offset(offset)
     scale = check_px_per_mm(px_per_mm)

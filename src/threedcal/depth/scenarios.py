@@ -25,7 +25,7 @@ class Scene:
     px_per_mm: float
 
 
-def grid(h: int, w: int, px_per_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def pixel_centres_mm(h: int, w: int, px_per_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre coordinates in mm relative to the frame centre (x right, y down)."""
     x = (np.arange(w) - (w - 1) / 2) / px_per_mm
     y = (np.arange(h) - (h - 1) / 2) / px_per_mm
@@ -71,7 +71,7 @@ def pawn_radius(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(use_head, head, r), dr
 
 
-def pawn(x, y, press_mm: float = 2.5):
+def pawn_press(x, y, press_mm: float = 2.5):
     """The pawn lying on its side (axis along x), pressed `press_mm` into the gel by its base."""
     s = x + 6.4  # base face 6.4 mm left of the centre, head end 12.8 mm further
     r, dr = pawn_radius(s)
@@ -145,7 +145,7 @@ SCENARIOS = {
     ),
     "pawn": (
         "pawn-like solid of revolution on its side, pressed 2.5 mm: vertical walls, steps in depth",
-        lambda x, y, r: pawn(x, y),
+        lambda x, y, r: pawn_press(x, y),
     ),
     "gaussian": (
         "smooth Gaussian bump, 0.5 mm high, sigma 1.5 mm",
@@ -163,7 +163,7 @@ def make_scene(name: str, h: int, w: int, seed: int = 0) -> Scene:
     if name not in SCENARIOS:
         raise ConfigError(f"scenario {name!r} is not allowed (allowed: {', '.join(SCENARIOS)})")
     px = px_per_mm_for(h, w)
-    x, y = grid(h, w, px)
+    x, y = pixel_centres_mm(h, w, px)
     rng = np.random.default_rng(seed)
     z, gx, gy = SCENARIOS[name][1](x, y, rng)
     return Scene(z, gx, gy, px)

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from threedcal.depth.convention import apply_offset, edge_gradients
-from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, prepare
+from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, integrator_inputs
 from threedcal.errors import ConfigError
 
 FILL = 1e-10
@@ -99,7 +99,9 @@ def lstsq_sparse(
         raise ConfigError(
             f"lstsq_sparse: fill {fill!r} is not allowed (allowed: {', '.join(FILLS)})"
         )
-    gx, gy, scale, report = prepare(gx, gy, "lstsq_sparse", px_per_mm, offset, max_angle_deg)
+    gx, gy, scale, report = integrator_inputs(
+        gx, gy, "lstsq_sparse", px_per_mm, offset, max_angle_deg
+    )
     pixel_weights = _pixel_weights(gx.shape, mask, weights, report.nonfinite)
     z, valid = lstsq_px(gx, gy, pixel_weights)
     z = (z / scale).astype(gx.dtype, copy=False)

@@ -20,7 +20,7 @@ import scipy.fft as sfft
 from scipy.linalg import get_lapack_funcs
 
 from threedcal.depth.convention import apply_offset, divergence, edge_gradients
-from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, prepare
+from threedcal.depth.sanitize import DEFAULT_MAX_ANGLE_DEG, integrator_inputs
 from threedcal.errors import ConfigError
 
 
@@ -259,7 +259,7 @@ def frankot_chellappa_mm(
 
 
 def _run(solver, name, gx, gy, px_per_mm, offset, max_angle_deg, workers) -> np.ndarray:
-    gx, gy, scale, _ = prepare(gx, gy, name, px_per_mm, offset, max_angle_deg)
+    gx, gy, scale, _ = integrator_inputs(gx, gy, name, px_per_mm, offset, max_angle_deg)
     return apply_offset(solver(gx, gy, scale, workers), offset)
 
 

@@ -18,6 +18,7 @@ from tqdm import tqdm
 from threedcal.depth import METHODS, integrate
 from threedcal.depth.scenarios import SCENARIOS, make_scene
 from threedcal.errors import ConfigError
+from threedcal.plotting import pyplot
 
 COLUMNS = ["method", "scenario", "H", "W", "dtype", "ms_per_frame", "rmse", "peak_error", "repeats"]
 
@@ -101,8 +102,6 @@ def pareto_front(points: pd.DataFrame, x: str = "ms_per_frame", y: str = "rmse")
 
 def plot_pareto(table: pd.DataFrame, path: str | Path) -> None:
     """One log-log panel per scenario: median ms per frame against rmse, front drawn."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
 
     scenarios = list(dict.fromkeys(table["scenario"]))

@@ -367,7 +367,7 @@ def ratio_interval(
 
 def holm(p_values) -> np.ndarray:
     """Holm's step-down adjusted p-values (statsmodels' multipletests)."""
-    from statsmodels.stats.multitest import multipletests
+    from statsmodels.stats.multitest import multipletests  # optional (workflow extra), slow
 
     p = np.asarray(p_values, dtype=float)
     return multipletests(p, method="holm")[1] if p.size else p

@@ -6,9 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib import ticker
 
 from threedcal.evaluate.ablation import MARGIN
 from threedcal.evaluate.ablation_reading import family_comparison, placebo_summary
+from threedcal.plotting import pyplot
 
 # The tests figure's ratio axis: an interval reaching past it (a paired interval with few degrees
 # of freedom can span -150 % to +5,000 %) is cut at the edge and its bound written beside it, so
@@ -35,8 +37,6 @@ def tests_figure(tests: pd.DataFrame, path: str | Path, title: str, margin: floa
     """Each P against P = 80: ratio of mean validation MSE with the paired (1 - alpha) and TOST
     (1 - 2 alpha) intervals, the margin shaded, each replicate's paper-family ratio as a dot
     (filled where both of the paper's tests are significant)."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
     paired = tests[tests["family"] == "paired"].set_index("P").sort_index()
     equivalence = tests[tests["family"] == "equivalence"].set_index("P")
@@ -136,8 +136,6 @@ def _cut_bounds(ax, xs, colour: str, bounds: dict) -> None:
 
 def _ratio_ticks(ax, low: float, high: float) -> None:
     """Ticks at round ratios, labelled as the change in per cent."""
-    from matplotlib import ticker
-
     nice = [0.2, 0.25, 0.5, 0.75, 0.9, 1.0, 1.1, 1.25, 1.5, 2, 3, 5, 10, 20]
     if high / low > 3:  # on a wide axis the small steps crowd the 0 %; the shaded band shows them
         nice = [v for v in nice if v not in (0.25, 0.75, 0.9, 1.1, 1.25)]

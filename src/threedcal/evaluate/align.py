@@ -7,6 +7,7 @@ the (zero-padded, so not circular) cross-correlation of the two depth maps is ta
 from __future__ import annotations
 
 import numpy as np
+from scipy import fft, ndimage
 
 from threedcal.errors import ConfigError
 
@@ -18,8 +19,6 @@ def cross_correlation(
 
     Returns (c, dys, dxs): c has shape (2H − 1, 2W − 1); dys, dxs are its shifts (px).
     """
-    from scipy import fft
-
     h, w = pred.shape
     shape = (fft.next_fast_len(2 * h - 1, real=True), fft.next_fast_len(2 * w - 1, real=True))
     spec = fft.rfft2(pred, shape) * np.conj(fft.rfft2(gt, shape))
@@ -72,8 +71,6 @@ def align_xy(
 
 def shift_image(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
     """image moved by (dx, dy) px, zero fill; exact for integer shifts, bilinear otherwise."""
-    from scipy import ndimage
-
     if float(dx).is_integer() and float(dy).is_integer():
         out = np.zeros_like(image)
         h, w = image.shape

@@ -66,7 +66,7 @@ def _model_means(table: pd.DataFrame, steps: int) -> pd.DataFrame:
     return means.assign(steps=int(steps))
 
 
-def curve_table(
+def error_vs_time_table(
     snapshots: pd.DataFrame,
     budget: tuple[int, pd.DataFrame],
     twice: tuple[int, pd.DataFrame],

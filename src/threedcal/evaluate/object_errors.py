@@ -17,8 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.special import stdtrit
 
 from threedcal.errors import ConfigError
+from threedcal.evaluate.ablation import contrast
 from threedcal.evaluate.align import align_xy
 from threedcal.evaluate.groundtruth import HeightMap, check_indentation, surface_height
 from threedcal.evaluate.mesh import Mesh
@@ -219,8 +221,6 @@ def mean_interval(values, level: float = 0.95) -> tuple[float, float, float]:
 
     NaN values (a press with no Type 2 pixel) are left out; fewer than two values give NaN bounds.
     """
-    from scipy.special import stdtrit  # the t quantile, without importing all of scipy.stats
-
     x = np.asarray(values, dtype=np.float64)
     x = x[np.isfinite(x)]
     if x.size == 0:
@@ -241,10 +241,6 @@ def crossed_mean_interval(cells, level: float = 0.95) -> tuple[float, float, flo
     widens the interval, which a t interval over one model's presses leaves out. Presses with a NaN
     in any replicate (no Type 2 pixel) are left out; one replicate gives `mean_interval`.
     """
-    from scipy.special import stdtrit
-
-    from threedcal.evaluate.ablation import contrast
-
     x = np.atleast_2d(np.asarray(cells, dtype=np.float64))
     x = x[:, np.isfinite(x).all(axis=0)]
     if x.shape[0] == 1 or x.shape[1] < 2:

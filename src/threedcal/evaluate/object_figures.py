@@ -173,19 +173,15 @@ def table_ii_markdown(
 
 
 def _save(fig, path: str | Path) -> Path:
-    import matplotlib.pyplot as plt
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    pyplot().close(fig)
     return path
 
 
 def plot_pill_by_fraction(maps: Mapping[int, np.ndarray], path: str | Path) -> None:
     """Fig. 3C: the pill's predicted depth for every training fraction P."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
 
     fractions = sorted(maps)

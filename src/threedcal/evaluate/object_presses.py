@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import surface_height
@@ -35,12 +36,12 @@ from threedcal.evaluate.press_plan import (
     true_mount,
 )
 from threedcal.rig import Ask, Rig, open_rig
+from threedcal.sim.bench import MountedObject
+from threedcal.sim.indenters import Relief
 
 
 def relief_indenter(mesh, px_per_mm: float, rotation_deg: float = 0.0):
     """The mesh as the simulator's height-map indenter: protrusion toward the gel (mm), NaN outside."""
-    from threedcal.sim.indenters import Relief
-
     extent = float(np.ptp(mesh.vertices[:, :2], axis=0).max())
     size = int(math.ceil(extent * math.sqrt(2) * px_per_mm)) + 5
     surface = surface_height(
@@ -70,8 +71,6 @@ def run_session(
     """Home, capture the session's blank, then object by object: mount it, press it at each of its
     poses (lift → travel → plunge → wait → settle → flush → one frame), lift. On the bench each
     record keeps the pose it truly rendered (`truth`)."""
-    from tqdm import tqdm
-
     host, camera, clock = rig.printer, rig.sensor, rig.clock
     started = rig.hardware_clock()
     safe_z = frame.clearance_z()
@@ -185,7 +184,6 @@ def _press_sessions(
             if not rig.simulated:
                 rig.prompt(_mount_request(ref, frame.mount))
                 return
-            from threedcal.sim.bench import MountedObject
 
             if ref not in reliefs:
                 reliefs[ref] = relief_indenter(object_mesh(ref), rig.bench.gel.px_per_mm)

@@ -12,9 +12,22 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from threedcal.dataset.trainset import pool_to
 from threedcal.evaluate.groundtruth import HeightMap, surface_height
+from threedcal.evaluate.object_errors import (
+    PROTOCOLS,
+    crossed_mean_interval,
+    evaluate_press,
+    pixel_errors_um,
+    printer_press,
+)
+from threedcal.evaluate.object_figures import (
+    plot_depth_sections,
+    plot_error_violins,
+    plot_pill_by_fraction,
+)
 from threedcal.evaluate.object_presses import read_presses
 from threedcal.evaluate.objects import object_label
 from threedcal.evaluate.press_plan import (
@@ -26,12 +39,11 @@ from threedcal.evaluate.press_plan import (
     read_registration,
 )
 from threedcal.lens import RadialLens, rectify_if
+from threedcal.model.checkpoint import read_checkpoint
+from threedcal.model.inference import DepthEstimator
 
 
 def _checkpoint_estimator(model: str | Path, blank: np.ndarray):
-    from threedcal.model.checkpoint import read_checkpoint
-    from threedcal.model.inference import DepthEstimator
-
     checkpoint = read_checkpoint(model)
     shape = tuple(checkpoint.get("image_shape") or np.asarray(checkpoint["blank"]).shape[:2])
     return DepthEstimator(checkpoint, device="cpu", blank=pool_to(blank, shape))
@@ -56,11 +68,9 @@ def evaluate_objects(
     (drawn from replicate 0). Every press is rendered once (by the object_presses rule); the
     printer protocol's ground truth is rasterised once per press and frame size. errors.csv:
     reporting presses only, per object, P and protocol, the mean over presses and replicates with
-    its 95 % interval (`summarise`); tuning.csv: the same over the tuning presses, under the
-    printer protocol only (the one settings are chosen on).
+    its 95 % interval (`object_error_summary`); tuning.csv: the same over the tuning presses,
+    under the printer protocol only (the one settings are chosen on).
     """
-    from tqdm import tqdm
-
     started = time.perf_counter()
     scoring = _Scoring(setup, models, pressing_dir, registration_path, Path(out_dir), estimator)
     scoring.plots = plots
@@ -175,9 +185,6 @@ class _Scoring:
         return self.truths[key]
 
     def _keep_for_figures(self, press, p, method, depth, truth_mm, est) -> None:
-        from threedcal.evaluate.object_errors import pixel_errors_um
-        from threedcal.evaluate.object_figures import plot_depth_sections
-
         label = object_label(press.object)
         first = press.frame == self.first_reporting[press.object]
         if p == self.full:
@@ -195,14 +202,12 @@ class _Scoring:
 
     def write(self) -> pd.DataFrame:
         """presses.csv, errors.csv, tuning.csv, integrators.csv and the figures; errors.csv's table."""
-        from threedcal.evaluate.object_figures import plot_error_violins, plot_pill_by_fraction
-
         out_dir = self.out_dir
         per_press = pd.DataFrame(self.rows)
         per_press.to_csv(out_dir / "presses.csv", index=False)
-        errors = summarise(per_press[per_press["set"] == "reporting"])
+        errors = object_error_summary(per_press[per_press["set"] == "reporting"])
         errors.to_csv(out_dir / "errors.csv", index=False)
-        tuning = summarise(per_press[per_press["set"] == "tuning"])
+        tuning = object_error_summary(per_press[per_press["set"] == "tuning"])
         tuning.to_csv(out_dir / "tuning.csv", index=False)
         pd.DataFrame(self.comparison).to_csv(out_dir / "integrators.csv", index=False)
         if self.pixel_tables:
@@ -251,8 +256,6 @@ def score_press(
 
     `pose` and `surface`: where the printer put the object, on the prediction's pixel grid
     (`surface` measured from the gel's `dome` when it has one, as the paper protocol's rasters)."""
-    from threedcal.evaluate.object_errors import evaluate_press, printer_press
-
     results = {
         "printer": printer_press(
             depth, surface, pose.depth_mm, max_penetration_mm=max_penetration_mm
@@ -307,13 +310,11 @@ def _press_facts(press, placed: Placement, true: Mapping | None) -> dict:
 SUMMARY_METRICS = ("overall_um", "type1_um", "type2_um")
 
 
-def summarise(per_press: pd.DataFrame) -> pd.DataFrame:
+def object_error_summary(per_press: pd.DataFrame) -> pd.DataFrame:
     """Per object, P and protocol: the number of presses and replicate models, each metric's mean
     over both with its 95 % interval (`_lo`, `_hi`; `crossed_mean_interval`: presses and models
     both random, a t interval over presses when there is one replicate), and the mean depth ratio
     (protocol depth / true)."""
-    from threedcal.evaluate.object_errors import PROTOCOLS, crossed_mean_interval
-
     columns = ["object", "P", "protocol", "presses", "replicates"]
     columns += [f"{m}{s}" for m in SUMMARY_METRICS for s in ("", "_lo", "_hi")] + ["depth_ratio"]
     out = []

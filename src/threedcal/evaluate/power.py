@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib import ticker
 from scipy import optimize
 
 from threedcal.errors import ConfigError
@@ -36,6 +37,7 @@ from threedcal.evaluate.ablation import (
     spatial_blocks,
     tost,
 )
+from threedcal.plotting import pyplot
 
 VALIDATION_FRACTION = 0.2
 POWER_TARGET = 0.8
@@ -362,10 +364,6 @@ def power_figure(power: pd.DataFrame, path: str | Path, title: str) -> None:
     """Power against replicates for each P: solid = detect a +margin change, dashed = show
     equivalence at no change; one colour per validation spacing; the study's design ringed.
     R = 1 stands apart (crosses): its test cannot see the replicate variance and is too liberal."""
-    from matplotlib import ticker
-
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
 
     fractions = sorted(power["P"].unique())

@@ -184,7 +184,7 @@ def quick_finetune(
     return Path(out_dir) / "model.pt"
 
 
-def summarise(rows: pd.DataFrame) -> dict:
+def table_figures(rows: pd.DataFrame) -> dict:
     """The per-frame rows of one (set, weights, half) reduced to the table's figures."""
     ratio = rows["area_ratio"].to_numpy(float)
     error = rows["centroid_error_mm"].to_numpy(float)
@@ -271,7 +271,7 @@ def check_sets(
                         "weights": name,
                         "frames_read": which,
                         "located": located,
-                        **summarise(chosen),
+                        **table_figures(chosen),
                     }
                 )
     return pd.DataFrame(table, columns=list(TABLE_COLUMNS)), pd.concat(frames, ignore_index=True)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from threedcal.depth import integrate
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import dome_rise, surface_height
 from threedcal.evaluate.object_presses import read_presses
@@ -66,7 +67,5 @@ class TruthGradients:
         return np.maximum(true["depth_mm"] - height, 0.0)
 
     def depth(self, frame: np.ndarray, method: str = "poisson_dst") -> np.ndarray:
-        from threedcal.depth import integrate
-
         gx, gy = self._gradients[np.asarray(frame).tobytes()]
         return integrate(gx, gy, method=method, px_per_mm=self.px_per_mm)

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError, ThreedcalError
@@ -62,7 +63,7 @@ class Camera(ABC):
         self.close()
 
 
-class FrameSource(Protocol):
+class VideoCaptureLike(Protocol):
     """What we use of cv2.VideoCapture (a fake implements the same for tests)."""
 
     def isOpened(self) -> bool: ...
@@ -85,8 +86,6 @@ def find_device(profile: Mapping[str, Any], by_id: str | Path = "/dev/v4l/by-id"
 
 def convert_frame(bgr: np.ndarray, profile: Mapping[str, Any]) -> np.ndarray:
     """Native camera frame → the library's RGB frame, by the profile's crop/rotate/flip/resize rules."""
-    import cv2
-
     cam, image = profile["camera"], profile["image"]
     frame = bgr
     if cam.get("native_channel_order", "BGR") == "BGR":
@@ -117,7 +116,7 @@ class OpenCVCamera(Camera):
         *,
         mode: str | None = None,
         fps: float | None = None,
-        source_factory: Callable[[int | str], FrameSource] | None = None,
+        source_factory: Callable[[int | str], VideoCaptureLike] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ):
         cam = profile.get("camera")
@@ -142,12 +141,10 @@ class OpenCVCamera(Camera):
         self.timeout_s = float(cam.get("timeout_s", 2.0))
         self._factory = source_factory
         self._clock = clock
-        self._src: FrameSource | None = None
+        self._src: VideoCaptureLike | None = None
         self.locked: dict[str, bool] = {}
 
     def open(self) -> None:
-        import cv2
-
         device = self.device
         if device is None:
             device = find_device(self.profile)
@@ -169,7 +166,7 @@ class OpenCVCamera(Camera):
         }
         self._src = src
 
-    def _source(self) -> FrameSource:
+    def _source(self) -> VideoCaptureLike:
         if self._src is None:
             raise CameraError("camera is not open (call open() first)")
         return self._src

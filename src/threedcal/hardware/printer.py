@@ -66,7 +66,7 @@ def printer_profile(ref: str | Path | Mapping[str, Any]) -> dict[str, Any]:
 
 
 def register_url_handlers() -> None:
-    import serial
+    import serial  # optional (hardware extra); printer_profile needs none
 
     for package in URL_HANDLER_PACKAGES:
         if package not in serial.protocol_handler_packages:
@@ -75,7 +75,7 @@ def register_url_handlers() -> None:
 
 def open_port(port: str, baudrate: int = 115200):
     """Open a device path (``/dev/ttyUSB0``, ``COM3``) or a pyserial URL (``simmarlin://x``)."""
-    import serial
+    import serial  # optional (hardware extra); printer_profile needs none
 
     register_url_handlers()
     try:
@@ -86,7 +86,7 @@ def open_port(port: str, baudrate: int = 115200):
 
 def list_ports() -> list[tuple[str, str, str]]:
     """(device, description, hardware id) of every serial port the OS reports."""
-    from serial.tools import list_ports as lp
+    from serial.tools import list_ports as lp  # optional (hardware extra)
 
     return [(p.device, p.description, p.hwid) for p in sorted(lp.comports())]
 
@@ -209,7 +209,7 @@ class MarlinHost:
 
     # ---- wire ----------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
-        import serial
+        import serial  # optional (hardware extra); printer_profile needs none
 
         try:
             self._port.write(data)
@@ -221,7 +221,7 @@ class MarlinHost:
 
     def _readline(self, deadline: float) -> str | None:
         """The next non-empty line, or None once `deadline` (port clock) passes first."""
-        import serial
+        import serial  # optional (hardware extra); printer_profile needs none
 
         while True:
             while b"\n" not in self._buf:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from threedcal.errors import ConfigError, ThreedcalError
+from threedcal.hardware.printer import register_url_handlers
 from threedcal.profiles import load_profile
 
 MAX_LINE_BYTES = 4096  # a "line" longer than this is noise on the wire, not a reading
@@ -91,9 +92,7 @@ def parse_line(raw: bytes, n_values: int, separator: str, where: str = "ReSkin")
 
 def open_serial(port: str, baudrate: int, timeout_s: float):
     """A device path (``/dev/ttyACM0``) or a pyserial URL (``simreskin://x``, ``loop://``)."""
-    import serial
-
-    from threedcal.hardware.printer import register_url_handlers
+    import serial  # optional (hardware extra); reskin_profile needs none
 
     register_url_handlers()
     try:

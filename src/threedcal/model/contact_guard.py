@@ -17,8 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
 from threedcal.model import CONTACT_DEPTH_MM
+from threedcal.model.inference import DepthEstimator
 
 
 @dataclass(frozen=True)
@@ -102,9 +104,6 @@ def check_calibration_presses(model_path, trainset, unit: str, limit: int = 8) -
     """A trained model on up to `limit` of its calibration's validation presses (evenly spread;
     the training ones where it has none): the median contact area over the probe's disc, and a
     warning when the median press reads more than the probe can touch. NaN without presses."""
-    from threedcal.dataset.trainset import TrainingSet
-    from threedcal.model.inference import DepthEstimator
-
     if not isinstance(trainset, TrainingSet):
         trainset = TrainingSet.load(trainset)
     chosen = trainset.indices("val")

@@ -14,6 +14,7 @@ every preset (the lookup table too), and the checkpoint records it as normalisat
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import torch
 
@@ -60,8 +61,6 @@ def background_drift_dn(
     DRIFT_CELL_PX cells at least HALO_CELLS cells from any `contact` pixel (H, W). A uniform shift of the lighting
     gives 0 (the model removes it); an LED dimmed or brightened alone, or a shadow, does not.
     NaN when every cell touches the contact."""
-    import cv2
-
     diff = np.asarray(frame, np.float32) - np.asarray(blank, np.float32)
     sample = diff[::STRIDE, ::STRIDE].reshape(-1, diff.shape[-1])
     residual = diff - np.median(sample, axis=0)  # the offset remove_drift takes out

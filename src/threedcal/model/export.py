@@ -176,7 +176,7 @@ def onnx_session(path: str | Path, threads: int | None = None, spin: bool = True
     alone, 93 against 72 frames/s for `multiscale` here); False when other work shares the cores
     right after each run (a spinning worker took torch from 150 to 7 frames/s in one process)."""
     try:
-        import onnxruntime
+        import onnxruntime  # optional (export extra), named below when missing
     except ImportError:
         raise ConfigError("onnxruntime is not installed: pip install 'threedcal[export]'") from None
     options = onnxruntime.SessionOptions()

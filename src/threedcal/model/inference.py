@@ -9,12 +9,14 @@ the printer's frame (threedcal.model.points)."""
 from __future__ import annotations
 
 import contextlib
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from threadpoolctl import ThreadpoolController
 
 from threedcal.dataset.trainset import pool_to
 from threedcal.depth import integrate
@@ -44,8 +46,6 @@ def _one_blas_thread():
     doubled the time of a 240 x 320 depth frame (docs/explanation/models.md)."""
     global _blas_controller
     if _blas_controller is None:
-        from threadpoolctl import ThreadpoolController
-
         _blas_controller = ThreadpoolController()  # after NumPy and SciPy have loaded their BLAS
     return _blas_controller.limit(limits=1, user_api="blas")
 
@@ -265,7 +265,6 @@ def _registration(given, recorded) -> Registration | None:
         return None if recorded is None else Registration.from_record(recorded, "checkpoint")
     if isinstance(given, Mapping):
         return Registration.from_record(given)
-    import json
 
     path = Path(given)
     try:

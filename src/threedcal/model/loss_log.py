@@ -7,6 +7,8 @@ import csv
 import math
 from pathlib import Path
 
+from threedcal.plotting import pyplot
+
 LOSS_COLUMNS = ("epoch", "step", "train_loss", "val_loss", "seconds", "lr")
 
 
@@ -21,8 +23,6 @@ def write_losses(path: Path, rows: list[dict]) -> None:
 
 
 def plot_losses(path: Path, rows: list[dict], title: str) -> None:
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
     epochs = [r["epoch"] for r in rows]

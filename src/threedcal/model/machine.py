@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from functools import lru_cache
+from pathlib import Path
 
 import torch
 
@@ -122,8 +123,6 @@ def describe() -> dict:
 def cpu_flags() -> tuple[str, list[str]]:
     """The CPU's model name and its vector instruction sets (AVX2, FMA, AVX-512, AMX) as Linux
     lists them: what every speed figure, and a torch result's last bits, depend on."""
-    from pathlib import Path
-
     name, flags = "unknown CPU", set()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():

@@ -13,6 +13,7 @@ from torch import nn
 
 from threedcal.errors import ConfigError
 from threedcal.model import PRESET_NAMES
+from threedcal.model.lookup import LOOKUP_DEFAULTS, LookupTable
 
 INPUT_CHANNELS = 5
 OUTPUT_CHANNELS = 2
@@ -150,8 +151,6 @@ def build_model(preset: str, **overrides) -> nn.Module:
     if preset == "touchnet":
         return TouchNet()
     if preset == "lookup":
-        from threedcal.model.lookup import LookupTable
-
         return LookupTable(**overrides)
     if preset == "context":
         return ContextNet(**overrides)
@@ -164,8 +163,6 @@ def build_model(preset: str, **overrides) -> nn.Module:
 
 def preset_args(preset: str) -> dict:
     if preset == "lookup":
-        from threedcal.model.lookup import LOOKUP_DEFAULTS
-
         return dict(LOOKUP_DEFAULTS)
     if preset == "multiscale":
         return dict(MULTISCALE_ARGS)
@@ -193,8 +190,6 @@ def reach_px(model: nn.Module) -> int | None:
     change its output: None, as for any network not listed here. Used to score a window of a frame
     without the rest of it.
     """
-    from threedcal.model.lookup import LookupTable
-
     if isinstance(model, LookupTable):
         return 0
     if not isinstance(model, TouchNet | PixelNet | ContextNet):

@@ -10,10 +10,11 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from threedcal.errors import ConfigError
-from threedcal.pretrained import settings_digest
+from threedcal.model.checkpoint import save_checkpoint
+from threedcal.pretrained import pretraining_digest
 
 
-def pretrain(
+def pretrain_shipped_weights(
     sensor: str,
     pretraining: Mapping,
     out_dir: str | Path,
@@ -51,7 +52,6 @@ def pretrain(
     checkpoint = train(trainset, out_dir, 80, settings, progress)
     # A unit's blank means nothing to another unit: a calibration brings its own. Without it
     # the shipped file is the weights and their record, a few tens of KB.
-    from threedcal.model.checkpoint import save_checkpoint
 
     checkpoint["blank"] = None
     save_checkpoint(out_dir / "model.pt", checkpoint)
@@ -62,7 +62,7 @@ def pretrain(
         "preset": checkpoint["preset"],
         "units": [units[0], units[-1]],
         "frames": int(len(trainset.frames)),
-        "settings_digest": settings_digest(pretraining, profile),
+        "settings_digest": pretraining_digest(pretraining, profile),
         "code_digest": code_digest,
         "pretraining": dict(pretraining),
         "training": {

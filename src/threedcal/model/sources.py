@@ -13,9 +13,13 @@ import logging
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.hardware.camera import BlackFrame, DroppedFrame
+from threedcal.images import read_rgb
+from threedcal.rig import open_camera
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp"}
 # A live camera may drop a frame now and then; this many in a row and the stream stops.
@@ -23,8 +27,6 @@ MAX_MISSED_FRAMES = 10
 
 
 def folder_frames(path: Path) -> Iterator[np.ndarray]:
-    from threedcal.images import read_rgb
-
     names = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not names:
         raise ConfigError(f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
@@ -47,8 +49,6 @@ def trainset_frames(path: Path) -> Iterator[np.ndarray]:
 
 def video_frames(path: Path) -> Iterator[np.ndarray]:
     """A video file's frames as recorded, RGB; its end ends the stream."""
-    import cv2
-
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise ConfigError(f"{path}: OpenCV cannot read it as a video")
@@ -65,8 +65,6 @@ def video_frames(path: Path) -> Iterator[np.ndarray]:
 def camera_frames(camera) -> Iterator[np.ndarray]:
     """Frames of an (unopened) `threedcal.hardware.camera.Camera` until it fails for good:
     `MAX_MISSED_FRAMES` dropped or black frames in a row, or one read past its timeout."""
-    from threedcal.hardware.camera import BlackFrame, DroppedFrame
-
     with camera:
         missed = 0
         while True:
@@ -101,7 +99,6 @@ def open_source(spec: str, sensor: Mapping | None = None) -> Iterator[np.ndarray
                 f"live source {spec!r} is a camera: give --sensor (the sensor profile says how "
                 "its frames are cropped, turned and sized, as at collection)"
             )
-        from threedcal.rig import open_camera
 
         return camera_frames(open_camera(sensor, spec))
     if path.is_file():

@@ -31,7 +31,7 @@ import numpy as np
 from threedcal.collect.run import MotionSettings, make_safe
 from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.mount import (
-    Mount,
+    SensorMount,
     mount_yaml,
     scene_mount_values,
     scene_sensor,
@@ -119,7 +119,7 @@ class RigControl:
         self._stop = threading.Event()
         self._stack: contextlib.ExitStack | None = None
         self.rig = None
-        self.found: Mount | None = None
+        self.found: SensorMount | None = None
         self.saved: str | None = None  # where the found mount was written
         self.blank: np.ndarray | None = None
         self.frame: np.ndarray | None = None
@@ -178,7 +178,7 @@ class RigControl:
         """Everything the page shows, from the snapshot: no device is asked, no lock waited on."""
         printer = self.rig.printer if self.rig is not None else None
         position = getattr(printer, "commanded", None)
-        mount = Mount.of(self.sensor["mount"])
+        mount = SensorMount.of(self.sensor["mount"])
         with self._state:
             collection = dict(self.collection)
             if collection.get("state") == "running":
@@ -245,7 +245,7 @@ class RigControl:
             self._stop.clear()
             printer = rig.printer
             printer.home()
-            centre = Mount.of(self.sensor["mount"]).centre_mm(self.sensor)
+            centre = SensorMount.of(self.sensor["mount"]).centre_mm(self.sensor)
             printer.move_to(z=self.limits.safe_z, feed_mm_s=self.settings.plunge_feed_mm_s)
             printer.move_to(*centre, feed_mm_s=self.settings.travel_feed_mm_s)
             printer.wait_until_idle()

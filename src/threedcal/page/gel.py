@@ -21,7 +21,7 @@ from threedcal.collect.plan import plan_to_printer, touch_search_plan, touch_sea
 from threedcal.dataset.contacts import locate_contact
 from threedcal.dataset.touch import ChangeDetector, planned_touch_search
 from threedcal.errors import ThreedcalError
-from threedcal.mount import Mount, with_mount
+from threedcal.mount import SensorMount, with_mount
 
 # The descent's step: the ball sinks at most this far past the touch before the change is seen.
 COARSE_STEP_MM = 0.1
@@ -41,7 +41,7 @@ class GelNotFound(ThreedcalError):
 
 @dataclass(frozen=True)
 class GelFound:
-    mount: Mount
+    mount: SensorMount
     contact_px: tuple[float, float]  # the last centring press's contact
     touch_offset_mm: float  # the touch search's δ against the descent's estimate
     presses: int
@@ -99,7 +99,7 @@ def find_gel(
     press_z = max(onset - CENTRING_DEPTH_MM, floor_z)
     x, y, contact = _centre(presser, sensor, blank, x, y, press_z, lift)
     width, height = sensor["probing"]["plan_area_mm"]
-    nominal = Mount(
+    nominal = SensorMount(
         x - width / 2,
         y - height / 2,
         onset + COARSE_STEP_MM / 2,
@@ -114,7 +114,7 @@ def find_gel(
         probe_radius_mm,
         floor_z,
     )
-    found = Mount(
+    found = SensorMount(
         nominal.x_offset_mm,
         nominal.y_offset_mm,
         nominal.z_touch_mm + offset,

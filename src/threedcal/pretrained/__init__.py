@@ -60,7 +60,7 @@ def provenance(sensor: str, directory: Path | None = None) -> dict:
     return json.loads(path.read_text())
 
 
-def settings_digest(pretraining: Mapping, profile: Mapping) -> str:
+def pretraining_digest(pretraining: Mapping, profile: Mapping) -> str:
     """What the weights were made from: the pretraining section and the sensor profile's content.
     Not its `source` keys: where its file lies, and the citations of its constants (the same recipe
     in any clone, and after a docs page moves, has one digest)."""

@@ -36,18 +36,13 @@ from threedcal.dataset.build import collected_so_far
 from threedcal.dataset.splits import replicate_seed
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError, ThreedcalError
+from threedcal.evaluate.object_errors import mean_interval
 from threedcal.evaluate.validation import coordinate_mse
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.contact_guard import contact_figures, median_press, warn_if_oversized
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, save_initial, train
-from threedcal.stop_rule import (
-    Improvement,
-    decide,
-    mean_interval,
-    paired_improvement,
-    rule_problems,
-)
+from threedcal.stop_rule import Improvement, decide, paired_improvement, rule_problems
 from threedcal.study.config import quick_run, quick_scene_problems
 from threedcal.study.scene import dataset_settings
 from threedcal.study.session import (

@@ -31,13 +31,16 @@ bootstrap interval (presses resampled; the simulator's renders resampled with th
 
 from __future__ import annotations
 
+import csv
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.plotting import pyplot
 
 REACH = 3.0  # cut-outs reach 3 contact radii (realism.HALO_MAX_RADII)
 STEP = 0.1  # grid step, contact radii: 61 x 61 points
@@ -47,7 +50,7 @@ LEVEL = 0.95
 FIGURES = ("halo_nrms", "halo_m1_up", "halo_m1_right", "halo_m3_up")
 
 
-def grid(reach: float = REACH, step: float = STEP) -> tuple[np.ndarray, np.ndarray]:
+def radius_grid(reach: float = REACH, step: float = STEP) -> tuple[np.ndarray, np.ndarray]:
     """(u, v) in contact radii, each (n, n), n = 2 round(reach / step) + 1; v down the image."""
     half = int(round(reach / step))
     axis = np.arange(-half, half + 1, dtype=np.float64) * step
@@ -66,8 +69,6 @@ def cutout(
     """`change` (H, W, C) resampled on the contact-radius grid around `center_px` (x, y): (n, n, C)
     float32, NaN where the grid leaves the frame. Raises ConfigError for an empty contact (radius
     not a positive finite number) or a centre that is not finite."""
-    import cv2
-
     where = name or "contact"
     r = float(radius_px)
     if not (math.isfinite(r) and r > 0):
@@ -84,7 +85,7 @@ def cutout(
         img = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
         if img.ndim == 2:
             img = img[..., None]
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     mx = (cx + u * r).astype(np.float32)
     my = (cy + v * r).astype(np.float32)
     out = np.stack(
@@ -125,7 +126,7 @@ def annulus(shape: tuple[int, int], reach: float = REACH, inner: float = 1.0) ->
     if shape[0] != shape[1] or n % 2 == 0:
         raise ConfigError(f"a halo grid is square with an odd side, got {shape}")
     step = reach / ((n - 1) // 2) if n > 1 else 1.0
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     rho = np.hypot(u, v)
     return (rho > inner) & (rho <= reach + 1e-9)
 
@@ -150,7 +151,7 @@ def first_moments(image: np.ndarray, reach: float = REACH) -> tuple[float, float
     n = image.shape[0]
     ring = annulus(image.shape[:2], reach)
     step = reach / ((n - 1) // 2) if n > 1 else 1.0
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     rho = np.hypot(u, v)
     mag = np.abs(np.asarray(image, dtype=np.float64)).sum(axis=-1) if image.ndim == 3 else image
     keep = ring & np.isfinite(mag)
@@ -167,7 +168,7 @@ def third_moment(image: np.ndarray, reach: float = REACH) -> float:
     n = image.shape[0]
     ring = annulus(image.shape[:2], reach)
     step = reach / ((n - 1) // 2) if n > 1 else 1.0
-    u, v = grid(reach, step)
+    u, v = radius_grid(reach, step)
     mag = np.abs(np.asarray(image, dtype=np.float64)).sum(axis=-1) if image.ndim == 3 else image
     keep = ring & np.isfinite(mag)
     total = float(mag[keep].sum())
@@ -399,8 +400,6 @@ CSV_COLUMNS = (
 def write_csv(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
     """One row per (folder, sensor, figure): CSV_COLUMNS; a folder without a 2-D comparison (None)
     has no rows."""
-    import csv
-
     with open(path, "w", newline="") as fh:
         out = csv.writer(fh)
         out.writerow(CSV_COLUMNS)
@@ -428,8 +427,6 @@ def draw(results: Sequence[tuple[str, str, HaloComparison]], path) -> None:
     real half, each as 128 + gain x change (RGB; the gain maps the real mean's 99th percentile of
     |change| on the halo to 100 DN: the contact saturates), the contact (1 radius) and the halo's
     edge (REACH) drawn."""
-    from threedcal.plotting import pyplot
-
     plt = pyplot()
     n = max(len(results), 1)
     fig, axes = plt.subplots(n, 4, figsize=(10, 2.8 * n), squeeze=False)

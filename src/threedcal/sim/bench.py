@@ -28,7 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+from threedcal.lens import RadialLens
+from threedcal.profiles import with_gel_mechanics
+from threedcal.sim.camera import make_gel
+from threedcal.sim.indenters import Sphere
 from threedcal.sim.marlin import FirmwareBench
+from threedcal.sim.units import draw_unit
 
 
 @dataclass(frozen=True)
@@ -43,8 +48,6 @@ class BenchTruth:
 
     def camera_px(self, xy_mm) -> np.ndarray:
         """Printer (X, Y) mm (N, 2) → where the camera truly images them (column, row) px."""
-        from threedcal.lens import RadialLens
-
         affine = np.asarray(self.affine_px_per_mm)
         ideal = np.atleast_2d(np.asarray(xy_mm, dtype=float)) @ affine[:, :2].T + affine[:, 2]
         lens = RadialLens.from_record(self.lens)
@@ -89,8 +92,6 @@ LENS_K_JITTER = 0.2
 
 def draw_lens(sensor: Mapping, seed: int):
     """The bench camera's lens (threedcal.lens.RadialLens), drawn around the profile's; None: none."""
-    from threedcal.lens import RadialLens
-
     nominal = RadialLens.from_profile(sensor)
     if nominal is None:
         return None
@@ -187,12 +188,6 @@ class SimBench(FirmwareBench):
         fault_rate: float = 0.0,
         speedup: float = math.inf,
     ):
-        from threedcal.lens import RadialLens
-        from threedcal.profiles import with_gel_mechanics
-        from threedcal.sim.camera import make_gel
-        from threedcal.sim.indenters import Sphere
-        from threedcal.sim.units import draw_unit
-
         # the unit as built: its constants drawn around the profile's (hidden, like the seating)
         self.sensor = draw_unit(
             with_gel_mechanics(sensor, settings.get("gel_mechanics")), settings.get("unit")
@@ -227,8 +222,6 @@ class SimBench(FirmwareBench):
     def start_session(self, noise_seed: int, gain_rgb) -> None:
         """A later session on the same sensor, not reseated: same gel, paint and seating; fresh
         camera noise (`noise_seed`) and the LEDs' brightness scaled by `gain_rgb` per channel."""
-        from threedcal.sim.camera import make_gel
-
         self.gel = make_gel(
             self.sensor, seed=self.seed, lens=self.lens, noise_seed=noise_seed, gain_rgb=gain_rgb
         )

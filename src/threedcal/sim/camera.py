@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import cv2
 import numpy as np
 
 from threedcal.errors import ConfigError
@@ -112,8 +113,6 @@ class LensedGel:
         return float(center_px[0]) + self.pad, float(center_px[1]) + self.pad
 
     def _camera(self, ideal: np.ndarray) -> np.ndarray:
-        import cv2
-
         image = cv2.remap(
             ideal, self._map_x, self._map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
         )

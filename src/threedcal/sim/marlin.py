@@ -45,6 +45,7 @@ from urllib.parse import parse_qs, urlsplit
 from threedcal.errors import ConfigError
 from threedcal.hardware.gcode import parse_host_line
 from threedcal.hardware.motion import MotionModel, Trapezoid
+from threedcal.hardware.printer import printer_profile
 from threedcal.sim.clock import VirtualClock
 from threedcal.sim.devices import DeviceRegistry
 
@@ -125,8 +126,6 @@ class SimMarlin:
         speedup: float = 1.0,
         reset_on_open: bool | None = None,
     ):
-        from threedcal.hardware.printer import printer_profile
-
         self.profile = printer_profile(profile)
         self.model = MotionModel(self.profile)
         self.clock = VirtualClock(speedup)

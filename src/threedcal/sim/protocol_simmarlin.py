@@ -8,12 +8,15 @@ threedcal.sim.simport. Opening toggles DTR: the AVR board reboots.
 
 from __future__ import annotations
 
+from threedcal.sim.marlin import firmware_for_url
 from threedcal.sim.simport import SimulatedPort
 
 
-class Serial(SimulatedPort):
+class SimMarlinPort(SimulatedPort):
     @staticmethod
     def device_for_url(url: str):
-        from threedcal.sim.marlin import firmware_for_url
-
         return firmware_for_url(url)
+
+
+# pyserial opens a ``simmarlin://`` URL through the module's ``Serial`` class
+Serial = SimMarlinPort

@@ -8,12 +8,15 @@ threedcal.sim.simport).
 
 from __future__ import annotations
 
+from threedcal.sim.reskin import board_for_url
 from threedcal.sim.simport import SimulatedPort
 
 
-class Serial(SimulatedPort):
+class SimReSkinPort(SimulatedPort):
     @staticmethod
     def device_for_url(url: str):
-        from threedcal.sim.reskin import board_for_url
-
         return board_for_url(url)
+
+
+# pyserial opens a ``simreskin://`` URL through the module's ``Serial`` class
+Serial = SimReSkinPort

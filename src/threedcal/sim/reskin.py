@@ -38,6 +38,7 @@ from urllib.parse import urlsplit
 import numpy as np
 
 from threedcal.errors import ConfigError
+from threedcal.hardware.reskin import reskin_profile
 from threedcal.sim.devices import DeviceRegistry
 from threedcal.sim.marlin import FirmwareBench
 
@@ -91,8 +92,6 @@ class MagneticSkin:
     """The elastomer and the chips: noise-free field (µT) at every chip for a contact (x, y, depth)."""
 
     def __init__(self, profile: Mapping[str, Any], probe_radius_mm: float):
-        from threedcal.hardware.reskin import reskin_profile
-
         self.profile = reskin_profile(profile)
         gel, magnet, mags = (
             self.profile["gel"],

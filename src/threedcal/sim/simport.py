@@ -6,8 +6,6 @@ waiting(now), take(size, now), next_due(now) (when more output will have arrived
 receive(data) and reset_input(now). Read timeouts are in *simulated* seconds: waiting advances the
 device's clock, and the port offers that clock to the host as ``threedcal_clock`` so the host's
 deadlines are kept in the device's time, not the CPU's.
-
-Kept import-light (pyserial imports the URL handlers that build on it).
 """
 
 from __future__ import annotations

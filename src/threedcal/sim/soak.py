@@ -16,7 +16,10 @@ import random
 from collections import Counter
 from dataclasses import dataclass, field
 
+from tqdm import tqdm
+
 from threedcal.errors import ConfigError
+from threedcal.hardware.printer import MarlinHost, PrinterError
 from threedcal.sim.marlin import FIRMWARES, RECOVERABLE_FAULTS, SimMarlin, parse_faults
 
 COLUMNS = (
@@ -160,10 +163,6 @@ def run_soak(
     label: str | None = None,
 ) -> SoakResult:
     """Drive probe-like moves and position queries until `faults` faults have been injected."""
-    from tqdm import tqdm
-
-    from threedcal.hardware.printer import MarlinHost, PrinterError
-
     check_soak_arguments(faults, rate, speedup)
     kinds = recoverable(kinds)
     name = f"soak-{seed}-{id(object())}"

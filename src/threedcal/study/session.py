@@ -410,7 +410,7 @@ def _sample_rate_hz(sensor: Mapping) -> float:
     return float(sensor["camera"]["default_fps"])
 
 
-def write_summary(summary: Mapping, path: str | Path) -> None:
+def write_collection_summary(summary: Mapping, path: str | Path) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(dict(summary), indent=2, sort_keys=True) + "\n")
 
@@ -437,7 +437,7 @@ def collect_stage(
     )
     if scene["port"] != "sim":
         Path(truth).write_text(json.dumps({"simulated": False}) + "\n")
-    write_summary(result, summary)
+    write_collection_summary(result, summary)
     coverage_figure(
         prepared.plan, prepared.sensor, coverage, title=f"{name}: {len(prepared.plan)} probe points"
     )
