@@ -45,7 +45,7 @@ from threedcal.profiles import load_profile, with_gel_mechanics
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
 from threedcal.study.config import validate_config
-from threedcal.study.scene import objects_setup
+from threedcal.study.pressing import objects_setup
 
 
 class GelGradients:

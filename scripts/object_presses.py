@@ -5,7 +5,7 @@ from pathlib import Path
 from threedcal.cli import ask_on_console
 from threedcal.evaluate.object_presses import press_objects
 from threedcal.logs import stage_log
-from threedcal.study.scene import objects_setup
+from threedcal.study.pressing import objects_setup
 
 with stage_log(snakemake.log[0]) as log:
     summary = press_objects(

@@ -7,7 +7,7 @@ import torch
 
 from threedcal.evaluate.object_scores import evaluate_objects
 from threedcal.logs import stage_log
-from threedcal.study.scene import objects_setup
+from threedcal.study.pressing import objects_setup
 
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.params.scene["torch_threads"])

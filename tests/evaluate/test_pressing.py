@@ -37,7 +37,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.bench import SimBench
 from threedcal.sim.optics import GelSimulator
 from threedcal.study.config import validate_config
-from threedcal.study.scene import objects_setup, pressing_seed
+from threedcal.study.pressing import objects_setup, pressing_seed
 
 PRESSING = {"presses": 3, "tuning_presses": 2, "depth_mm": 1.0, "depth_jitter": 0.1}
 PRESSING["offset_fraction"] = 0.12

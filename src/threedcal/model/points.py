@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-import trimesh
 
 from threedcal.dataset.labels import local_dome
 from threedcal.errors import ConfigError
@@ -163,6 +162,8 @@ def write_ply(path: str | Path, cloud: PointCloud) -> None:
 
     Points that are not finite (a NaN depth) are left out. Written to a temporary name first, then
     renamed: a reader never sees half a file."""
+    import trimesh  # local: only a PLY needs it; `predict` and `live` start 0.7 s sooner
+
     path = Path(path)
     finite = np.all(np.isfinite(cloud.points), axis=1)
     if not finite.any():

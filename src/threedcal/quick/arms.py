@@ -62,7 +62,8 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import train
 from threedcal.plotting import pyplot
 from threedcal.quick.loop import QuickLoop
-from threedcal.study.scene import dataset_settings, objects_setup
+from threedcal.study.pressing import objects_setup
+from threedcal.study.scene import dataset_settings
 from threedcal.study.session import prepare
 
 LEVEL = 0.95
