@@ -3,10 +3,10 @@
 from threedcal.logs import stage_log
 from threedcal.model.contact_guard import check_calibration_presses
 from threedcal.model.train import train
-from threedcal.model.train_settings import TrainSettings
+from threedcal.study.scene import train_settings
 
 with stage_log(snakemake.log[0]):
-    settings = TrainSettings.from_scene(snakemake.params.settings)
+    settings = train_settings(snakemake.params.settings)
     train(
         snakemake.input.trainset,
         snakemake.output.model.rsplit("/", 1)[0],

@@ -10,6 +10,7 @@ from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.study.config import load_config, validate_config
 from threedcal.study.fractions import ablation_replicates, model_keys, training_fractions
+from threedcal.study.scene import train_settings
 
 REPO = Path(__file__).resolve().parents[1]
 SIM_SCENE = {"sensor": "digit", "printer": "ender3"}
@@ -284,7 +285,7 @@ def test_train_settings_have_no_defaults_of_their_own_the_schema_fills_them():
     assert settings.seed == schema["properties"]["seed"]["default"]
     validated = load_config(Path(__file__).parent / "config/test.yaml")
     scene = next(iter(validated["scenes"].values()))
-    from_config = TrainSettings.from_scene(scene)
+    from_config = train_settings(scene)
     assert from_config == TrainSettings.of(
         seed=scene["seed"], torch_threads=scene["torch_threads"], **scene["model"]
     )

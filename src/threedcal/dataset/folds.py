@@ -43,10 +43,6 @@ class CVSettings:
     def of(cls, **settings) -> CVSettings:
         return cls(**section("cv", settings))
 
-    @classmethod
-    def from_scene(cls, scene: Mapping) -> CVSettings:
-        return cls.of(**(scene.get("cv") or {}))
-
 
 # ------------------------------------------------------------------------------------ the folds
 def contact_radius_px(ts: TrainingSet) -> np.ndarray:

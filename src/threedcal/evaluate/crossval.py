@@ -347,9 +347,7 @@ def train_fold_methods(
     subset = fold_trainset(ts, read_folds(folds_path, ts), fold, None, seed)
     out = {}
     for name, model in methods.items():
-        settings = TrainSettings.from_scene(
-            {"model": dict(model), "seed": seed, "torch_threads": threads}
-        )
+        settings = TrainSettings.of(seed=seed, torch_threads=threads, **dict(model))
         out[name] = train(subset, out_dirs[name], 80, settings, progress)
     return out
 
@@ -480,9 +478,7 @@ def nested_choice(
     inner = inner_folds(folds, fold, inner_k, seed)
     figures = {}
     for name, model in candidates.items():
-        settings = TrainSettings.from_scene(
-            {"model": dict(model), "seed": seed, "torch_threads": threads}
-        )
+        settings = TrainSettings.of(seed=seed, torch_threads=threads, **dict(model))
         paths = []
         for k in range(inner_k):
             out = Path(work_dir) / f"outer{fold}" / name / f"inner{k}"

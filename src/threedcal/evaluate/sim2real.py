@@ -227,9 +227,7 @@ def write_simulated(
 
 # ---------------------------------------------------------------------------------- training
 def _train_settings(model: Mapping, seed: int, threads: int, **changes):
-    return TrainSettings.from_scene(
-        {"model": {**dict(model), **changes}, "seed": seed, "torch_threads": threads}
-    )
+    return TrainSettings.of(seed=seed, torch_threads=threads, **{**dict(model), **changes})
 
 
 def pretrain(

@@ -3,7 +3,7 @@ pretrainings: what the workflow needs to plan the sim-to-real jobs, without load
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from threedcal.errors import ConfigError
@@ -76,10 +76,6 @@ class SimToRealSettings:
     def conditions(self) -> tuple[str, ...]:
         """The trained conditions (CONDITIONS' keys): shipped_real only with `shipped`."""
         return tuple(c for c in CONDITIONS if c != "shipped_real" or self.shipped)
-
-    @classmethod
-    def from_scene(cls, scene: Mapping) -> SimToRealSettings:
-        return cls.of(**(scene.get("sim_to_real") or {}))
 
 
 def chosen_folds(settings: SimToRealSettings, n_folds: int) -> list[int]:

@@ -45,8 +45,8 @@ def pretrain_shipped_weights(
     model = dict(pretraining["model"])
     if model.get("init"):
         raise ConfigError("pretraining.model.init: pretraining starts from random weights")
-    settings = TrainSettings.from_scene(
-        {"model": model, "seed": pretraining["seed"], "torch_threads": pretraining["torch_threads"]}
+    settings = TrainSettings.of(
+        seed=pretraining["seed"], torch_threads=pretraining["torch_threads"], **model
     )
     out_dir = Path(out_dir)
     checkpoint = train(trainset, out_dir, 80, settings, progress)

@@ -4,7 +4,6 @@ learning-rate schedule."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 from threedcal.errors import ConfigError
@@ -19,7 +18,7 @@ def _or(value, default):
 class TrainSettings:
     """Every setting a training reads: the scene's `model:` section plus seed and threads.
 
-    No defaults of its own: `from_scene` / `of` fill what a config leaves out from the config
+    No defaults of its own: `of` fills what a config leaves out from the config
     schema, so the schema is the one place a default is written.
     """
 
@@ -41,14 +40,6 @@ class TrainSettings:
     device: str  # auto = CUDA when present, else CPU
     precision: str  # auto (threedcal.model.machine), float32, or bfloat16 autocast of the steps
     stopping: dict  # the stopping rule (threedcal.model.stopping)
-
-    @classmethod
-    def from_scene(cls, scene: Mapping) -> TrainSettings:
-        return cls.of(
-            seed=scene.get("seed"),
-            torch_threads=scene.get("torch_threads"),
-            **scene.get("model", {}),
-        )
 
     @classmethod
     def of(cls, **settings) -> TrainSettings:

@@ -41,10 +41,10 @@ from threedcal.evaluate.validation import coordinate_mse
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.contact_guard import contact_figures, median_press, warn_if_oversized
 from threedcal.model.inference import DepthEstimator
-from threedcal.model.train import TrainSettings, save_initial, train
+from threedcal.model.train import save_initial, train
 from threedcal.stop_rule import Improvement, decide, paired_improvement, rule_problems
 from threedcal.study.config import quick_run, quick_scene_problems
-from threedcal.study.scene import dataset_settings
+from threedcal.study.scene import dataset_settings, train_settings
 from threedcal.study.session import (
     collect_on_rig,
     estimate_hardware_s,
@@ -121,7 +121,7 @@ class QuickLoop:
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
         self.first_row -= self.per_press - 1
         self.ends = quick_rounds(scene["plan"], self.first_row)
-        base = TrainSettings.from_scene(scene)  # run r trains with the seed's replicate r − 1
+        base = train_settings(scene)  # run r trains with the seed's replicate r − 1
         base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
         steps = self.settings.steps
         # a fixed budget: one cosine cycle of `steps`, on every press so far (nothing held out)

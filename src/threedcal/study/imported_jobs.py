@@ -48,7 +48,7 @@ def sensor_profile(scene: Mapping) -> dict:
 
 def group_of(scene: Mapping, fold: int) -> str:
     """The name of the pretraining group that holds `fold`."""
-    settings = SimToRealSettings.from_scene(scene)
+    settings = SimToRealSettings.of(**(scene.get("sim_to_real") or {}))
     for group in pretraining_groups(settings, int(scene["cv"]["folds"])):
         if fold in group:
             return group_name(group)
@@ -58,7 +58,7 @@ def group_of(scene: Mapping, fold: int) -> str:
 def sim2real_inputs(name: str, scene: Mapping) -> dict[str, list[str]]:
     """The folders sim2real_eval scores: "{condition}" -> the condition's fold folders (each with
     k{k}/model.pt), "scene" -> the scene's cross-validated models (ball_eval's) of the same folds."""
-    settings = SimToRealSettings.from_scene(scene)
+    settings = SimToRealSettings.of(**(scene.get("sim_to_real") or {}))
     folds = chosen_folds(settings, int(scene["cv"]["folds"]))
 
     def path(pattern: str, **wildcards) -> str:

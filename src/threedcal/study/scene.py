@@ -1,11 +1,13 @@
 """A scene's settings parsed into the typed values the domain packages take: the one place that
-reads a scene's sections for them, so no domain function reads a config mapping by key."""
+reads a scene's sections for them (its test objects: study.pressing), so no domain function reads
+a config mapping by key."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
 from threedcal.dataset.settings import DatasetSettings
+from threedcal.model.train_settings import TrainSettings
 from threedcal.mount import scene_sensor
 from threedcal.profiles import load_profile
 from threedcal.rig import RigSettings
@@ -47,4 +49,11 @@ def rig_settings(scene: Mapping) -> RigSettings:
         port=scene.get("port", "sim"),
         camera=scene.get("camera", "sim"),
         reader=scene.get("reader", "sim"),
+    )
+
+
+def train_settings(scene: Mapping) -> TrainSettings:
+    """The scene's `model:` section with its seed and threads (the ablation's, the quick loop's)."""
+    return TrainSettings.of(
+        seed=scene.get("seed"), torch_threads=scene.get("torch_threads"), **scene.get("model", {})
     )

@@ -113,7 +113,7 @@ def presets_stage(
 ) -> pd.DataFrame:
     """presets.csv and presets.png; `scene_model`: the scene's own model at P = 80, replicate 0
     (models/P80/r0/model.pt), which stands for the scene's preset."""
-    settings = TrainSettings.from_scene({"model": model, "seed": seed, "torch_threads": threads})
+    settings = TrainSettings.of(seed=seed, torch_threads=threads, **model)
     trained = {settings.preset: scene_model} if scene_model is not None else {}
     table = compare_presets(TrainingSet.load(trainset_dir), settings, presets, trained)
     table.to_csv(csv_path, index=False)
