@@ -76,6 +76,23 @@ def refuse_existing_outputs(
             )
 
 
+def print_or_write_reference(
+    page: str | None,
+    reference: Callable[[], str],
+    with_reference: Callable[[str], str],
+    source: str,
+) -> int:
+    """`config reference` and `report cli-reference`: the generated `reference` printed, or with
+    `--write PAGE` replaced in the page (`with_reference`: between its markers) from `source`."""
+    if page is None:
+        print(reference(), end="")
+        return 0
+    path = Path(page)
+    path.write_text(with_reference(path.read_text()))
+    print(f"{path}: reference regenerated from {source}")
+    return 0
+
+
 def add_force_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true", help="replace existing output files")
 

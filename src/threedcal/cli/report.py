@@ -5,9 +5,8 @@ reference page (threedcal.cli.reference)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from threedcal.cli import Command
+from threedcal.cli import Command, print_or_write_reference
 from threedcal.cli.reference import cli_reference, with_cli_reference
 
 
@@ -22,13 +21,9 @@ def _results_page_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _cli_reference(args: argparse.Namespace) -> int:
-    if args.write is None:
-        print(cli_reference(), end="")
-        return 0
-    page = Path(args.write)
-    page.write_text(with_cli_reference(page.read_text()))
-    print(f"{page}: reference regenerated from the command-line parser")
-    return 0
+    return print_or_write_reference(
+        args.write, cli_reference, with_cli_reference, "the command-line parser"
+    )
 
 
 COMMANDS = [

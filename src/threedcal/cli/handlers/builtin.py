@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 
 import threedcal.pretrained as pretrained
+from threedcal.cli import print_or_write_reference
 from threedcal.errors import ConfigError
 from threedcal.pretrained import provenance, shipped_sensors
 from threedcal.profiles import KINDS, builtin_names, load_profile
@@ -26,13 +27,9 @@ def run_profiles_list(args: argparse.Namespace) -> int:
 
 
 def run_config_reference(args: argparse.Namespace) -> int:
-    if args.write is None:
-        print(reference_table(), end="")
-        return 0
-    page = Path(args.write)
-    page.write_text(with_reference(page.read_text()))
-    print(f"{page}: reference regenerated from the config schema")
-    return 0
+    return print_or_write_reference(
+        args.write, reference_table, with_reference, "the config schema"
+    )
 
 
 def run_pretrained_show(args: argparse.Namespace) -> int:
