@@ -130,7 +130,9 @@ def discover_commands() -> list[Command]:
     return commands
 
 
-def handler(run: Callable[[argparse.Namespace], int | None] | str):
+def handler(
+    run: Callable[[argparse.Namespace], int | None] | str,
+) -> Callable[[argparse.Namespace], int | None]:
     """A :class:`Command`'s `run` as a function: itself, or the one its "module:function" names
     in threedcal.cli.handlers, whose module is imported now."""
     if callable(run):
