@@ -1,3 +1,4 @@
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -5,7 +6,7 @@ from pathlib import Path
 import pytest
 
 import threedcal
-from threedcal.cli import Command, build_parser, main
+from threedcal.cli import Command, build_parser, discover_commands, main
 from threedcal.errors import ConfigError
 
 
@@ -20,6 +21,37 @@ def test_console_script_help_lists_command_groups():
     exe = [sys.executable, "-m", "threedcal", "--help"]
     out = subprocess.run(exe, capture_output=True, text=True, check=True).stdout
     assert "config" in out and "profiles" in out
+
+
+def test_every_command_names_a_handler_that_exists():
+    """A command's "module:function" names a function of threedcal.cli.handlers (read from the
+    source: importing every handler would load torch, pandas and aiohttp)."""
+    handlers = Path(threedcal.__file__).parent / "cli" / "handlers"
+    named = [c.run for c in discover_commands() if isinstance(c.run, str)]
+    assert len(named) >= 15
+    for run in named:
+        module, _, name = run.partition(":")
+        tree = ast.parse((handlers / f"{module}.py").read_text())
+        assert name in {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}, run
+
+
+def test_help_loads_no_handler_and_predict_no_workflow_library():
+    """`--help` builds the parser from the light definition modules alone; the handlers of
+    predict, live and export, and of the built-in listings, load none of the workflow extra's
+    libraries (a plain `pip install threedcal` has none; tests/test_install.py runs it there)."""
+    code = (
+        "import sys\n"
+        "from threedcal.cli import build_parser\n"
+        "build_parser()\n"
+        "heavy = ('threedcal.cli.handlers', 'torch', 'cv2', 'numpy', 'yaml', 'pandas')\n"
+        "print(sorted(m for m in sys.modules if m.startswith(heavy)))\n"
+        "import threedcal.cli.handlers.builtin, threedcal.cli.handlers.model\n"
+        "workflow = ('zarr', 'snakemake', 'xarray', 'pandas', 'matplotlib', 'statsmodels', "
+        "'serial', 'aiohttp', 'onnx')\n"
+        "print(sorted(m for m in workflow if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.splitlines() == ["[]", "[]"]
 
 
 def test_nested_commands_are_built_from_paths_and_run():

@@ -11,7 +11,7 @@ import torch
 import trimesh
 from conftest import DATA, write_untrained_model
 
-import threedcal.model.sources
+import threedcal.cli.handlers.model as live_handler  # where `live` looks its source up
 from threedcal.cli import main
 from threedcal.images import read_rgb
 from threedcal.model import BACKGROUND_DRIFT_WARN_DN
@@ -95,7 +95,7 @@ def test_live_warns_on_drift_and_a_signal_retakes_the_blank(
                 os.kill(os.getpid(), signal.SIGUSR1)  # as `kill -USR1 PID` from a shell
             yield frame
 
-    monkeypatch.setattr(threedcal.model.sources, "open_source", source)
+    monkeypatch.setattr(live_handler, "open_source", source)
     before = signal.getsignal(signal.SIGUSR1)
     points = tmp_path / "points"
     args = ["live", "--checkpoint", flat_model, "--source", "stream", "--device", "cpu"]
@@ -182,8 +182,7 @@ def test_live_with_a_stated_probe_warns_when_the_contact_outgrows_it(
         return np.full(frame.shape[:2], next(reads), np.float32)
 
     monkeypatch.setattr(DepthEstimator, "depth", depth)
-
-    monkeypatch.setattr(threedcal.model.sources, "open_source", lambda spec, sensor=None: frames)
+    monkeypatch.setattr(live_handler, "open_source", lambda spec, sensor=None: frames)
     args = ["live", "--checkpoint", flat_model, "--source", "stream", "--device", "cpu"]
     assert main([*args, "--probe-radius-mm", "2"]) == 0
     warnings = [line for line in capsys.readouterr().out.splitlines() if "warning" in line]

@@ -31,12 +31,12 @@ def test_write_fitted_never_overwrites_a_file_and_is_checked_before_the_fit(
 ):
     """Repro: `--write-fitted my_mini.yaml` replaced an existing (hand-tuned) profile after the
     fit, silently; a path in a missing folder raised FileNotFoundError only after the fit."""
-    import threedcal.realism.folder
+    import threedcal.cli.handlers.sim as handler  # where `sim realism` looks the report up
 
     def no_fit(*args, **kwargs):
         raise AssertionError("the fit ran before the output path was checked")
 
-    monkeypatch.setattr(threedcal.realism.folder, "realism_report", no_fit)
+    monkeypatch.setattr(handler, "realism_report", no_fit)
     mine = tmp_path / "my_mini.yaml"
     mine.write_text("name: my_mini  # tuned by hand\n")
     real = ["sim", "realism", "--real", str(real_data / "gelsight_ball_fots")]

@@ -2,8 +2,11 @@
 
 Each module in this package contributes subcommands through a module-level ``COMMANDS`` list of
 :class:`Command`; they are discovered at start-up, so adding a command never touches this file.
-Modules keep heavy imports (torch, cv2, xarray) inside their ``run`` functions so that ``--help``
-stays fast.
+These modules hold only what the parser needs (each command's options and help) and stay light, so
+that ``--help`` is fast. A command's work lives in a module of :mod:`threedcal.cli.handlers`,
+named by the command as ``"module:function"`` and imported only when that command runs: a handler
+module imports what it needs (torch, cv2, pandas) at its top, and a command never loads another's
+libraries (``predict`` and ``live`` run without the workflow extra's pandas or zarr).
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ class Command:
 
     path: tuple[str, ...]
     help: str
-    run: Callable[[argparse.Namespace], int | None]
+    # the function that runs it, or "module:function" in threedcal.cli.handlers, imported when it runs
+    run: Callable[[argparse.Namespace], int | None] | str
     configure: Callable[[argparse.ArgumentParser], None] = field(default=lambda parser: None)
 
 
@@ -72,6 +76,23 @@ def refuse_existing_outputs(
             )
 
 
+def print_or_write_reference(
+    page: str | None,
+    reference: Callable[[], str],
+    with_reference: Callable[[str], str],
+    source: str,
+) -> int:
+    """`config reference` and `report cli-reference`: the generated `reference` printed, or with
+    `--write PAGE` replaced in the page (`with_reference`: between its markers) from `source`."""
+    if page is None:
+        print(reference(), end="")
+        return 0
+    path = Path(page)
+    path.write_text(with_reference(path.read_text()))
+    print(f"{path}: reference regenerated from {source}")
+    return 0
+
+
 def add_force_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true", help="replace existing output files")
 
@@ -102,9 +123,23 @@ class HelpFormatter(argparse.HelpFormatter):
 def discover_commands() -> list[Command]:
     commands: list[Command] = []
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.ispkg:  # the handlers, loaded one module at a time by `handler`
+            continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         commands.extend(getattr(module, "COMMANDS", []))
     return commands
+
+
+def handler(
+    run: Callable[[argparse.Namespace], int | None] | str,
+) -> Callable[[argparse.Namespace], int | None]:
+    """A :class:`Command`'s `run` as a function: itself, or the one its "module:function" names
+    in threedcal.cli.handlers, whose module is imported now."""
+    if callable(run):
+        return run
+    module, _, name = run.partition(":")
+    loaded = importlib.import_module(f"{__name__}.handlers.{module}")  # local: when it runs
+    return getattr(loaded, name)
 
 
 def build_parser(commands: Sequence[Command] | None = None) -> argparse.ArgumentParser:
@@ -147,7 +182,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return int(run(args) or 0)
+        return int(handler(run)(args) or 0)
     except ThreedcalError as exc:
         print(f"threedcal: error: {exc}", file=sys.stderr)
         return 1

@@ -3,57 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from threedcal.cli import Command
-
-
-def _ports(args: argparse.Namespace) -> int:
-    from threedcal.hardware.printer import list_ports
-
-    ports = list_ports()
-    if not ports:
-        print("no serial ports found (is the printer plugged in and powered?)")
-    for device, description, hwid in ports:
-        print(f"{device}\t{description}\t{hwid}")
-    return 0
-
-
-def _check(args: argparse.Namespace) -> int:
-    from threedcal.hardware.printer import MarlinHost
-
-    with MarlinHost(args.port, args.printer) as host:
-        info = host.firmware_info
-        print(f"port: {args.port} ({host.profile['name']}, {host.profile['baudrate']} baud)")
-        print(f"firmware: {info.get('FIRMWARE_NAME', 'unknown')}")
-        if "MACHINE_TYPE" in info:
-            print(f"machine: {info['MACHINE_TYPE']}")
-        if args.home:
-            host.home()
-        pos = host.position()
-        print(
-            f"position: X={pos.x:.3f} Y={pos.y:.3f} Z={pos.z:.3f} mm"
-            + ("" if host.homed else " (not homed)")
-        )
-    return 0
-
-
-def _soak(args: argparse.Namespace) -> int:
-    from threedcal.sim.marlin import RECOVERABLE_FAULTS, parse_faults
-    from threedcal.sim.soak import check_soak_arguments, soak_table, table_header
-
-    check_soak_arguments(args.faults, args.rate, args.speedup)
-    kinds = parse_faults(args.kinds) if args.kinds else RECOVERABLE_FAULTS
-    results = soak_table(args.faults, args.seed, rate=args.rate, kinds=kinds, speedup=args.speedup)
-    print(table_header())
-    for result in results:
-        print(result.row())
-        if result.reordered:
-            print(f"  {result.kind}: executed commands are out of order", file=sys.stderr)
-    bad = [r.kind for r in results if not r.ok]
-    if bad:
-        print(f"FAILED: {', '.join(bad)}", file=sys.stderr)
-    return 1 if bad else 0
 
 
 def _configure_check(parser: argparse.ArgumentParser) -> None:
@@ -96,18 +47,18 @@ def _configure_soak(parser: argparse.ArgumentParser) -> None:
 
 
 COMMANDS = [
-    Command(("printer", "ports"), "list serial ports", _ports),
+    Command(("printer", "ports"), "list serial ports", "printer:run_printer_ports"),
     Command(
         ("printer", "check"),
         "handshake with a Marlin printer, show firmware and position",
-        _check,
+        "printer:run_printer_check",
         _configure_check,
     ),
     Command(
         ("sim", "soak"),
         "drive the host against the fake firmware with N faults per class; fail if a command is "
         "lost, repeated, reordered or acknowledged too early",
-        _soak,
+        "printer:run_sim_soak",
         _configure_soak,
     ),
 ]

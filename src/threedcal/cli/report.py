@@ -5,19 +5,9 @@ reference page (threedcal.cli.reference)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from threedcal.cli import Command
+from threedcal.cli import Command, print_or_write_reference
 from threedcal.cli.reference import cli_reference, with_cli_reference
-
-
-def _results_page(args: argparse.Namespace) -> int:
-    from threedcal.report.results_page import write_results_page  # reason: pandas; fast --help
-
-    out = Path(args.out)
-    write_results_page(args.results, out)
-    print(f"{out}: written from {args.results}")
-    return 0
 
 
 def _results_page_args(parser: argparse.ArgumentParser) -> None:
@@ -30,21 +20,10 @@ def _results_page_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="docs/results.md", help="the page to write")
 
 
-def _stage_times(args: argparse.Namespace) -> int:
-    import threedcal.report.stage_times as times  # reason: pandas; fast --help
-
-    print("\n".join(times.stage_time_lines(times.stage_times(args.results))))
-    return 0
-
-
 def _cli_reference(args: argparse.Namespace) -> int:
-    if args.write is None:
-        print(cli_reference(), end="")
-        return 0
-    page = Path(args.write)
-    page.write_text(with_cli_reference(page.read_text()))
-    print(f"{page}: reference regenerated from the command-line parser")
-    return 0
+    return print_or_write_reference(
+        args.write, cli_reference, with_cli_reference, "the command-line parser"
+    )
 
 
 COMMANDS = [
@@ -52,13 +31,13 @@ COMMANDS = [
         ("report", "results-page"),
         "write the results page from a finished study's results folder, each table with its "
         "protocol",
-        _results_page,
+        "results_page:run_report_results_page",
         _results_page_args,
     ),
     Command(
         ("report", "stage-times"),
         "print where a study's time went: its jobs' benchmark files summed per stage",
-        _stage_times,
+        "stage_times:run_report_stage_times",
         lambda p: p.add_argument("results", nargs="?", default="results", help="results folder"),
     ),
     Command(
