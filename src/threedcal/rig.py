@@ -22,6 +22,7 @@ from threedcal.errors import ConfigError, ThreedcalError
 from threedcal.hardware.camera import OpenCVCamera
 from threedcal.hardware.clock import Clock, WallClock
 from threedcal.hardware.printer import MarlinHost
+from threedcal.hardware.reskin import ReSkinReader
 from threedcal.profiles import load_profile
 
 # Asks a person to do what the message says and returns once they have (e.g. pressed Enter).
@@ -140,8 +141,6 @@ def open_rig(
         return
 
     if is_magnetic(sensor):
-        from threedcal.hardware.reskin import ReSkinReader
-
         reader = ReSkinReader(sensor, str(settings.reader))
     else:
         reader = open_camera(sensor, settings.camera)
@@ -154,6 +153,7 @@ def open_rig(
 def _bench_rig(rig: RigSettings, sensor: Mapping, printer: Mapping) -> Iterator[Rig]:
     """The fake printer and the simulated sensor, coupled through the head pose: the gel camera,
     or the ReSkin board behind its own serial URL."""
+    # local: the config check imports this module; a simulator loads when its bench opens
     if is_magnetic(sensor):
         from threedcal.sim.reskin import ReSkinBench as Bench
     else:
@@ -173,8 +173,6 @@ def _bench_rig(rig: RigSettings, sensor: Mapping, printer: Mapping) -> Iterator[
         )
         host = stack.enter_context(MarlinHost(bench.url, printer))
         if is_magnetic(sensor):
-            from threedcal.hardware.reskin import ReSkinReader
-
             reading = stack.enter_context(ReSkinReader(sensor, bench.sensor_url))
         else:
             reading = bench.camera

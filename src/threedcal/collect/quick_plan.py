@@ -96,10 +96,8 @@ def quick_plan(sensor: Mapping, plan_config: Mapping, run: int = 1) -> pd.DataFr
     area (threedcal.collect.design), each `depth_mm` deep (dome compensated) for `frames` frames,
     in rounds of `round_presses` (each round's prefix spreads evenly), each round a short path.
     Run r of a calibration (`quick.run`) scrambles with plan.seed's replicate r − 1."""
-    from threedcal.collect.design import (  # local: scipy stays out of the Snakefile's parse
-        halton_design,
-        round_order,
-    )
+    # local: scipy stays out of the Snakefile's parse
+    from threedcal.collect.design import halton_design, round_order
 
     problems = quick_problems(plan_config, sensor)
     if problems:

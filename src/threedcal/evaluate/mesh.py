@@ -151,9 +151,8 @@ def height_field_solid(
     Top and bottom share one triangulation; its boundary edges are extruded into side walls, so
     the result is watertight whatever the point set.
     """
-    from scipy.spatial import (
-        Delaunay,
-    )  # local: kept out of the Snakefile's parse (check_object_files)
+    # local: kept out of the Snakefile's parse (check_object_files)
+    from scipy.spatial import Delaunay
 
     points_xy = np.asarray(points_xy, dtype=np.float64)
     top_z = np.asarray(top_z, dtype=np.float64)

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from threedcal.collect.run import MotionSettings
 from threedcal.errors import ConfigError
 from threedcal.evaluate.groundtruth import surface_height
 from threedcal.evaluate.objects import object_label
@@ -35,7 +36,7 @@ from threedcal.evaluate.press_plan import (
     session_draws,
     true_mount,
 )
-from threedcal.rig import Ask, Rig, open_rig
+from threedcal.rig import Ask, Rig, check_devices, open_rig
 from threedcal.sim.bench import MountedObject
 from threedcal.sim.indenters import Relief
 
@@ -140,9 +141,6 @@ def press_objects(
     really did, for reporting only; `{"simulated": false}` on a real rig) and `summary.json` (cost).
     Everything is checked before the printer moves.
     """
-    from threedcal.collect.run import MotionSettings
-    from threedcal.rig import check_devices
-
     source = f"scenes.{name}"
     sensor, printer = setup.sensor, setup.printer
     if sensor.get("type") != "vision":

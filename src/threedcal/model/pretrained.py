@@ -9,9 +9,13 @@ import json
 from collections.abc import Mapping
 from pathlib import Path
 
+from threedcal.dataset.unit_presses import simulate_units
 from threedcal.errors import ConfigError
 from threedcal.model.checkpoint import save_checkpoint
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
 from threedcal.pretrained import pretraining_digest
+from threedcal.profiles import load_profile
 
 
 def pretrain_shipped_weights(
@@ -23,11 +27,6 @@ def pretrain_shipped_weights(
 ) -> dict:
     """Simulate the units' presses, train the network on them, write model.pt and provenance.json
     into out_dir. `pretraining` is the config's validated `pretraining` section."""
-    from threedcal.dataset.unit_presses import simulate_units
-    from threedcal.model.train import train
-    from threedcal.model.train_settings import TrainSettings
-    from threedcal.profiles import load_profile
-
     profile = load_profile("sensor", sensor)
     first, count = int(pretraining["first_unit"]), int(pretraining["units"])
     units = list(range(first, first + count))

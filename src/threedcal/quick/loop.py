@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import zarr
 
 from threedcal.collect.quick_plan import quick_rounds, rows_per_press
 from threedcal.collect.store import StoreError
@@ -380,8 +381,6 @@ def _plain(value):
 
 def _finished_rows(path: Path, plan: pd.DataFrame, settings: Mapping) -> int:
     """The plan rows a finished quick store holds, after checking its settings are the config's."""
-    import zarr
-
     finished_store_summary(path, plan, settings)
     attrs = zarr.open_group(str(path), mode="r").attrs
     return int(attrs.get("captured_rows") or len(plan))

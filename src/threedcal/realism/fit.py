@@ -49,8 +49,9 @@ from scipy.linalg import qr
 from scipy.optimize import least_squares, lsq_linear
 
 from threedcal.errors import ConfigError
-from threedcal.realism.check import HALO_MAX_RADII
+from threedcal.realism.check import HALO_MAX_RADII, noise_figures, simulated_depth_mm
 from threedcal.sim.background_field import field_terms
+from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 
 FIELD_BLUR_PX = 4.0  # the background field is fitted at low frequency ...
@@ -374,10 +375,6 @@ def _real_change(frame, bg, label, ball_px) -> _Contact:
 def _contact_bases(profile, data, labels) -> list[np.ndarray]:
     """Per contact, the unblurred change (H, W, L) of each light's directional term at unit gain,
     full frame (zeros outside the contact's window)."""
-    from threedcal.realism.check import simulated_depth_mm
-    from threedcal.sim.indenters import Sphere
-    from threedcal.sim.optics import GelSimulator
-
     n = len(profile["lights"])
     if n != 3:
         raise ConfigError(f"sensor profile {profile.get('name')!r}: the fit needs three lights")
@@ -449,9 +446,6 @@ def _bounded_lstsq(a: np.ndarray, b: np.ndarray, lower: np.ndarray) -> np.ndarra
 # ------------------------------------------------------------------------- noise
 def _fit_noise(profile, data, frames, labels, ball_px, correlation_range_px) -> dict[str, Any]:
     """noise_dn and noise_correlation_px so that blank renders match the frames' fine residual."""
-    from threedcal.realism.check import noise_figures
-    from threedcal.sim.optics import GelSimulator
-
     h, w = data.height_px, data.width_px
     yy, xx = np.mgrid[:h, :w]
     stds, acfs = [], []

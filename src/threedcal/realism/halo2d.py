@@ -41,6 +41,7 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.plotting import pyplot
+from threedcal.realism.check import contact_change, image_groups
 
 REACH = 3.0  # cut-outs reach 3 contact radii (realism.HALO_MAX_RADII)
 STEP = 0.1  # grid step, contact radii: 61 x 61 points
@@ -320,8 +321,6 @@ def folder_halos(
     of `test_labels`, the real frames of `other_labels` as the reference. Each press is cut out
     around its label (centre and radius) in real and render alike; presses are grouped by place
     (`realism.image_groups`) for the bootstrap."""
-    from threedcal.realism.check import contact_change, image_groups
-
     sim_bg, frames = renders
     if len(frames) != len(test_labels):
         raise ConfigError(f"{len(frames)} renders for {len(test_labels)} held-out presses")

@@ -224,9 +224,8 @@ def quick_scene_problems(scene: Mapping, sensor: Mapping) -> list[str]:
     """What a quick calibration (plan.pattern: quick) would refuse once its printer had moved:
     rounds that cannot cover the gel, a stop rule out of range, shipped weights made for another
     sensor, network or frame size, and stages it does not run."""
-    from threedcal.stop_rule import (
-        rule_problems,
-    )  # local: scipy stays out of the Snakefile's parse
+    # local: scipy stays out of the Snakefile's parse
+    from threedcal.stop_rule import rule_problems
 
     quick = scene["quick"]
     problems = quick_problems(scene["plan"], sensor)
