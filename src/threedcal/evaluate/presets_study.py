@@ -27,9 +27,8 @@ from threedcal.model.train import TrainSettings, train
 from threedcal.plotting import pyplot
 
 COLUMNS = ["preset", "ms_per_frame", "gradient_rmse", "cap_depth_mae_um", "train_s"]
-# Patch training on imported ball images, as fots_ball's `model:` section set it before its
-# multiscale settings (chosen on an inner split of its training images): the benchmarks' and
-# diagnostics' common yardstick.
+# Patch training on imported ball images: the benchmarks' and diagnostics' common yardstick
+# (fots_ball's own `model:` section is multiscale, chosen on an inner split of its training images).
 PATCH_BALL_SETTINGS = dict(
     lr=3e-3,
     lr_schedule="cosine",

@@ -68,7 +68,7 @@ from threedcal.seeds import replicate_seed
 
 RESUME_NAME = "checkpoint.pt"
 # The resume checkpoint is rewritten after an epoch only when this long has passed since the last:
-# a P = 1 % job runs 320 short epochs, and saving after each cost 5 % of its time. An interrupted
+# a P = 1 % job runs 320 short epochs, and saving after each would cost 5 % of its time. An interrupted
 # job redoes at most this much, and ends with the same bytes either way.
 RESUME_EVERY_S = 20.0
 

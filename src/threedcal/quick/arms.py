@@ -67,7 +67,7 @@ from threedcal.study.scene import dataset_settings
 from threedcal.study.session import prepare
 
 LEVEL = 0.95
-# The issue's targets (issue 49): the quick flow against the same unit's full calibration.
+# The quick flow's targets against the same unit's full calibration.
 MSE_WITHIN = 0.10  # relative change of the mean validation MSE
 TYPE2_WITHIN_UM = 10.0  # Type 2 MAE, every object, printer protocol
 MAX_PRESSES = 50
