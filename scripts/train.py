@@ -3,7 +3,7 @@
 from threedcal.logs import stage_log
 from threedcal.model.contact_guard import check_calibration_presses
 from threedcal.model.train import train
-from threedcal.study.scene import train_settings
+from threedcal.study.training import train_settings
 
 with stage_log(snakemake.log[0]):
     settings = train_settings(snakemake.params.settings)

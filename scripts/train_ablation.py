@@ -6,7 +6,7 @@ from threedcal.dataset.trainset import TrainingSet
 from threedcal.logs import stage_log
 from threedcal.model.contact_guard import check_calibration_presses
 from threedcal.model.lockstep import Member, train_lockstep
-from threedcal.study.scene import train_settings
+from threedcal.study.training import train_settings
 
 with stage_log(snakemake.log[0]):
     percent, ablation = int(snakemake.wildcards.p), snakemake.params.ablation

@@ -10,7 +10,7 @@ from threedcal.errors import ConfigError
 from threedcal.profiles import load_profile
 from threedcal.study.config import load_config, validate_config
 from threedcal.study.fractions import ablation_replicates, model_keys, training_fractions
-from threedcal.study.scene import train_settings
+from threedcal.study.training import train_settings
 
 REPO = Path(__file__).resolve().parents[1]
 SIM_SCENE = {"sensor": "digit", "printer": "ender3"}

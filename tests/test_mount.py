@@ -7,10 +7,11 @@ import pytest
 import yaml
 
 from threedcal.errors import ConfigError
-from threedcal.mount import SensorMount, read_mount_file, scene_sensor, write_mount_file
+from threedcal.mount import SensorMount, read_mount_file, write_mount_file
 from threedcal.profiles import load_profile
 from threedcal.study.config import validate_config
 from threedcal.study.paths import stage_config
+from threedcal.study.scene import scene_sensor
 from threedcal.study.session import prepare, simulated_truth
 
 

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from threedcal.errors import ConfigError
-from threedcal.profiles import load_profile
 from threedcal.schema import load_schema, load_yaml, schema_errors
 
 MOUNT_KEYS = ("x_offset_mm", "y_offset_mm", "z_touch_mm", "z_clearance_mm")
@@ -66,31 +65,9 @@ def read_mount_file(path: str | Path, key: str = "mount") -> dict[str, float]:
     return {k: float(v) for k, v in values.items()}
 
 
-def scene_mount_values(
-    scene: Mapping, source: str | None = "scene", missing_ok: bool = False
-) -> dict[str, float]:
-    """The keys the scene's `mount` gives (its file's, where it names one); {} without one, or
-    with `missing_ok` when its file is not there yet (the set-up page writes it).
-    `source`: how errors name the scene (None: the key alone)."""
-    given = scene.get("mount")
-    if given is None:
-        return {}
-    if isinstance(given, str):
-        if missing_ok and not Path(given).exists():
-            return {}
-        return read_mount_file(given, f"{source}.mount" if source else "mount")
-    return {k: float(v) for k, v in given.items()}
-
-
 def with_mount(sensor: Mapping, values: Mapping[str, float]) -> dict:
     """The sensor profile with `values` in place of its mount's keys (the rest are the profile's)."""
     return {**sensor, "mount": {**sensor["mount"], **values}}
-
-
-def scene_sensor(scene: Mapping, source: str | None = "scene", missing_ok: bool = False) -> dict:
-    """The scene's sensor profile, seated as the scene's `mount` says (see scene_mount_values)."""
-    sensor = load_profile("sensor", scene["sensor"])
-    return with_mount(sensor, scene_mount_values(scene, source, missing_ok))
 
 
 def mount_yaml(mount: SensorMount, about: str) -> str:

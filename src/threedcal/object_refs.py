@@ -1,12 +1,11 @@
-"""What a scene's test objects may be (a built-in name or a mesh file) and where a pressed one sits:
-checked when the config is read, so a bad reference stops the study before any collection.
+"""What a scene's test objects may be (a built-in name or a mesh file): checked when the config is
+read, so a bad reference stops the study before any collection.
 
 Kept apart from threedcal.evaluate, which builds and reads the objects: the collection's code never
 imports the evaluation's, so changing the evaluation never reruns a collection."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 # The built-in test objects (threedcal.evaluate.objects builds them); any other is a mesh path.
@@ -27,15 +26,4 @@ def object_problem(ref: str | Path) -> str | None:
         )
     if not Path(text).is_file():
         return f"mesh file {text!r} does not exist"
-    return None
-
-
-def mount_problem(scene: Mapping) -> str | None:
-    """What is wrong with a scene's mount (as `pressing.mount: ...`), or None."""
-    if scene.get("pressing", {}).get("mount") is None and scene.get("port", "sim") != "sim":
-        return (
-            "pressing.mount: required when the printer presses the test objects on a real rig "
-            f"(port {scene.get('port')!r}): give x_mm, y_mm, z_mm of the object's press-frame "
-            "origin relative to the probe tip and its rotation_deg as mounted"
-        )
     return None

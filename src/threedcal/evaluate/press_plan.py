@@ -59,7 +59,7 @@ class ObjectsSetup:
     (threedcal.study.scene.objects_setup)."""
 
     sensor: Mapping  # the sensor profile, seated as the scene's mount says
-    printer: Mapping  # the printer profile
+    printer: Mapping | None  # the printer profile (the presses need it, the scoring not)
     mount: Mount  # where an object sits on the head
     seed: int  # the pressing streams' seed
     objects: tuple[str, ...]  # built-in names or mesh files

@@ -30,19 +30,12 @@ import numpy as np
 
 from threedcal.collect.run import MotionSettings, make_safe
 from threedcal.errors import ConfigError, ThreedcalError
-from threedcal.mount import (
-    SensorMount,
-    mount_yaml,
-    scene_mount_values,
-    scene_sensor,
-    with_mount,
-    write_mount_file,
-)
+from threedcal.mount import SensorMount, mount_yaml, with_mount, write_mount_file
 from threedcal.page.gel import Presser, find_gel
 from threedcal.profiles import load_profile
 from threedcal.rig import open_rig
 from threedcal.study.config import load_config, scene_config
-from threedcal.study.scene import rig_settings
+from threedcal.study.scene import rig_settings, scene_mount_values, scene_sensor
 from threedcal.study.session import collect_scene, prepare
 
 AXES = ("x", "y", "z")

@@ -45,7 +45,7 @@ from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import save_initial, train
 from threedcal.stop_rule import Improvement, decide, paired_improvement, rule_problems
 from threedcal.study.config import quick_run, quick_scene_problems
-from threedcal.study.scene import dataset_settings, train_settings
+from threedcal.study.scene import dataset_settings
 from threedcal.study.session import (
     collect_on_rig,
     estimate_hardware_s,
@@ -54,6 +54,7 @@ from threedcal.study.session import (
     open_store,
     prepare,
 )
+from threedcal.study.training import train_settings
 
 
 @dataclass(frozen=True)

@@ -17,15 +17,15 @@ from threedcal.collect.scene_plan import plan_from_config, registration_presses_
 from threedcal.dataset.importers import check_import, load_imported
 from threedcal.dataset.reframe import reframe_problem
 from threedcal.errors import ConfigError
-from threedcal.mount import scene_mount_values, with_mount
-from threedcal.object_refs import mount_problem, object_problem
+from threedcal.mount import with_mount
+from threedcal.object_refs import object_problem
 from threedcal.pretrained import provenance, shipped_sensors, shipped_weights
 from threedcal.profiles import ProfileNotFound, load_profile, resolve_profile
 from threedcal.rig import check_devices
 from threedcal.schema import fill_defaults, load_schema, load_yaml, schema_errors
 from threedcal.sim.marlin import parse_faults
 from threedcal.study.fractions import FULL_TRAINING_P, normalise_ablation, training_fractions
-from threedcal.study.scene import rig_settings
+from threedcal.study.scene import rig_settings, scene_mount_values
 
 # Keys that describe probing hardware, dropped from imported scenes after defaults are filled.
 IMPORT_IRRELEVANT = (
@@ -458,3 +458,14 @@ def scene_config(config: Mapping, scene: str) -> dict:
 
 def is_imported(scene: Mapping) -> bool:
     return "import" in scene
+
+
+def mount_problem(scene: Mapping) -> str | None:
+    """What is wrong with a scene's mount (as `pressing.mount: ...`), or None."""
+    if scene.get("pressing", {}).get("mount") is None and scene.get("port", "sim") != "sim":
+        return (
+            "pressing.mount: required when the printer presses the test objects on a real rig "
+            f"(port {scene.get('port')!r}): give x_mm, y_mm, z_mm of the object's press-frame "
+            "origin relative to the probe tip and its rotation_deg as mounted"
+        )
+    return None

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from threedcal.errors import ConfigError
-from threedcal.mount import scene_mount_values
 from threedcal.pretrained import SHIPPED_DIR
 from threedcal.profiles import load_profile
 from threedcal.study.config import has_arms, is_imported, is_quick, real_check_sets, realism_sets
@@ -25,6 +24,7 @@ from threedcal.study.fractions import (
     normalise_ablation,
     training_fractions,
 )
+from threedcal.study.scene import scene_mount_values
 
 RESULTS = "results"
 # Every file the workflow writes that something else names (a rule's input, a scene's targets), as

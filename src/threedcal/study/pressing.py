@@ -8,10 +8,9 @@ from dataclasses import asdict
 
 from threedcal.errors import ConfigError
 from threedcal.evaluate.press_plan import SIM_MOUNT, Mount, ObjectsSetup
-from threedcal.mount import scene_sensor
-from threedcal.object_refs import mount_problem
 from threedcal.profiles import load_profile
-from threedcal.study.scene import rig_settings
+from threedcal.study.config import mount_problem
+from threedcal.study.scene import rig_settings, scene_sensor
 
 
 def pressing_mount(scene: Mapping, source: str = "scene") -> Mount:
@@ -33,7 +32,7 @@ def objects_setup(scene: Mapping, source: str = "scene") -> ObjectsSetup:
     (`source`: the scene's key in error messages)."""
     return ObjectsSetup(
         sensor=scene_sensor(scene, source),
-        printer=load_profile("printer", scene["printer"]),
+        printer=load_profile("printer", scene["printer"]) if scene.get("printer") else None,
         mount=pressing_mount(scene, source),
         seed=pressing_seed(scene),
         objects=tuple(scene.get("objects") or ()),

@@ -5,10 +5,10 @@ a config mapping by key."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 
 from threedcal.dataset.settings import DatasetSettings
-from threedcal.model.train_settings import TrainSettings
-from threedcal.mount import scene_sensor
+from threedcal.mount import read_mount_file, with_mount
 from threedcal.profiles import load_profile
 from threedcal.rig import RigSettings
 from threedcal.study.fractions import ablation_replicates, training_fractions
@@ -52,8 +52,23 @@ def rig_settings(scene: Mapping) -> RigSettings:
     )
 
 
-def train_settings(scene: Mapping) -> TrainSettings:
-    """The scene's `model:` section with its seed and threads (the ablation's, the quick loop's)."""
-    return TrainSettings.of(
-        seed=scene.get("seed"), torch_threads=scene.get("torch_threads"), **scene.get("model", {})
-    )
+def scene_mount_values(
+    scene: Mapping, source: str | None = "scene", missing_ok: bool = False
+) -> dict[str, float]:
+    """The keys the scene's `mount` gives (its file's, where it names one); {} without one, or
+    with `missing_ok` when its file is not there yet (the set-up page writes it).
+    `source`: how errors name the scene (None: the key alone)."""
+    given = scene.get("mount")
+    if given is None:
+        return {}
+    if isinstance(given, str):
+        if missing_ok and not Path(given).exists():
+            return {}
+        return read_mount_file(given, f"{source}.mount" if source else "mount")
+    return {k: float(v) for k, v in given.items()}
+
+
+def scene_sensor(scene: Mapping, source: str | None = "scene", missing_ok: bool = False) -> dict:
+    """The scene's sensor profile, seated as the scene's `mount` says (see scene_mount_values)."""
+    sensor = load_profile("sensor", scene["sensor"])
+    return with_mount(sensor, scene_mount_values(scene, source, missing_ok))

@@ -43,7 +43,6 @@ from threedcal.dataset.touch import planned_touch_search
 from threedcal.errors import ConfigError
 from threedcal.hardware.printer import MarlinHost
 from threedcal.hardware.reskin import value_names
-from threedcal.mount import scene_sensor
 from threedcal.profiles import load_profile
 from threedcal.reskin.figures import readings_figure
 from threedcal.rig import (
@@ -60,7 +59,7 @@ from threedcal.sim.marlin import FIRMWARES, SimMarlin, parse_faults
 from threedcal.sim.reskin import draw_reskin_truth
 from threedcal.study.config import quick_run
 from threedcal.study.paths import package_versions
-from threedcal.study.scene import rig_settings
+from threedcal.study.scene import rig_settings, scene_sensor
 
 
 @dataclass
