@@ -136,10 +136,9 @@ def training_samples_per_s(
 
 def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     """Held-out ball_eval figures of each preset trained with BALL_SETTINGS on `folder`."""
-    from threedcal.dataset.build import build_imported
     from threedcal.evaluate.ball_eval import evaluate
     from threedcal.model.train import TrainSettings, train
-    from threedcal.study.scene import dataset_settings
+    from threedcal.study.dataset_stage import import_stage
 
     scene = {
         "import": {"format": "ball_folder", "path": str(folder)},
@@ -148,10 +147,8 @@ def accuracy(folder: Path, presets: list[str], threads: int) -> dict[str, dict]:
     }
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
-        ts = build_imported(
-            scene["import"]["format"],
-            scene["import"]["path"],
-            dataset_settings(scene),
+        ts = import_stage(
+            scene,
             Path(tmp) / "trainset",
             Path(tmp) / "splits.csv",
         )

@@ -29,13 +29,12 @@ import pandas as pd
 import torch
 
 from threedcal.dataset import folds as cv_folds
-from threedcal.dataset.build import build_imported
 from threedcal.depth import integrate
 from threedcal.evaluate import crossval
 from threedcal.evaluate.presets_study import PATCH_BALL_SETTINGS, depth_ms_per_frame
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import TrainSettings, train
-from threedcal.study.scene import dataset_settings
+from threedcal.study.dataset_stage import import_stage
 
 # fots_ball's settings before this study (the models explanation, Choosing a preset).
 BALL = PATCH_BALL_SETTINGS
@@ -172,10 +171,8 @@ class Run:
             "dataset": {"downscale": self.downscale, "max_slope_deg": 75, "refine_labels": refined},
         }
         with tempfile.TemporaryDirectory() as tmp:
-            ts = build_imported(
-                scene["import"]["format"],
-                scene["import"]["path"],
-                dataset_settings(scene),
+            ts = import_stage(
+                scene,
                 Path(tmp) / "trainset",
                 Path(tmp) / "splits.csv",
             )

@@ -2,11 +2,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from threedcal.dataset.build import build_imported
 from threedcal.dataset.labels import local_dome, sphere_gradients
 from threedcal.dataset.trainset import TrainingSet, coordinate_channels, downscale, model_inputs
 from threedcal.errors import ConfigError
-from threedcal.study.scene import dataset_settings
+from threedcal.study.dataset_stage import import_stage
 
 
 def small_set(n=4, shape=(40, 30)):
@@ -98,10 +97,8 @@ def test_build_imported_real_folder(tmp_path, real_data):
         "seed": 4,
         "dataset": {"downscale": 2, "max_slope_deg": 70},
     }
-    ts = build_imported(
-        scene["import"]["format"],
-        scene["import"]["path"],
-        dataset_settings(scene),
+    ts = import_stage(
+        scene,
         tmp_path / "trainset",
         tmp_path / "splits.csv",
     )

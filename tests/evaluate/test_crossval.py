@@ -10,7 +10,6 @@ import pytest
 import yaml
 
 from threedcal.dataset import folds as cv_folds
-from threedcal.dataset.build import build_imported
 from threedcal.dataset.labels import sphere_depth, sphere_gradients
 from threedcal.errors import ConfigError
 from threedcal.evaluate import crossval
@@ -19,7 +18,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 from threedcal.study import imported_jobs
-from threedcal.study.scene import dataset_settings
+from threedcal.study.dataset_stage import import_stage
 
 PX_PER_MM, BALL_MM, SIZE = 10.0, 2.0, (64, 80)  # (width, height) of the rendered frames
 TINY = {"preset": "compact", "epochs_base": 1, "patch_px": 24, "contact_patches": 2}
@@ -100,10 +99,8 @@ def trainset_of(folder, tmp_path, fmt="ball_folder"):
         "seed": 0,
         "dataset": {"downscale": 1, "max_slope_deg": 75},
     }
-    build_imported(
-        scene["import"]["format"],
-        scene["import"]["path"],
-        dataset_settings(scene),
+    import_stage(
+        scene,
         tmp_path / "trainset",
         tmp_path / "splits.csv",
     )
