@@ -42,7 +42,7 @@ rule quick:
 # Stage `quick_arms`, for quick scenes with `quick.compare_with` (and quick.arms): the rounds' models
 # (quick; stopped: where the rule stopped), the same presses trained from scratch, and the compared
 # scene's P = 80 models (full), scored on that scene's validation coordinates and test-object
-# presses (threedcal.quick.arms).
+# presses (threedcal.study.quick_arms).
 rule quick_arms:
     input:
         unpack(arms_inputs),
@@ -85,7 +85,7 @@ rule quick_arms:
 
 # Target `quick_study` (`make quick-study`, config/quick_study.yaml; never part of `all`): every
 # compared quick scene's stopped model against its unit's full calibration, and the claim over
-# units (threedcal.quick.study).
+# units (threedcal.study.quick_study).
 rule quick_study:
     input:
         unpack(quick_study_inputs),

@@ -6,7 +6,7 @@ import torch
 
 from threedcal.cli import ask_on_console
 from threedcal.logs import stage_log
-from threedcal.quick.loop import quick_stage
+from threedcal.study.quick_loop import quick_stage
 
 scene = json.loads(snakemake.params.scene)
 with stage_log(snakemake.log[0]):

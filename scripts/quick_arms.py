@@ -7,7 +7,7 @@ from pathlib import Path
 import torch
 
 from threedcal.logs import stage_log
-from threedcal.quick.arms import arms_stage
+from threedcal.study.quick_arms import arms_stage
 
 with stage_log(snakemake.log[0]):
     scene = json.loads(snakemake.params.scene)

@@ -3,7 +3,7 @@
 import torch
 
 from threedcal.logs import stage_log
-from threedcal.quick.study import UnitPair, study_stage
+from threedcal.study.quick_study import UnitPair, study_stage
 
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.threads)

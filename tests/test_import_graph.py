@@ -108,7 +108,6 @@ def test_no_module_imports_another_modules_private_names():
 # The study layer and what sits on it; the domain packages below never import them.
 UPPER = (
     "threedcal.study",
-    "threedcal.quick",
     "threedcal.report",
     "threedcal.page",
     "threedcal.cli",

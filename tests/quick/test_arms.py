@@ -1,4 +1,4 @@
-"""The three-arm measurement's numbers (threedcal.quick.arms) on synthetic scores with known
+"""The three-arm measurement's numbers (threedcal.study.quick_arms) on synthetic scores with known
 answers, its verdicts computed from the table, and the config check of `quick.compare_with`."""
 
 import copy
@@ -10,7 +10,9 @@ import pytest
 from scipy import stats
 
 from threedcal.errors import ConfigError
-from threedcal.quick.arms import (
+from threedcal.study.config import validate_config
+from threedcal.study.paths import arms_scenes, scene_targets
+from threedcal.study.quick_arms import (
     ArmModel,
     arms_table,
     difference_interval,
@@ -22,8 +24,6 @@ from threedcal.quick.arms import (
     validation_rows,
     verdicts,
 )
-from threedcal.study.config import validate_config
-from threedcal.study.paths import arms_scenes, scene_targets
 
 
 def test_one_replicate_mean_interval_is_the_t_interval_over_blocks():
@@ -301,7 +301,7 @@ def test_every_arm_is_scored_with_the_validation_sets_blank(tmp_path):
     from conftest import write_untrained_model
 
     from threedcal.dataset.trainset import TrainingSet
-    from threedcal.quick.arms import validation_scores
+    from threedcal.study.quick_arms import validation_scores
 
     rng = np.random.default_rng(0)
     blank = np.full((40, 48, 3), 100.0, np.float32)
@@ -364,7 +364,7 @@ def test_a_run_presses_its_own_design_and_trains_with_its_own_seed(tmp_path):
     """Run 2 draws other quick presses after the same touch search and registration lattice, and
     fine-tunes with the seed's replicate 1; run 1 is the calibration as it always was."""
     from threedcal.dataset.splits import replicate_seed
-    from threedcal.quick.loop import QuickLoop
+    from threedcal.study.quick_loop import QuickLoop
     from threedcal.study.session import prepare
 
     scenes = validate_config(with_runs({"quick": {"run": 2}}))["scenes"]

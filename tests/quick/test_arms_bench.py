@@ -7,8 +7,8 @@ import torch
 from test_quick_bench import scene
 
 from threedcal.model.checkpoint import read_checkpoint
-from threedcal.quick.arms import run_arm, scratch_arm
-from threedcal.quick.loop import QuickLoop, quick_stage
+from threedcal.study.quick_arms import run_arm, scratch_arm
+from threedcal.study.quick_loop import QuickLoop, quick_stage
 from threedcal.study.session import prepare
 
 

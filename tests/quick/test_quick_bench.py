@@ -12,9 +12,9 @@ from threedcal.collect.store import StoreError
 from threedcal.collect.store_read import open_checked
 from threedcal.model.inference import DepthEstimator
 from threedcal.profiles import load_profile
-from threedcal.quick.loop import ROUND_COLUMNS, quick_stage
 from threedcal.sim.bench import draw_truth
 from threedcal.study.config import validate_config
+from threedcal.study.quick_loop import ROUND_COLUMNS, quick_stage
 
 
 def scene(margin: float) -> dict:
@@ -141,7 +141,7 @@ def test_a_rounds_contact_area_is_its_median_press_over_the_probes_disc_and_warn
     from types import SimpleNamespace
 
     import threedcal.model.inference as inference
-    from threedcal.quick.loop import QuickLoop
+    from threedcal.study.quick_loop import QuickLoop
 
     shape, px_per_mm, radius = (40, 50), 5.0, 2.0  # the disc: pi 10^2 = 314 px
     areas = [100, 2000, 400, 600]  # plan rows 10..13; the round scores rows 11..13

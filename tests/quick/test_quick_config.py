@@ -5,9 +5,9 @@ from conftest import write_untrained_model
 
 from threedcal.cli import main
 from threedcal.errors import ConfigError
-from threedcal.quick.loop import quick_stage
 from threedcal.study.config import validate_config
 from threedcal.study.paths import scene_targets
+from threedcal.study.quick_loop import quick_stage
 
 
 def quick_scene(**changes) -> dict:

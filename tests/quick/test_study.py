@@ -1,4 +1,4 @@
-"""The quick calibration over units (threedcal.quick.study): the claim's interval over units on
+"""The quick calibration over units (threedcal.study.quick_study): the claim's interval over units on
 tables with known answers, and the workflow target that is never part of `all`."""
 
 import math
@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from threedcal.quick.study import COLUMNS, over_units
+from threedcal.study.quick_study import COLUMNS, over_units
 
 
 def table(changes: dict[str, list[float]], presses=48, minutes=1.9) -> pd.DataFrame:

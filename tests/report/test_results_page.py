@@ -18,7 +18,6 @@ from threedcal.errors import ConfigError
 from threedcal.evaluate.ablation import TEST_COLUMNS
 from threedcal.evaluate.real_check import FINETUNED, SHIPPED, TABLE_COLUMNS
 from threedcal.evaluate.sim2real_settings import ERROR_COLUMNS
-from threedcal.quick.arms import arms_table, verdicts
 from threedcal.report.results_page import page_layout, results_page, write_results_page
 from threedcal.report.sections.ablation import short_equivalence
 from threedcal.report.sections.markdown import SIM_COLUMN, SIM_READINGS, markdown_table
@@ -31,6 +30,7 @@ from threedcal.study.paths import (
     is_magnetic_scene,
     write_scene_record,
 )
+from threedcal.study.quick_arms import arms_table, verdicts
 
 REPO = Path(__file__).resolve().parents[2]
 BENCH_HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
@@ -549,7 +549,7 @@ def test_the_study_span_runs_from_the_first_jobs_start_to_the_last_jobs_end(tmp_
 
 
 def write_arms(root: Path, full: str, mse_change: tuple, pawn: tuple) -> None:
-    """quick/arms.json as the quick_arms stage writes it (threedcal.quick.arms.verdicts)."""
+    """quick/arms.json as the quick_arms stage writes it (threedcal.study.quick_arms.verdicts)."""
     rows = []
     points = (("quick", 5, 50), ("stopped", None, 50), ("scratch", 5, 50), ("full", None, 2956))
     for arm, round_, presses in points:

@@ -3,9 +3,9 @@ import json
 import pandas as pd
 
 from threedcal.evaluate.ablation import TEST_COLUMNS
-from threedcal.quick.arms import arms_table, verdicts
 from threedcal.report.sections.convergence import convergence_lines
 from threedcal.report.summary import write_study_summary
+from threedcal.study.quick_arms import arms_table, verdicts
 
 
 def test_summary_collects_each_scenes_headline_numbers(tmp_path):

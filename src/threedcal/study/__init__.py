@@ -1,2 +1,4 @@
-"""The study layer: the config parsed and checked, the workflow's files, and the stages that compose
-the domain packages for one rule each. Domain packages never import from here."""
+"""The study layer: the config parsed and checked (config), a scene's typed settings (scene,
+pressing, training), the workflow's files (paths), and the stages that compose the domain packages
+for one rule each (session, stages, dataset_stage, imported_jobs, the quick calibration's quick_*).
+Domain packages never import from here."""

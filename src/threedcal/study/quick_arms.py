@@ -21,7 +21,7 @@ interval. (ii) pairs them on the presses: an arm's mean Type 2 MAE, and its diff
 `full`'s, each with the crossed (replicate x press) interval of object_errors.crossed_mean_interval.
 The quick run and `full`'s replicates are independent trainings, paired only on blocks or presses
 (threedcal.evaluate.ablation.independent_contrast); the quick run's own training randomness is in
-no interval (make quick-study measures over units: threedcal.quick.study).
+no interval (make quick-study measures over units: threedcal.study.quick_study).
 
 The issue's targets are judged on the `stopped` model: its validation MSE within 10 % of `full`'s, its Type 2 MAE within 10 µm of `full`'s on every
 object (both one-sided: better is within), at most 50 presses, at most 5 printer minutes (the
@@ -61,8 +61,8 @@ from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import train
 from threedcal.plotting import pyplot
-from threedcal.quick.loop import QuickLoop
 from threedcal.study.pressing import objects_setup
+from threedcal.study.quick_loop import QuickLoop
 from threedcal.study.scene import dataset_settings
 from threedcal.study.session import prepare
 
@@ -148,7 +148,7 @@ def scratch_arm(
     progress: bool = False,
 ) -> list[ArmModel]:
     """For every quick round k ≥ 1: fresh weights trained on round k's presses with its cumulative
-    step budget, into out_dir/r{k}/. `loop`: a threedcal.quick.loop.QuickLoop over the quick
+    step budget, into out_dir/r{k}/. `loop`: a threedcal.study.quick_loop.QuickLoop over the quick
     scene's finished store (its rounds' plan rows and training settings)."""
     out_dir = Path(out_dir)
     base = loop.train_settings

@@ -36,7 +36,8 @@ from threedcal.evaluate.validation import scoring_disc_mm
 from threedcal.lens import RadialLens
 from threedcal.plotting import pyplot
 from threedcal.profiles import load_profile
-from threedcal.quick.arms import (
+from threedcal.sim.bench import BenchTruth
+from threedcal.study.quick_arms import (
     LEVEL,
     MAX_PRESSES,
     MAX_PRINTER_MINUTES,
@@ -46,7 +47,6 @@ from threedcal.quick.arms import (
     relative_change,
     validation_scores,
 )
-from threedcal.sim.bench import BenchTruth
 
 COLUMNS = (
     "sensor",
