@@ -422,27 +422,20 @@ def test_bad_input_is_refused_before_any_motion(tmp_path):
     raw = {**_raw(), "port": "/dev/ttyUSB0", "camera": 0}
     with pytest.raises(ConfigError, match=r"scenes.s.pressing.mount: required .*real rig"):
         validate_config({"scenes": {"s": raw}})
+
+    def press_on_rig(scene):
+        setup = objects_setup(scene, "scenes.rig")
+        press_objects(setup, registration, tmp_path / "out", name="rig", progress=False)
+
     scene = scene_config()
     scene["port"] = "/dev/ttyUSB0"
     with pytest.raises(ConfigError, match=r"scenes.rig.pressing.mount"):
-        press_objects(
-            objects_setup(scene, "scenes.rig"),
-            registration,
-            tmp_path / "out",
-            name="rig",
-            progress=False,
-        )
+        press_on_rig(scene)
     with_mount = {**raw, "pressing": {"mount": {"x_mm": 0, "y_mm": 0, "z_mm": -3}}}
     validate_config({"scenes": {"s": with_mount}})  # accepted
     scene["pressing"]["mount"], scene["camera"] = with_mount["pressing"]["mount"], "sim"
     with pytest.raises(ConfigError, match=r"scenes.rig.camera: .*real printer"):
-        press_objects(
-            objects_setup(scene, "scenes.rig"),
-            registration,
-            tmp_path / "out",
-            name="rig",
-            progress=False,
-        )
+        press_on_rig(scene)
     assert not (tmp_path / "out").exists()
 
 
