@@ -1,7 +1,7 @@
 """Rule `presets`: depth error against inference time of every CPU preset on an imported scene."""
 
 from threedcal.logs import stage_log
-from threedcal.study.stages import presets_stage
+from threedcal.study.presets_stage import presets_stage
 
 with stage_log(snakemake.log[0]):
     presets_stage(

@@ -3,7 +3,7 @@
 from threedcal.collect.store_read import collected_store
 from threedcal.logs import stage_log
 from threedcal.profiles import load_profile
-from threedcal.study.stages import reskin_eval_stage
+from threedcal.study.reskin_stages import reskin_eval_stage
 
 with stage_log(snakemake.log[0]):
     reskin_eval_stage(

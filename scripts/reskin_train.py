@@ -2,7 +2,7 @@
 
 from threedcal.collect.store_read import collected_store
 from threedcal.logs import stage_log
-from threedcal.study.stages import reskin_train_stage
+from threedcal.study.reskin_stages import reskin_train_stage
 
 with stage_log(snakemake.log[0]):
     reskin_train_stage(

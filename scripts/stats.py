@@ -1,7 +1,7 @@
 """Rule `stats`: validation MSE per coordinate, the ablation's tests, recommendation, power and figures."""
 
 from threedcal.logs import stage_log
-from threedcal.study.stages import stats_stage
+from threedcal.study.stats_stage import stats_stage
 
 with stage_log(snakemake.log[0]) as log:
     keys = [tuple(key) for key in snakemake.params.models]

@@ -1,7 +1,7 @@
 """Rule `stats_twice`: the ablation's tests, learning curve and recommendation at twice the budget."""
 
 from threedcal.logs import stage_log
-from threedcal.study.stages import twice_stage
+from threedcal.study.stats_stage import twice_stage
 
 with stage_log(snakemake.log[0]) as log:
     keys = [tuple(key) for key in snakemake.params.models]
