@@ -2,8 +2,8 @@
 size, px/mm and ball radius, labelled exactly (a model-ready set), with the sensor profile's optics
 fitted to the images outside those folds (`sim_to_real.profile: fitted`) or as they are (`as_is`)."""
 
-from threedcal.evaluate.sim2real import write_simulated
 from threedcal.evaluate.sim2real_settings import parse_group
+from threedcal.evaluate.sim2real_simulate import write_simulated
 from threedcal.logs import stage_log
 
 with stage_log(snakemake.log[0]):

@@ -20,7 +20,7 @@ from threedcal.dataset import folds as cv_folds
 from threedcal.dataset.labels import contact_radius_mm
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.errors import ConfigError
-from threedcal.evaluate import sim2real, sim2real_scores, sim2real_settings
+from threedcal.evaluate import sim2real, sim2real_scores, sim2real_settings, sim2real_simulate
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.study import imported_jobs
 
@@ -46,8 +46,8 @@ def real(tmp_path_factory):
 def test_simulated_presses_match_the_real_set_and_are_labelled_exactly(real):
     root, trainset = real
     profile = imported_jobs.sensor_profile({"sensor": "gelsight_mini"})
-    sim = sim2real.write_simulated(trainset, profile, S2R, 3, root / "sim", progress=False)
-    again = sim2real.simulate_trainset(
+    sim = sim2real_simulate.write_simulated(trainset, profile, S2R, 3, root / "sim", progress=False)
+    again = sim2real_simulate.simulate_trainset(
         TrainingSet.load(trainset), profile, sim2real_settings.SimToRealSettings.of(**S2R), 3, False
     )
     ts = TrainingSet.load(root / "sim")
@@ -85,17 +85,17 @@ def test_fitted_profile_sees_only_the_folds_training_images(real, tmp_path):
     profile = imported_jobs.sensor_profile({"sensor": "gelsight_mini"})
     fitted = {**S2R, "profile": "fitted"}
     with pytest.raises(ConfigError, match="needs the scene's folds"):
-        sim2real.write_simulated(trainset, profile, fitted, 3, tmp_path / "none", False)
+        sim2real_simulate.write_simulated(trainset, profile, fitted, 3, tmp_path / "none", False)
     sims = {}
     for group in ((0,), (1,), (0, 1)):
         out = tmp_path / sim2real_settings.group_name(group)
-        sims[group] = sim2real.write_simulated(
+        sims[group] = sim2real_simulate.write_simulated(
             trainset, profile, fitted, 3, out, False, folds_path=root / "folds.csv", held_out=group
         )
         named = _fitted_frames(out / "profile.yaml")
         assert named == set(folds.loc[~folds["fold"].isin(group), "frame"])
         assert not named & set(folds.loc[folds["fold"].isin(group), "frame"])
-    as_is = sim2real.write_simulated(trainset, profile, S2R, 3, tmp_path / "as_is", False)
+    as_is = sim2real_simulate.write_simulated(trainset, profile, S2R, 3, tmp_path / "as_is", False)
     # Same seed, same presses; only the optics differ, per fold and from the built-in profile.
     assert np.array_equal(sims[(0,)].center_px, as_is.center_px)
     assert not np.array_equal(sims[(0,)].frames, as_is.frames)
@@ -131,7 +131,7 @@ def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_w
     profile = imported_jobs.sensor_profile({"sensor": "gelsight_mini"})
     fitted = {**S2R, "profile": "fitted"}
     out = tmp_path / "sim"
-    sim2real.write_simulated(
+    sim2real_simulate.write_simulated(
         trainset, profile, fitted, 0, out, False, folds_path=tmp_path / "folds.csv", held_out=[2]
     )
     assert _fitted_frames(out / "profile.yaml") == set(folds.loc[folds["fold"] != 2, "frame"])
@@ -139,7 +139,7 @@ def test_a_py3dcal_layout_import_is_fitted_the_same_way_and_too_few_images_say_w
     two = folds.assign(fold=np.where(folds["frame"] < 2, 1, 0))
     two.to_csv(tmp_path / "two.csv", index=False)
     with pytest.raises(ConfigError, match="2 training images lie outside fold 0.*profile: as_is"):
-        sim2real.write_simulated(
+        sim2real_simulate.write_simulated(
             trainset,
             profile,
             fitted,
@@ -171,7 +171,7 @@ def test_k_subsets_of_a_fold_are_nested_and_k_cannot_exceed_the_pool(real):
 def test_fine_tuning_starts_from_the_pretrained_model_with_the_same_steps(real, tmp_path):
     root, trainset = real
     sim_dir = tmp_path / "sim"
-    sim2real.write_simulated(
+    sim2real_simulate.write_simulated(
         trainset, imported_jobs.sensor_profile({"sensor": "gelsight_mini"}), S2R, 0, sim_dir, False
     )
     sim2real.pretrain(sim_dir, TINY, S2R, 0, 1, tmp_path / "pre", progress=False)
@@ -263,7 +263,7 @@ def test_errors_against_k_pool_folds_with_intervals_and_a_perfect_model_scores_z
 def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
     root, trainset = real
     with pytest.raises(ConfigError, match="deeper than the ball's radius"):
-        sim2real.write_simulated(
+        sim2real_simulate.write_simulated(
             trainset,
             imported_jobs.sensor_profile({"sensor": "gelsight_mini"}),
             {"depth_mm": [0.5, 2.5], "profile": "as_is"},
@@ -276,7 +276,7 @@ def test_settings_and_scenes_that_cannot_support_it_say_why(real, tmp_path):
         small, frames=small.frames[:, :30, :30], blank=small.blank[:30, :30], samples=small.samples
     )
     with pytest.raises(ConfigError, match="too wide for the 30 x 30 px images"):
-        sim2real.simulate_trainset(
+        sim2real_simulate.simulate_trainset(
             small,
             imported_jobs.sensor_profile({"sensor": "gelsight_mini"}),
             sim2real_settings.SimToRealSettings.of(depth_mm=[0.5, 1.9]),
