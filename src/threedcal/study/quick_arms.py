@@ -63,7 +63,6 @@ from threedcal.model.train import train
 from threedcal.plotting import pyplot
 from threedcal.study.pressing import objects_setup
 from threedcal.study.quick_loop import QuickLoop
-from threedcal.study.scene import dataset_settings
 from threedcal.study.session import prepare
 
 LEVEL = 0.95
@@ -158,7 +157,7 @@ def scratch_arm(
             continue
         rows = loop.ends[point.round - 1]
         trainset, _, registered = collected_so_far(
-            dataset_settings(loop.scene), loop.store_path, rows, prior=registered
+            loop.dataset_settings, loop.store_path, rows, prior=registered
         )
         budget = max(1, point.steps)
         settings = replace(

@@ -118,6 +118,7 @@ class QuickLoop:
         self.store_path, self.work = Path(store_path), Path(work_dir)
         self.progress = progress
         self.settings = QuickSettings.from_scene(scene)
+        self.dataset_settings = dataset_settings(scene)  # every round registers and labels with it
         # the rounds' first row: after the touch search and any registration lattice
         self.per_press = rows_per_press(scene["plan"])
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
@@ -153,7 +154,7 @@ class QuickLoop:
         began = time.perf_counter()
         k = len(self.records) + 1
         trainset, self.registration, self._registered = collected_so_far(
-            dataset_settings(self.scene), self.store_path, rows, prior=self._registered
+            self.dataset_settings, self.store_path, rows, prior=self._registered
         )
         if not self.models:
             initial = self.work / "r0" / "model.pt"
