@@ -19,6 +19,7 @@ from threedcal.collect.plan import (
 )
 from threedcal.collect.scene_plan import plan_phases
 from threedcal.collect.store_read import open_checked
+from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
@@ -33,7 +34,7 @@ from threedcal.dataset.touch import (
     planned_touch_search,
 )
 from threedcal.dataset.trainset import TrainingSet, downscale, from_imported
-from threedcal.errors import ConfigError
+from threedcal.errors import ConfigError, RegistrationError
 from threedcal.lens import RadialLens, profile_focal_px, rectify_if
 from threedcal.plotting import pyplot
 from threedcal.profiles import with_gel_mechanics
@@ -196,7 +197,11 @@ def register_store(
     if prior is not None and np.array_equal(prior.registered_rows, rows):
         registration = prior.registration
     else:
-        registration = _register(settings, raw, rows, first, last, cmd_xy, whole, progress)
+
+        def located(rows, whole, progress):
+            return _register(settings, raw, rows, first, last, cmd_xy, whole, progress)
+
+        registration, rows = _register_presses(located, phase, rows, whole, progress)
     # where each press lies in the ideal frame: what the trainset's rectified frames show
     centres = registration.fit.ideal(cmd_xy)
     # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
@@ -205,6 +210,36 @@ def register_store(
     return RegisteredStore(
         raw, sensor, plan_config, phase, first, last, registration, rows, centres, depth
     )
+
+
+def _register_presses(located, phase, rows, whole, progress):
+    """(registration, its rows): the registration presses', or with the grid presses' too where
+    those located fewer whole contacts than half of them (and than a fit with one to spare needs).
+    A shallow registration press on a noisy unit can stand too little above the noise to be found;
+    the deeper grid contacts then join it, with their own locator bias, rather than a fit through
+    a few contacts or none."""
+    grid = np.flatnonzero(phase == "grid")
+    if not len(grid) or np.array_equal(rows, grid):
+        return located(rows=rows, whole=whole, progress=progress), rows
+    needed = max(MIN_FIRST_CONTACTS, (len(rows) + 1) // 2)
+    try:
+        registration = located(rows=rows, whole=whole, progress=progress)
+        found = sum(c is not None for c in registration.contacts)
+    except RegistrationError:  # fewer than an affine's three
+        registration, found = None, "fewer than 3"
+    if registration is not None and found >= needed:
+        return registration, rows
+    logging.getLogger(__name__).warning(
+        "registration: the %d registration presses located %s whole contacts (%d needed): "
+        "registering on them and the %d grid presses together (a deeper "
+        "plan.registration.depth_mm gives fainter contacts more contrast)",
+        len(rows),
+        found,
+        needed,
+        len(grid),
+    )
+    both = np.union1d(rows, grid)
+    return located(rows=both, whole=whole, progress=progress), both
 
 
 def _register(settings, raw, rows, first, last, cmd_xy, whole, progress):
@@ -447,7 +482,7 @@ def _registration_record(
         else {k: round(v, 4) for k, v in fit.lens_cv_px.items()},
         "px_per_mm": [round(v, 5) for v in fit.px_per_mm],
         "rotation_deg": round(float(np.degrees(np.arctan2(linear[1, 0], linear[0, 0]))), 4),
-        "contacts_from": str(store.phase[store.registered_rows[0]]),
+        "contacts_from": "+".join(dict.fromkeys(store.phase[store.registered_rows].tolist())),
         "contacts_found": int(sum(c is not None for c in registration.contacts)),
         "contacts_used": int(fit.inliers.sum()),
         "locator": registration.locator,
