@@ -85,8 +85,11 @@ def pytest_collection_modifyitems(config, items):
     so the other worker works through everything else while the end-to-end run goes, and both
     finish together instead of one starting a two-minute test when the other is done. A file's
     tests stay together, so a module fixture is built at most once per worker."""
-    first = "test_end_to_end_run_then_reruns_only_what_a_change_touches"
-    first_files = {item.path for item in items if item.name == first}
+    first = {  # the end-to-end runs: `make test`'s, and `make test-long`'s of the imported scene
+        "test_end_to_end_run_then_reruns_only_what_a_change_touches",
+        "test_end_to_end_run_of_an_imported_scene_and_the_realism_check",
+    }
+    first_files = {item.path for item in items if item.name in first}
     slow_files = {item.path for item in items if item.get_closest_marker("slow")}
     files: dict[Path, int] = {}
     for item in items:
@@ -94,7 +97,7 @@ def pytest_collection_modifyitems(config, items):
 
     def rank(pair):
         position, item = pair
-        if item.name == first:
+        if item.name in first:
             group = 0
         elif item.path in first_files:
             group = 1

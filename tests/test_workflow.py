@@ -90,29 +90,60 @@ def cluster_check():
     return load_file_module("workflow/cluster/check.py", "cluster_check")
 
 
+def split_tiny_study(tmp_path) -> tuple[dict, dict]:
+    """tests/config/test.yaml as two studies: the collected scenes (the run `make test` makes), and
+    the imported scene with the realism check, whose cross-validation, sim-to-real and presets
+    stages are most of the tiny study's job-time (the long test runs them). `make cluster-test`
+    runs the whole file."""
+    config = tiny_study_config(tmp_path)
+    imported = {name for name, scene in config["scenes"].items() if "import" in scene}
+    assert imported, "tests/config/test.yaml has no imported scene"
+    collected = dict(
+        config, scenes={k: v for k, v in config["scenes"].items() if k not in imported}
+    )
+    collected.pop("realism", None)
+    rest = {k: v for k, v in config.items() if k not in ("scenes", "integration_study")}
+    rest["scenes"] = {name: config["scenes"][name] for name in imported}
+    return collected, rest
+
+
+@pytest.mark.long
+@pytest.mark.slow
+def test_end_to_end_run_of_an_imported_scene_and_the_realism_check(tmp_path):
+    _, config = split_tiny_study(tmp_path)
+    snakemake(tmp_path, write_config(tmp_path, config))
+    for name, scene in config["scenes"].items():
+        record = json.loads((tmp_path / f"results/{name}/scene.json").read_text())
+        assert record["scene"] == name and record["software"]["threedcal"]
+        assert (tmp_path / f"results/{name}/models/P80/r0/model.pt").stat().st_size > 0
+        assert (tmp_path / f"results/{name}/models/P80/r0/losses.png").is_file()
+        ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
+        # cross-validated: every real image tested once, by a model that never saw it
+        assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 42
+        assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
+        assert len(ball["folds"]) == scene["cv"]["folds"]
+        assert (tmp_path / f"results/{name}/cv/errors.png").is_file()
+        assert (tmp_path / f"results/{name}/presets.csv").is_file()
+        errors = pd.read_csv(tmp_path / f"results/{name}/sim2real/errors.csv")
+        pooled = errors[errors["fold"].astype(str) == "all"]
+        assert set(pooled["condition"]) == {"sim+real", "real-only", "scene model"}
+        assert (pooled["cap_depth_mae_um"] > 0).all()
+        assert (tmp_path / f"results/{name}/sim2real/error_vs_k.png").is_file()
+    for leaf in ("summary.md", "environment.json", "realism/table.txt"):
+        assert (tmp_path / f"results/{leaf}").is_file(), leaf
+    assert cluster_check().uncovered_timing_tables(tmp_path / "results") == []
+    assert scheduled_jobs(tmp_path, write_config(tmp_path, config)) == []
+
+
 @pytest.mark.slow
 def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
-    config = tiny_study_config(tmp_path)
+    config, _ = split_tiny_study(tmp_path)
     path = write_config(tmp_path, config)
     snakemake(tmp_path, path)
     for name in config["scenes"]:
         record = json.loads((tmp_path / f"results/{name}/scene.json").read_text())
         assert record["scene"] == name and record["software"]["threedcal"]
     for name, scene in config["scenes"].items():
-        if "import" in scene:
-            assert (tmp_path / f"results/{name}/models/P80/r0/model.pt").stat().st_size > 0
-            assert (tmp_path / f"results/{name}/models/P80/r0/losses.png").is_file()
-            ball = json.loads((tmp_path / f"results/{name}/ball_eval.json").read_text())
-            # cross-validated: every real image tested once, by a model that never saw it
-            assert ball["n_test_images"] == ball["lookup"]["n_test_images"] == 42
-            assert ball["gradient_rmse"] > 0 and ball["lookup"]["cap_depth_mae_um"] > 0
-            assert len(ball["folds"]) == scene["cv"]["folds"]
-            assert (tmp_path / f"results/{name}/cv/errors.png").is_file()
-            errors = pd.read_csv(tmp_path / f"results/{name}/sim2real/errors.csv")
-            pooled = errors[errors["fold"].astype(str) == "all"]
-            assert set(pooled["condition"]) == {"sim+real", "real-only", "scene model"}
-            assert (pooled["cap_depth_mae_um"] > 0).all()
-            assert (tmp_path / f"results/{name}/sim2real/error_vs_k.png").is_file()
         if scene["sensor"] == "reskin":
             reskin = json.loads((tmp_path / f"results/{name}/reskin_eval.json").read_text())
             assert reskin["n_test_readings"] > 0 and reskin["median_error_mm"] >= 0
@@ -155,7 +186,7 @@ def test_end_to_end_run_then_reruns_only_what_a_change_touches(tmp_path):
     assert (errors["replicates"] == 2).all() and set(reporting["replicate"]) == {0, 1}
     tuning = pd.read_csv(objects / "tuning.csv")
     assert (tuning["presses"] == 1).all()
-    for leaf in ("summary.md", "environment.json", "realism/table.txt", "integration/reading.md"):
+    for leaf in ("summary.md", "environment.json", "integration/reading.md"):
         assert (tmp_path / f"results/{leaf}").is_file(), leaf
     summary = (tmp_path / "results/summary.md").read_text()
     assert collected in summary
