@@ -49,8 +49,8 @@ def test_enough_registration_contacts_register_alone(found, caplog):
 
 @pytest.mark.parametrize("found", [0, 2, 4])
 def test_too_few_registration_contacts_are_joined_by_the_grid_presses(found, caplog):
-    """Under half of 10 (5 needed): 0-2 found is too few for any affine (an error before), 4 a fit
-    with nothing to spare; the grid presses join them, and the log says how many were found."""
+    """5 needed: 0-2 found is too few for any affine (an error before), 4 a fit with nothing to
+    spare; the grid presses join them, and the log says how many were found."""
     located, asked = locator(found)
     with caplog.at_level(logging.WARNING):
         registration, rows = _register_presses(located, PHASE, REGISTER, None, False)

@@ -214,14 +214,14 @@ def register_store(
 
 def _register_presses(located, phase, rows, whole, progress):
     """(registration, its rows): the registration presses', or with the grid presses' too where
-    those located fewer whole contacts than half of them (and than a fit with one to spare needs).
-    A shallow registration press on a noisy unit can stand too little above the noise to be found;
+    those located fewer whole contacts than the affine through a lens needs with one to spare. A
+    shallow registration press on a noisy unit can stand too little above the noise to be found;
     the deeper grid contacts then join it, with their own locator bias, rather than a fit through
     a few contacts or none."""
     grid = np.flatnonzero(phase == "grid")
     if not len(grid) or np.array_equal(rows, grid):
         return located(rows=rows, whole=whole, progress=progress), rows
-    needed = max(MIN_FIRST_CONTACTS, (len(rows) + 1) // 2)
+    needed = MIN_FIRST_CONTACTS
     try:
         registration = located(rows=rows, whole=whole, progress=progress)
         found = sum(c is not None for c in registration.contacts)
