@@ -42,7 +42,8 @@ def test_every_module_uses_public_names_only():
             assert path.stem in diagnostics.__doc__, f"{path.stem} missing from the package docs"
 
 
-@pytest.mark.slow  # about 5 s on 2 cores
+@pytest.mark.long  # about 5 s on 2 cores
+@pytest.mark.slow
 def test_elastic_gel_smoke(tmp_path):
     from diagnostics import elastic_gel
 
@@ -63,7 +64,8 @@ def test_elastic_gel_smoke(tmp_path):
     assert locators["geometric_symmetry_rms_px"] < 0.5 and locators["geometric_rim_rms_px"] < 1.0
 
 
-@pytest.mark.slow  # a calibration on the bench and a lookup model: about 10 s on 2 cores
+@pytest.mark.long  # a calibration on the bench and a lookup model: about 10 s on 2 cores
+@pytest.mark.slow
 def test_point_frames_smoke(tmp_path):
     from diagnostics import point_frames
 

@@ -200,7 +200,7 @@ def stop_server(server: subprocess.Popen) -> None:
     assert code == 0, f"{server.args}: exited {code} after Ctrl-C"
 
 
-# pages whose examples run whole stages (over ten seconds each): `make test-long`
+# pages whose examples run whole stages (several seconds each): `make test-long`
 LONG_PAGES = {
     f"docs/{name}.md"
     for name in (
@@ -209,6 +209,11 @@ LONG_PAGES = {
         "how-to/deploy",
         "how-to/rerun-a-stage",
         "how-to/slurm",
+        "how-to/calibrate-quickly",
+        "how-to/add-a-profile",
+        "explanation/objects",
+        "explanation/real-data",
+        "explanation/reskin",
     )
 }
 
