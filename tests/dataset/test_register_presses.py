@@ -55,6 +55,8 @@ def test_too_few_registration_contacts_are_joined_by_the_grid_presses(found, cap
     with caplog.at_level(logging.WARNING):
         registration, rows = _register_presses(located, PHASE, REGISTER, None, False)
     np.testing.assert_array_equal(rows, np.arange(2, len(PHASE)))
+    # asked twice: the registration presses alone, then with the grid's
+    assert [list(a) for a in asked] == [list(REGISTER), list(rows)]
     assert sum(c is not None for c in registration.contacts) == found + 10
     (record,) = caplog.records
     assert "the 10 registration presses located" in record.getMessage()

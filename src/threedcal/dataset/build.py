@@ -198,10 +198,10 @@ def register_store(
         registration = prior.registration
     else:
 
-        def located(rows, whole, progress):
+        def register_rows(rows, whole, progress):
             return _register(settings, raw, rows, first, last, cmd_xy, whole, progress)
 
-        registration, rows = _register_presses(located, phase, rows, whole, progress)
+        registration, rows = _register_presses(register_rows, phase, rows, whole, progress)
     # where each press lies in the ideal frame: what the trainset's rectified frames show
     centres = registration.fit.ideal(cmd_xy)
     # The plan compensated the dome's sag at the nominal seating; the sensor sits where the
@@ -212,7 +212,7 @@ def register_store(
     )
 
 
-def _register_presses(located, phase, rows, whole, progress):
+def _register_presses(register_rows, phase, rows, whole, progress):
     """(registration, its rows): the registration presses', or with the grid presses' too where
     those located fewer whole contacts than the affine through a lens needs with one to spare. A
     shallow registration press on a noisy unit can stand too little above the noise to be found;
@@ -220,14 +220,13 @@ def _register_presses(located, phase, rows, whole, progress):
     a few contacts or none."""
     grid = np.flatnonzero(phase == "grid")
     if not len(grid) or np.array_equal(rows, grid):
-        return located(rows=rows, whole=whole, progress=progress), rows
-    needed = MIN_FIRST_CONTACTS
+        return register_rows(rows=rows, whole=whole, progress=progress), rows
     try:
-        registration = located(rows=rows, whole=whole, progress=progress)
+        registration = register_rows(rows=rows, whole=whole, progress=progress)
         found = sum(c is not None for c in registration.contacts)
     except RegistrationError:  # fewer than an affine's three
         registration, found = None, "fewer than 3"
-    if registration is not None and found >= needed:
+    if registration is not None and found >= MIN_FIRST_CONTACTS:
         return registration, rows
     logging.getLogger(__name__).warning(
         "registration: the %d registration presses located %s whole contacts (%d needed): "
@@ -235,11 +234,11 @@ def _register_presses(located, phase, rows, whole, progress):
         "plan.registration.depth_mm gives fainter contacts more contrast)",
         len(rows),
         found,
-        needed,
+        MIN_FIRST_CONTACTS,
         len(grid),
     )
     both = np.union1d(rows, grid)
-    return located(rows=both, whole=whole, progress=progress), both
+    return register_rows(rows=both, whole=whole, progress=progress), both
 
 
 def _register(settings, raw, rows, first, last, cmd_xy, whole, progress):
