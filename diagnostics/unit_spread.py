@@ -8,7 +8,7 @@ frames drift from its blank (smooth part, away from the contact). Then, per sens
 its two units differ by and the spread of one unit (the difference over √2).
 
 Mini frames are compared in the Mini profile's landscape frame: gelsight_ball_fots's portrait
-frames are turned a quarter counter-clockwise, as the shipped weights read them.
+frames are read turned a quarter counter-clockwise, as every reader of that folder reads them.
 
     .venv/bin/python -m diagnostics.unit_spread [--smoke]
 
@@ -32,23 +32,16 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 MARKER_CONTACT_REACH_PX = 100  # the marker frames' contact and its colour, left out of their field
 
 
-def _turn(image: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(np.rot90(image))
-
-
-def contact_unit(folder: Path, turned: bool, frames: int | None) -> dict:
-    """Blank and contact figures of a ball folder's unit (fitting half only)."""
-    data = load_ball_dataset(folder)
-    blank = read_rgb(folder / "background.png").astype(np.float64)
+def contact_unit(folder: Path, orientation: str, frames: int | None) -> dict:
+    """Blank and contact figures of a ball folder's unit (fitting half only), in the sensor
+    profile's `orientation`."""
+    data = load_ball_dataset(folder, orientation)
+    blank = data.read("background.png").astype(np.float64)
     fit, _ = split_halves(data.labels, 0)
     fit = fit[:frames] if frames else fit
     ball = data.ball_radius_mm * data.px_per_mm
-    width = blank.shape[1]
     images = [data.read(label.image).astype(np.float64) for label in fit]
     centres = [label.center_px for label in fit]
-    if turned:
-        blank, images = _turn(blank), [_turn(f) for f in images]
-        centres = [(y, (width - 1) - x) for x, y in centres]
     radius = 0.9 * float(np.median([label.radius_px for label in fit]))
     halos = [um.halo_over_radius(f, blank, c, ball) for f, c in zip(images, centres, strict=True)]
     drift = []
@@ -134,11 +127,17 @@ def main(argv: list[str] | None = None) -> dict:
     frames = 4 if args.smoke else None
     models = {
         "DIGIT": (
-            ("D20368 (digit_frames_fots)", contact_unit(DATA / "digit_frames_fots", False, frames)),
+            (
+                "D20368 (digit_frames_fots)",
+                contact_unit(DATA / "digit_frames_fots", "portrait", frames),
+            ),
             ("TACTO (digit_blank_tacto)", blank_unit(DATA / "digit_blank_tacto/background.jpg")),
         ),
         "Mini": (
-            ("gelsight_ball_fots, turned", contact_unit(DATA / "gelsight_ball_fots", True, frames)),
+            (
+                "gelsight_ball_fots, turned",
+                contact_unit(DATA / "gelsight_ball_fots", "landscape", frames),
+            ),
             ("mini_markers_fots", marker_unit(DATA / "mini_markers_fots/0000.png")),
         ),
     }

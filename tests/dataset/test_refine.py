@@ -13,7 +13,7 @@ from threedcal.profiles import load_profile
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
 
-BALL_MM, PX_PER_MM, SIZE = 2.0, 12.0, (96, 112)
+BALL_MM, PX_PER_MM, SIZE = 2.0, 12.0, (112, 96)  # (width, height): the Mini's landscape frame
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,7 @@ def rendered():
         load_profile("sensor", "gelsight_mini"), 0, image_size=SIZE, px_per_mm=PX_PER_MM
     )
     rng = np.random.default_rng(4)
-    centres = rng.uniform([40, 46], [SIZE[0] - 40, SIZE[1] - 46], (12, 2))
+    centres = rng.uniform([46, 40], [SIZE[0] - 46, SIZE[1] - 40], (12, 2))
     depths = rng.uniform(0.5, 1.2, 12)
     frames = np.stack(
         [

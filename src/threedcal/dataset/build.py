@@ -59,7 +59,8 @@ def build_imported(
     trainset_dir: str | Path,
     splits_path: str | Path,
 ) -> TrainingSet:
-    data = load_imported(data_format, data_path)
+    orientation = settings.sensor["image"].get("orientation") if settings.sensor else None
+    data = load_imported(data_format, data_path, orientation)
 
     trainset = from_imported(
         data,

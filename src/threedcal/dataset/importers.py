@@ -12,6 +12,7 @@ Every problem is reported with the file and row before anything is written.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.images import read_rgb
+from threedcal.orientation import needs_turn, turn_image, turn_points
 from threedcal.schema import load_yaml, plain
 
 # pandas (the workflow extra) loads where a table is read
@@ -287,11 +289,25 @@ def check_import(format_name: str, path: str | Path) -> None:
     load_imported(format_name, path)
 
 
-def load_imported(format_name: str, path: str | Path) -> ImportedDataset:
+def load_imported(
+    format_name: str, path: str | Path, orientation: str | None = None
+) -> ImportedDataset:
+    """The dataset as a sensor of `orientation` (its profile's image.orientation) sees it: frames
+    stored on their side are turned a quarter, with their contact centres (threedcal.orientation)."""
     try:
         loader = IMPORTERS[format_name]
     except KeyError:
         raise ConfigError(
             f"unknown import format {format_name!r} (allowed: {', '.join(IMPORTERS)})"
         ) from None
-    return loader(path)
+    data = loader(path)
+    height, width = data.blank.shape[:2]
+    if not needs_turn(height, width, orientation):
+        return data
+    return dataclasses.replace(
+        data,
+        frames=turn_image(data.frames, axes=(1, 2)),
+        blank=turn_image(data.blank),
+        center_px=turn_points(data.center_px, width),
+        metadata={**data.metadata, "read_turned_quarter": True},
+    )

@@ -24,6 +24,7 @@ import numpy as np
 
 from threedcal.dataset.trainset import TrainingSet, downscale
 from threedcal.errors import ConfigError
+from threedcal.orientation import turn_image, turn_points
 
 
 @dataclass(frozen=True)
@@ -109,16 +110,15 @@ def reframe(ts: TrainingSet, target: tuple[int, int], key: str) -> tuple[Trainin
 
 def turn_quarter(ts: TrainingSet) -> TrainingSet:
     """The set turned a quarter counter-clockwise: pixel (x, y) goes to (y, W - 1 - x)."""
-    width = ts.image_shape[1]
     samples = ts.samples.copy()
-    x, y = samples["center_x_px"].to_numpy(float), samples["center_y_px"].to_numpy(float)
-    samples["center_x_px"], samples["center_y_px"] = y, (width - 1) - x
+    centres = samples[["center_x_px", "center_y_px"]].to_numpy(float)
+    samples[["center_x_px", "center_y_px"]] = turn_points(centres, ts.image_shape[1])
     units = ts.unit_blanks
     return dataclasses.replace(
         ts,
-        frames=np.ascontiguousarray(np.rot90(ts.frames, axes=(1, 2))),
-        blank=np.ascontiguousarray(np.rot90(ts.blank, axes=(0, 1))),
+        frames=turn_image(ts.frames, axes=(1, 2)),
+        blank=turn_image(ts.blank),
         samples=samples,
-        unit_blanks=None if units is None else np.ascontiguousarray(np.rot90(units, axes=(1, 2))),
+        unit_blanks=None if units is None else turn_image(units, axes=(1, 2)),
         meta={**(ts.meta or {}), "turned_quarter": True},
     )

@@ -1,8 +1,9 @@
 """Real frames read by the shipped weights: depth only where the ball is?
 
 For a folder of real ball presses (images, background.png, dataset.yaml; labels.csv optional) the
-frames are brought to the weights' frame (pooled, turned a quarter where they stand on their
-side: threedcal.dataset.reframe) and read with the folder's own blank. Each frame gives
+frames are read in the sensor profile's frame (turned a quarter where the folder stores them on
+their side: threedcal.orientation), brought to the weights' frame (pooled:
+threedcal.dataset.reframe) and read with the folder's own blank. Each frame gives
 (threedcal.model.contact_guard):
 
 - its contact area against the ball's physical bound πR²;
@@ -30,17 +31,17 @@ import pandas as pd
 import torch
 
 from threedcal.dataset.contacts import locate_contact
-from threedcal.dataset.importers import load_ball_folder
+from threedcal.dataset.importers import load_imported
 from threedcal.dataset.refine import refine_labels
 from threedcal.dataset.reframe import reframe
 from threedcal.dataset.trainset import TrainingSet, from_imported, samples_table
 from threedcal.errors import ConfigError
 from threedcal.evaluate.sim2real import shipped_settings
-from threedcal.images import read_rgb
 from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.contact_guard import contact_figures
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import train
+from threedcal.orientation import orientation_of
 from threedcal.pretrained import provenance, shipped_weights
 from threedcal.realism.check import load_ball_dataset
 from threedcal.realism.folder import split_halves
@@ -49,16 +50,19 @@ SPLIT_SEED = 0  # the realism check's split: the DIGIT optics were fitted on hal
 FIT, CHECK = "fit", "check"
 
 
-def load_real_set(folder: str | Path, seed: int = SPLIT_SEED) -> tuple:
-    """(TrainingSet at the folder's own size, how its contacts were located): split 'train' is the
-    fitting half, 'val' the other."""
+def load_real_set(
+    folder: str | Path, orientation: str | None = None, seed: int = SPLIT_SEED
+) -> tuple:
+    """(TrainingSet at the folder's own size, turned into the sensor's `orientation` where it is
+    stored on its side; how its contacts were located): split 'train' is the fitting half, 'val'
+    the other."""
 
     folder = Path(folder)
-    data = load_ball_dataset(folder)
+    data = load_ball_dataset(folder, orientation)
     fit, _ = split_halves(data.labels, seed, where=str(folder))
     fit_names = {label.image for label in fit}
     if data.labelled:
-        ts = refine_labels(from_imported(load_ball_folder(folder), seed))
+        ts = refine_labels(from_imported(load_imported("ball_folder", folder, orientation), seed))
         names = list(ts.meta["names"])
         located = "labels.csv, refined from the images (threedcal.dataset.refine)"
     else:
@@ -80,7 +84,7 @@ def _located_set(folder: Path, data):
     one (column `located`); elsewhere the realism check's (threedcal.realism.check.locate_ball),
     for its radius only: such a frame's centroid is not scored."""
 
-    blank = read_rgb(folder / "background.png")
+    blank = data.read("background.png")
     r_mm, px = data.ball_radius_mm, data.px_per_mm
     names = [label.image for label in data.labels]
     frames = np.stack([data.read(name) for name in names])
@@ -242,12 +246,13 @@ def check_sets(
     table, frames = [], []
     for entry in sets:
         real, sensor = str(entry["real"]), str(entry["sensor"])
-        ts, located = load_real_set(real)
+        record = provenance(sensor, weights_dir)
+        # the weights' frame is the profile's, in which they were trained
+        ts, located = load_real_set(real, orientation_of(*record["image_shape"]))
         weights = shipped_weights(sensor, None, weights_dir)
         models = [(SHIPPED, weights)]
         labelled = (Path(real) / "labels.csv").is_file()
         if labelled and finetune_steps > 0:
-            record = provenance(sensor, weights_dir)
             out = Path(work_dir) / Path(real).name
             tuned = quick_finetune(
                 ts, weights, record, out, finetune_steps, finetune_lr, seed, threads, progress

@@ -36,6 +36,7 @@ Tolerances (how far the simulated figure may sit outside the real range) and why
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -48,6 +49,7 @@ import numpy as np
 from threedcal.dataset.folds import linked_groups
 from threedcal.errors import ConfigError
 from threedcal.images import read_rgb
+from threedcal.orientation import needs_turn, turn_image, turn_points
 from threedcal.schema import load_yaml
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
@@ -99,12 +101,16 @@ class BallDataset:
     height_px: int
     labels: list[BallLabel]
     labelled: bool = True
+    turned: bool = False  # stored on its side: every image and label read turned a quarter
 
     def read(self, name: str) -> np.ndarray:
-        return read_rgb(self.root / name)
+        image = read_rgb(self.root / name)
+        return turn_image(image) if self.turned else image
 
 
-def load_ball_dataset(root: str | Path) -> BallDataset:
+def load_ball_dataset(root: str | Path, orientation: str | None = None) -> BallDataset:
+    """The folder as `orientation` ('portrait' or 'landscape': the sensor profile's frame) sees it:
+    a folder stored on its side is read turned a quarter (threedcal.orientation), labels too."""
     root = Path(root)
     meta_path = root / "dataset.yaml"
     if not meta_path.is_file():
@@ -118,14 +124,18 @@ def load_ball_dataset(root: str | Path) -> BallDataset:
             f"{root}: no background.png (the no-contact frame every contact is compared against)"
         )
     bg = read_rgb(root / "background.png")
+    turned = needs_turn(bg.shape[0], bg.shape[1], orientation)
+    stored_width = bg.shape[1]
+    bg = turn_image(bg) if turned else bg
     scale, ball_mm = float(meta["px_per_mm"]), float(meta["ball_radius_mm"])
     label_path = root / "labels.csv"
     if not label_path.exists():
         names = sorted(p.name for p in root.glob("*.png") if p.name != "background.png")
         if not names:
             raise ConfigError(f"{root}: no contact images (*.png besides background.png)")
-        located = [locate_ball(read_rgb(root / n), bg, ball_mm * scale, n) for n in names]
-        return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], located, False)
+        data = BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], [], False, turned)
+        located = [locate_ball(data.read(n), bg, ball_mm * scale, n) for n in names]
+        return dataclasses.replace(data, labels=located)
     labels = []
     try:
         with label_path.open(newline="") as fh:
@@ -146,7 +156,13 @@ def load_ball_dataset(root: str | Path) -> BallDataset:
         raise ConfigError(f"{label_path}: cannot read ({exc.strerror})") from None
     if not labels:
         raise ConfigError(f"{label_path}: no labelled images")
-    return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], labels)
+    if turned:
+        centres = turn_points([label.center_px for label in labels], stored_width)
+        labels = [
+            dataclasses.replace(label, center_px=(float(x), float(y)))
+            for label, (x, y) in zip(labels, centres, strict=True)
+        ]
+    return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], labels, True, turned)
 
 
 def image_figures(

@@ -92,14 +92,15 @@ def realism_run(
     (YAML). `fit=False`: the profile as it is, against every image (and the background frame), no
     2-D halo (it needs two real halves). `gel_mechanics`: the gel's model in place of the profile's
     (threedcal.profiles.with_gel_mechanics), as a scene's bench simulates it."""
-    data = load_ball_dataset(real)
     profile = with_gel_mechanics(load_profile("sensor", sensor), gel_mechanics)
+    data = load_ball_dataset(real, profile["image"].get("orientation"))
     head = (
         f"realism: {profile['name']} optics ({profile['gel'].get('mechanics', 'geometric')} gel) "
         f"at {data.width_px}x{data.height_px}, "
         f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} "
         f"{'labelled' if data.labelled else 'unlabelled (contacts located from frame - background)'}"
         f" images of {data.root}"
+        f"{', read turned a quarter into the profile frame' if data.turned else ''}"
     )
     lines = [head]
     halo = None

@@ -213,7 +213,9 @@ def _shipped_problems(scene: Mapping, sensor: Mapping, frames: bool = False) -> 
     if not frames:
         return []
 
-    blank = load_imported(scene["import"]["format"], scene["import"]["path"]).blank
+    blank = load_imported(
+        scene["import"]["format"], scene["import"]["path"], sensor["image"].get("orientation")
+    ).blank
     factor = int((scene.get("dataset") or {}).get("downscale", 1))
     shape = (blank.shape[0] // factor, blank.shape[1] // factor)
     problem = reframe_problem(shape, tuple(provenance(sensor["name"])["image_shape"]))
