@@ -291,18 +291,28 @@ MAX_FIT_EVALUATIONS = 100
 # centres (benchmarks/bench_registration.py, tests/dataset/test_registration.py, Mini contacts at
 # 1-3 mm), which an affine over many contacts averages.
 SAMPLE_SPACING_PX = 2
+# A fit left this many times less symmetric than the set's median is dropped, not kept: on the
+# Mini's frames overexposed by 20 % (tests/dataset/test_registration.py) a contact the clipping
+# cuts in two kept a centre 7 px off at 10x the median cost; the sound fits lie within 3x.
+ASYMMETRY_OUTLIER = 5.0
+# Below this spread of the usable mirror axes (`_axes_information`) the centre along their common
+# line is the rim's: the fit's own is then only where the damped steps happened to stop.
+MIN_AXES_SPREAD = 0.1
 # A fit has converged once a step would move the centre by less than this (px). The axes may
 # still creep then; the centre no longer follows them by more than noise.
 STEP_TOLERANCE_PX = 5e-3
 
 
 def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach: float):
-    """(centre x, centre y, axes) that make every unmixed channel mirror-symmetric, or None."""
+    """(centre x, centre y, axes, cost) that make every unmixed channel mirror-symmetric, or None.
+    `cost` is what is left of the asymmetry: the mean squared mirror difference per usable pair
+    (DN², summed over the LEDs)."""
     disk = _Disk.around(coarse, reach, SAMPLE_SPACING_PX)
     start = np.array([coarse.x_px, coarse.y_px])
     axes0 = _dipole_axes(window, unmixing, start, disk)
+    problem = _SymmetryResiduals(window, unmixing, disk)
     x, converged = _levenberg_marquardt(
-        _SymmetryResiduals(window, unmixing, disk),
+        problem,
         np.concatenate([start, axes0]),
         np.concatenate([[1.0, 1.0], np.full(len(axes0), 0.05)]),  # a pixel; 0.05 rad of axis
         tolerance=STEP_TOLERANCE_PX,
@@ -313,7 +323,36 @@ def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach:
     moved = math.hypot(cx - coarse.x_px, cy - coarse.y_px)
     if not converged or usable < 0.1 or moved > 0.5 * coarse.radius_px:
         return None
-    return float(cx), float(cy), x[2:]
+    spread, across = _axes_information(x[2:], w.mean(axis=1))
+    if spread < MIN_AXES_SPREAD:
+        # The usable axes are one line: symmetry fixes the centre across it, the rim along it.
+        start_to_fit = np.array([cx, cy]) - start
+        cx, cy = start + across * float(across @ start_to_fit)
+    return float(cx), float(cy), x[2:], problem.normal_equations(x)[0]
+
+
+def _axes_information(axes: np.ndarray, usable: np.ndarray) -> tuple[float, np.ndarray]:
+    """How well the mirror axes fix a centre in 2D, and the direction they fix best.
+
+    Each axis fixes the centre across itself only, weighted by its usable pairs' share. Returns
+    the smaller over the larger eigenvalue of the summed information (1: two equal axes at right
+    angles; 0: every usable axis on one line, as when only the Mini's facing red and green LEDs
+    are left) and the larger one's unit eigenvector."""
+    normals = np.stack([-np.sin(axes), np.cos(axes)], axis=1)
+    information = np.einsum("k,ki,kj->ij", np.asarray(usable, dtype=float), normals, normals)
+    values, vectors = np.linalg.eigh(information)
+    spread = float(values[0] / values[1]) if values[1] > 0 else 0.0
+    return spread, vectors[:, 1]
+
+
+def _symmetric_outliers(costs: np.ndarray) -> np.ndarray:
+    """Which fits stayed far less symmetric than the set's typical one: a centre that settled on
+    a false minimum, where clipping left only pairs that happen to match (cost above
+    ASYMMETRY_OUTLIER times the median cost of the set's fits)."""
+    costs = np.asarray(costs, dtype=float)
+    if costs.size < 3:
+        return np.zeros(costs.size, bool)
+    return costs > ASYMMETRY_OUTLIER * np.median(costs)
 
 
 def _fit_unmixing(windows, fits, contacts, reach: float) -> np.ndarray:
@@ -321,7 +360,7 @@ def _fit_unmixing(windows, fits, contacts, reach: float) -> np.ndarray:
     rows = []
     for k in range(3):
         differences = []
-        for window, (cx, cy, axes), contact in zip(windows, fits, contacts, strict=True):
+        for window, (cx, cy, axes, _), contact in zip(windows, fits, contacts, strict=True):
             disk = _Disk.around(contact, reach, SAMPLE_SPACING_PX)
             a, b, w = _mirror_pairs(window, disk, (cx, cy), axes[k : k + 1])
             differences.append(_without_ramps((a - b[0])[None], w, axes[k : k + 1], disk)[0].T)
@@ -382,10 +421,15 @@ def refine_by_symmetry(
         if len(used) < 3:
             break
         unmixing = _fit_unmixing([windows[i] for i in used], fits, [coarse[i] for i in used], reach)
-    contacts: list[Contact | None] = [None] * len(coarse)
+    fits = {}
     for i in tqdm(present, desc="symmetric centres", unit="contact", disable=not progress):
         fit = _symmetry_fit(windows.get(i) or window(i), unmixing, coarse[i], reach)
         if fit is not None:
+            fits[i] = fit
+    outliers = _symmetric_outliers([fit[3] for fit in fits.values()])
+    contacts: list[Contact | None] = [None] * len(coarse)
+    for (i, fit), outlier in zip(fits.items(), outliers, strict=True):
+        if not outlier:
             c = coarse[i]
             contacts[i] = Contact(
                 x_px=fit[0], y_px=fit[1], radius_px=c.radius_px, strength=c.strength
