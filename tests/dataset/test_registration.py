@@ -17,7 +17,12 @@ from threedcal.dataset.contacts import (
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.labels import sphere_gradients
 from threedcal.dataset.registration import register_camera
-from threedcal.dataset.symmetry import _levenberg_marquardt, refine_by_symmetry
+from threedcal.dataset.symmetry import (
+    _axes_information,
+    _levenberg_marquardt,
+    _symmetric_outliers,
+    refine_by_symmetry,
+)
 from threedcal.dataset.touch import (
     TOUCH_FIT_SPAN_MM,
     ChangeDetector,
@@ -294,6 +299,27 @@ class _CircleThroughPoints:
         r = distance - params[2]
         jacobian = np.column_stack([-d[:, 0] / distance, -d[:, 1] / distance, -np.ones(len(r))])
         return float(r @ r), jacobian.T @ r, jacobian.T @ jacobian
+
+
+def test_mirror_axes_fix_a_centre_in_2d_only_when_they_are_not_one_line():
+    # two equally usable axes at right angles fix both directions alike
+    spread, _ = _axes_information(np.radians([0.0, 90.0]), [0.5, 0.5])
+    assert spread == pytest.approx(1.0)
+    # facing LEDs (the Mini's red and green) share one line: nothing fixes the centre along it;
+    # what they fix is across it (an axis along x fixes y)
+    spread, across = _axes_information(np.radians([183.0, 3.0]), [0.4, 0.4])
+    assert spread == pytest.approx(0.0, abs=1e-12)
+    assert abs(across[1]) == pytest.approx(np.cos(np.radians(3.0)))
+    # a third axis that is barely usable adds little: its share against theirs
+    spread, _ = _axes_information(np.radians([180.0, 0.0, 90.0]), [0.4, 0.4, 0.08])
+    assert spread == pytest.approx(0.08 / 0.8)
+    assert _axes_information(np.radians([0.0, 90.0]), [0.0, 0.0])[0] == 0.0
+
+
+def test_a_fit_far_less_symmetric_than_the_sets_is_an_outlier():
+    costs = np.array([0.5, 0.6, 0.7, 1.2, 2.9, 3.1, 14.0])
+    np.testing.assert_array_equal(_symmetric_outliers(costs), costs > 5 * 1.2)
+    assert not _symmetric_outliers([1.0, 50.0]).any()  # two fits have no typical one
 
 
 def test_levenberg_marquardt_reaches_a_known_minimum():
