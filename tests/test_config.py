@@ -371,12 +371,13 @@ def test_shipped_weights_in_sim_to_real_need_weights_for_the_sensor_and_frames_t
     imported["sensor"] = "gelsight_mini"
     scene = validate_config({"scenes": {"s": imported}})["scenes"]["s"]
     assert scene["sim_to_real"]["shipped_lr"] == 1e-3
-    # `config check` reads the frames: the real Mini set (320 x 240 portrait) reaches the
-    # 120 x 160 weights pooled by 2 and turned; pooled by 3 first (106 x 80) it cannot
+    # `config check` reads the frames: the real Mini set (stored 320 x 240 portrait, read turned
+    # into the Mini's landscape frame) reaches the 120 x 160 weights pooled by 2; pooled by 3
+    # first (80 x 106) it cannot
     imported["import"]["path"] = "data/gelsight_ball_fots"
     validate_config({"scenes": {"s": imported}}, check_files=True)
     imported["dataset"] = {"downscale": 3}
-    with pytest.raises(ConfigError, match="sim_to_real.shipped: the imported 106 x 80 px frames"):
+    with pytest.raises(ConfigError, match="sim_to_real.shipped: the imported 80 x 106 px frames"):
         validate_config({"scenes": {"s": imported}}, check_files=True)
 
 
