@@ -10,7 +10,7 @@ from conftest import bench_scene, collect_and_register, elastic_gel, shared_acro
 
 from threedcal.collect.store_read import open_checked
 from threedcal.dataset.build import build_collected
-from threedcal.dataset.camera_fit import fit_affine, fit_camera, fit_lensed
+from threedcal.dataset.camera_fit import MIN_LENS_CONTACTS, fit_affine, fit_camera, fit_lensed
 from threedcal.dataset.contacts import locate_contact
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.symmetry import refine_by_symmetry
@@ -287,15 +287,21 @@ def test_fit_camera_refits_a_lens_the_profile_gets_wrong_once_the_contacts_pin_i
     assert fit.lens.kappa1 == pytest.approx(truth.kappa1, rel=1e-5)
 
 
-def test_fit_camera_keeps_the_profiles_lens_when_a_few_noisy_contacts_cannot_do_better():
-    """Eight contacts located to 0.3 px through the profile's own lens: refitting κ₁ or the
-    principal point follows the noise, and the contacts left out say so."""
+def test_fit_camera_keeps_the_profiles_lens_under_the_contacts_that_pin_one_down():
+    """Eight contacts located to 0.3 px through the profile's own lens: the profile's lens, and
+    the cross-validation is not run for the others."""
     xy, camera = contacts_of(PRIOR, 8, np.random.default_rng(3), noise_px=0.3)
     fit = fit_camera(xy, camera, SHAPE, PRIOR)
-    assert fit.lens_free == "none" and fit.lens == PRIOR
-    assert fit.lens_cv_px["none"] < min(v for k, v in fit.lens_cv_px.items() if k != "none")
+    assert fit.lens_free == "none" and fit.lens == PRIOR and set(fit.lens_cv_px) == {"none"}
     ideal = xy @ TRUE_AFFINE[:, :2].T + TRUE_AFFINE[:, 2]
     assert np.abs(fit.ideal(xy) - ideal).max() < 0.5
+    # exact contacts of a lens the profile gets wrong: kept under MIN_LENS_CONTACTS, refitted from it
+    truth = RadialLens(centre_px=(162.5, 117.0), kappa1=-8.4e-7, shape=SHAPE)
+    xy, camera = contacts_of(truth, MIN_LENS_CONTACTS, np.random.default_rng(4))
+    below = fit_camera(xy[:-1], camera[:-1], SHAPE, PRIOR)
+    assert below.lens_free == "none" and below.lens == PRIOR
+    at = fit_camera(xy, camera, SHAPE, PRIOR)
+    assert at.lens_free == "all" and at.lens.kappa1 == pytest.approx(truth.kappa1, rel=1e-5)
 
 
 def test_fit_camera_needs_four_contacts_off_one_line_and_leaves_missing_ones_out():

@@ -96,6 +96,9 @@ def fit_affine(
 
 # Fewest contacts to fit the lens's extra unknowns (principal point, κ₁) next to the affine with
 # no lens to start from; `register_camera` falls back to the affine alone below it, with a warning.
+# From the profile's lens, fewer keep it as it is: on the quick plan's 20-27 contacts (bench units
+# 15-20 of each sensor), a refitted κ₁ extrapolated worse over the view in every unit where the
+# cross-validation chose one (DIGIT up to 0.57 against 0.27 px, Mini 1.83 against 0.90 px).
 MIN_LENS_CONTACTS = 30
 # From a lens to start from: which of its unknowns a fit frees, and the fewest contacts that fit
 # takes (two equations each for the affine's 6 unknowns, with κ₁ 7, with the principal point 9,
@@ -193,14 +196,17 @@ def fit_camera(
     whichever predicts contacts left out best (LENS_FOLDS-fold cross-validation over the first
     fit's inliers; a tie goes to the fewer unknowns), recorded in the fit's `lens_free` and
     `lens_cv_px`. A few contacts cannot pin a lens down, and then the profile's is the better
-    guess; many can, and then the unit's own is."""
+    guess; many can, and then the unit's own is. Under MIN_LENS_CONTACTS inliers the profile's
+    lens is kept outright: contacts left out from among the others say how a lens interpolates,
+    not how it extrapolates to the band beyond them (docs/explanation/registration.md)."""
     src, dst = _point_arrays(xy_mm, xy_px)
     first = fit_lensed(src, dst, shape, start=prior, free="none")
     inliers = np.flatnonzero(first.inliers)
     folds = np.arange(len(inliers)) % min(LENS_FOLDS, len(inliers))
     errors: dict[str, float] = {}
     fits: dict[str, AffineFit] = {"none": first}
-    for free in LENS_FREEDOMS:
+    few = len(inliers) < MIN_LENS_CONTACTS
+    for free in ["none"] if few else LENS_FREEDOMS:
         squared = []
         try:
             for fold in np.unique(folds):
