@@ -1,9 +1,9 @@
 """Real frames read by the shipped weights: depth only where the ball is?
 
 For a folder of real ball presses (images, background.png, dataset.yaml; labels.csv optional) the
-frames are read in the sensor profile's frame (turned a quarter where the folder stores them on
-their side: threedcal.orientation), brought to the weights' frame (pooled:
-threedcal.dataset.reframe) and read with the folder's own blank. Each frame gives
+frames are read in the orientation of the weights' frame, which is the sensor profile's (turned a
+quarter where the folder stores them on their side: threedcal.orientation), pooled to the weights'
+size (threedcal.dataset.reframe) and read with the folder's own blank. Each frame gives
 (threedcal.model.contact_guard):
 
 - its contact area against the ball's physical bound πR²;
