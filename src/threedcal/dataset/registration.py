@@ -180,7 +180,7 @@ def _symmetry_from_fit(
         None if c is None else Contact(float(g[0]), float(g[1]), c.radius_px, c.strength)
         for c, g in zip(rim, guess, strict=True)
     ]
-    refined = refine_by_symmetry(frames, blank, starts, progress=progress)
+    refined = refine_by_symmetry(frames, blank, starts, progress=progress, anchors=rim)
     return SymmetryRefinement(
         contacts=[c if c is not None and accept(c) else None for c in refined.contacts],
         unmixing=refined.unmixing,

@@ -296,17 +296,20 @@ SAMPLE_SPACING_PX = 2
 # cuts in two kept a centre 7 px off at 10x the median cost; the sound fits lie within 3x.
 ASYMMETRY_OUTLIER = 5.0
 # Below this spread of the usable mirror axes (`_axes_information`) the centre along their common
-# line is the rim's: the fit's own is then only where the damped steps happened to stop.
+# line is the anchor's (the rim's): the fit's own is only where the damped steps happened to stop.
 MIN_AXES_SPREAD = 0.1
 # A fit has converged once a step would move the centre by less than this (px). The axes may
 # still creep then; the centre no longer follows them by more than noise.
 STEP_TOLERANCE_PX = 5e-3
 
 
-def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach: float):
+def _symmetry_fit(
+    window: _Window, unmixing: np.ndarray, coarse: Contact, reach: float, anchor=None
+):
     """(centre x, centre y, axes, cost) that make every unmixed channel mirror-symmetric, or None.
     `cost` is what is left of the asymmetry: the mean squared mirror difference per usable pair
-    (DN², summed over the LEDs)."""
+    (DN², summed over the LEDs). `anchor` (x, y; default the start) fixes the centre along the
+    axes' line where they are one."""
     disk = _Disk.around(coarse, reach, SAMPLE_SPACING_PX)
     start = np.array([coarse.x_px, coarse.y_px])
     axes0 = _dipole_axes(window, unmixing, start, disk)
@@ -325,9 +328,9 @@ def _symmetry_fit(window: _Window, unmixing: np.ndarray, coarse: Contact, reach:
         return None
     spread, across = _axes_information(x[2:], w.mean(axis=1))
     if spread < MIN_AXES_SPREAD:
-        # The usable axes are one line: symmetry fixes the centre across it, the rim along it.
-        start_to_fit = np.array([cx, cy]) - start
-        cx, cy = start + across * float(across @ start_to_fit)
+        # The usable axes are one line: symmetry fixes the centre across it, the anchor along it.
+        anchor = start if anchor is None else np.asarray(anchor, dtype=float)
+        cx, cy = anchor + across * float(across @ (np.array([cx, cy]) - anchor))
     return float(cx), float(cy), x[2:], problem.normal_equations(x)[0]
 
 
@@ -388,12 +391,16 @@ def refine_by_symmetry(
     smooth_px: float = 1.0,
     calibration_contacts: int = 40,
     progress: bool = False,
+    anchors: list[Contact | None] | None = None,
 ) -> SymmetryRefinement:
     """Contact centres from the mirror symmetry of each LED's image (see the module docstring).
 
     `frames[i]` is an (H, W, 3) frame with contact `coarse[i]` (from `locate_contact`; None is
     passed through). The unmixing starts as the identity and is refitted `rounds` times on up to
-    `calibration_contacts` contacts spread over the list; the radius stays the rim's.
+    `calibration_contacts` contacts spread over the list; the radius stays the rim's. Where a
+    contact's usable mirror axes are one line, the centre along it is `anchors[i]`'s (default
+    `coarse[i]`: pass the rim's when the fits start elsewhere). Fits far less symmetric than the
+    set's (`_symmetric_outliers`) are dropped.
     """
     if np.ndim(blank) != 3 or np.shape(blank)[2] != 3:
         raise RegistrationError(
@@ -407,6 +414,10 @@ def refine_by_symmetry(
         else present
     )
 
+    def anchor(i: int):
+        c = (anchors or coarse)[i]
+        return None if c is None else (c.x_px, c.y_px)
+
     def window(i: int) -> _Window:
         return _Window.around(np.asarray(frames[i]), blank, smooth_px, coarse[i], reach)
 
@@ -414,7 +425,7 @@ def refine_by_symmetry(
     for _ in range(rounds):
         fits, used = [], []
         for i in calibration:
-            fit = _symmetry_fit(windows[i], unmixing, coarse[i], reach)
+            fit = _symmetry_fit(windows[i], unmixing, coarse[i], reach, anchor(i))
             if fit is not None:
                 fits.append(fit)
                 used.append(i)
@@ -423,7 +434,7 @@ def refine_by_symmetry(
         unmixing = _fit_unmixing([windows[i] for i in used], fits, [coarse[i] for i in used], reach)
     fits = {}
     for i in tqdm(present, desc="symmetric centres", unit="contact", disable=not progress):
-        fit = _symmetry_fit(windows.get(i) or window(i), unmixing, coarse[i], reach)
+        fit = _symmetry_fit(windows.get(i) or window(i), unmixing, coarse[i], reach, anchor(i))
         if fit is not None:
             fits[i] = fit
     outliers = _symmetric_outliers([fit[3] for fit in fits.values()])
