@@ -50,6 +50,7 @@ def _folder(path, labelled: bool):
         cv2.imwrite(str(path / names[-1]), frame.clip(0, 255).round()[..., ::-1].astype(np.uint8))
     (path / "dataset.yaml").write_text(
         f"px_per_mm: {PX_PER_MM}\nball_radius_mm: {BALL_MM}\nsource: synthetic\nlicense: none\n"
+        "turn_to_sensor: counterclockwise\n"
     )
     if labelled:
         rows = [f"{n},{cx},{cy},{RADIUS_PX}" for n, (cx, cy) in zip(names, CENTRES, strict=True)]

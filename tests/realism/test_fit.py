@@ -50,13 +50,17 @@ def truth_profile():
     return p
 
 
-def write_folder(root, profile, labelled=True, n=8):
-    """A ball folder rendered by the simulator: background.png, frames, dataset.yaml, labels.csv."""
+def write_folder(root, profile, labelled=True, n=8, landscape=False):
+    """A ball folder rendered by the simulator: background.png, frames, dataset.yaml, labels.csv.
+    `landscape`: W and H (and the centres) exchanged, upright for a landscape profile, which the
+    realism check reads as it is (a portrait folder would have to say which way it turns)."""
     root.mkdir(parents=True, exist_ok=True)
-    sim = GelSimulator(profile, 3, image_size=(W, H), px_per_mm=PX_PER_MM)
+    size = (H, W) if landscape else (W, H)
+    sim = GelSimulator(profile, 3, image_size=size, px_per_mm=PX_PER_MM)
     cv2.imwrite(str(root / "background.png"), sim.blank(0)[..., ::-1])
     rows = ["image,center_x_px,center_y_px,radius_px"]
     for i, (c, d) in enumerate(zip(CENTRES[:n], DEPTHS[:n], strict=True)):
+        c = c[::-1] if landscape else c
         name = f"{i:04d}.png"
         cv2.imwrite(
             str(root / name), sim.render(Sphere(BALL_MM), c, 0, d, frame_index=i + 1)[..., ::-1]
@@ -163,7 +167,9 @@ def test_background_field_is_the_polynomial_it_names():
 
 
 def test_report_is_out_of_sample_and_says_what_unlabelled_frames_cannot_check(tmp_path):
-    root = write_folder(tmp_path / "unlabelled", truth_profile(), labelled=False, n=5)
+    root = write_folder(
+        tmp_path / "unlabelled", truth_profile(), labelled=False, n=5, landscape=True
+    )
     text, _ = realism_report(root, "gelsight_mini", split_seed=1)
     assert "unlabelled" in text and "OUT OF SAMPLE" in text
     assert "not checked without labels: r2_R, r2_G, r2_B, halo_r50_px" in text

@@ -23,7 +23,7 @@ import numpy as np
 
 from threedcal.errors import ConfigError
 from threedcal.images import read_rgb
-from threedcal.orientation import needs_turn, turn_image, turn_points
+from threedcal.orientation import TURN_KEY, folder_turn, turn_image, turn_points
 from threedcal.schema import load_yaml, plain
 
 # pandas (the workflow extra) loads where a table is read
@@ -293,7 +293,8 @@ def load_imported(
     format_name: str, path: str | Path, orientation: str | None = None
 ) -> ImportedDataset:
     """The dataset as a sensor of `orientation` (its profile's image.orientation) sees it: frames
-    stored on their side are turned a quarter, with their contact centres (threedcal.orientation)."""
+    stored on their side are turned a quarter the way its description states (`turn_to_sensor`:
+    threedcal.orientation), with their contact centres."""
     try:
         loader = IMPORTERS[format_name]
     except KeyError:
@@ -302,12 +303,16 @@ def load_imported(
         ) from None
     data = loader(path)
     height, width = data.blank.shape[:2]
-    if not needs_turn(height, width, orientation):
+    where = (
+        f"{path}/{'dataset.yaml' if format_name == 'ball_folder' else 'annotations/metadata.json'}"
+    )
+    turn = folder_turn(height, width, orientation, data.metadata.get(TURN_KEY), where)
+    if turn is None:
         return data
     return dataclasses.replace(
         data,
-        frames=turn_image(data.frames, axes=(1, 2)),
-        blank=turn_image(data.blank),
-        center_px=turn_points(data.center_px, width),
-        metadata={**data.metadata, "read_turned_quarter": True},
+        frames=turn_image(data.frames, axes=(1, 2), turn=turn),
+        blank=turn_image(data.blank, turn=turn),
+        center_px=turn_points(data.center_px, width, height, turn),
+        metadata={**data.metadata, "read_turned": turn},
     )

@@ -112,7 +112,9 @@ def turn_quarter(ts: TrainingSet) -> TrainingSet:
     """The set turned a quarter counter-clockwise: pixel (x, y) goes to (y, W - 1 - x)."""
     samples = ts.samples.copy()
     centres = samples[["center_x_px", "center_y_px"]].to_numpy(float)
-    samples[["center_x_px", "center_y_px"]] = turn_points(centres, ts.image_shape[1])
+    samples[["center_x_px", "center_y_px"]] = turn_points(
+        centres, ts.image_shape[1], ts.image_shape[0]
+    )
     units = ts.unit_blanks
     return dataclasses.replace(
         ts,

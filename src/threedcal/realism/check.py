@@ -49,7 +49,7 @@ import numpy as np
 from threedcal.dataset.folds import linked_groups
 from threedcal.errors import ConfigError
 from threedcal.images import read_rgb
-from threedcal.orientation import needs_turn, turn_image, turn_points
+from threedcal.orientation import TURN_KEY, folder_turn, turn_image, turn_points
 from threedcal.schema import load_yaml
 from threedcal.sim.indenters import Sphere
 from threedcal.sim.optics import GelSimulator
@@ -101,16 +101,21 @@ class BallDataset:
     height_px: int
     labels: list[BallLabel]
     labelled: bool = True
-    turned: bool = False  # stored on its side: every image and label read turned a quarter
+    turn: str | None = None  # stored on its side: every image and label read turned this way
+
+    @property
+    def turned(self) -> bool:
+        return self.turn is not None
 
     def read(self, name: str) -> np.ndarray:
         image = read_rgb(self.root / name)
-        return turn_image(image) if self.turned else image
+        return turn_image(image, turn=self.turn) if self.turn else image
 
 
 def load_ball_dataset(root: str | Path, orientation: str | None = None) -> BallDataset:
     """The folder as `orientation` ('portrait' or 'landscape': the sensor profile's frame) sees it:
-    a folder stored on its side is read turned a quarter (threedcal.orientation), labels too."""
+    a folder stored on its side is read turned a quarter the way its dataset.yaml states
+    (threedcal.orientation), labels too."""
     root = Path(root)
     meta_path = root / "dataset.yaml"
     if not meta_path.is_file():
@@ -124,16 +129,16 @@ def load_ball_dataset(root: str | Path, orientation: str | None = None) -> BallD
             f"{root}: no background.png (the no-contact frame every contact is compared against)"
         )
     bg = read_rgb(root / "background.png")
-    turned = needs_turn(bg.shape[0], bg.shape[1], orientation)
-    stored_width = bg.shape[1]
-    bg = turn_image(bg) if turned else bg
+    stored_height, stored_width = bg.shape[:2]
+    turn = folder_turn(stored_height, stored_width, orientation, meta.get(TURN_KEY), str(meta_path))
+    bg = turn_image(bg, turn=turn) if turn else bg
     scale, ball_mm = float(meta["px_per_mm"]), float(meta["ball_radius_mm"])
     label_path = root / "labels.csv"
     if not label_path.exists():
         names = sorted(p.name for p in root.glob("*.png") if p.name != "background.png")
         if not names:
             raise ConfigError(f"{root}: no contact images (*.png besides background.png)")
-        data = BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], [], False, turned)
+        data = BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], [], False, turn)
         located = [locate_ball(data.read(n), bg, ball_mm * scale, n) for n in names]
         return dataclasses.replace(data, labels=located)
     labels = []
@@ -156,13 +161,15 @@ def load_ball_dataset(root: str | Path, orientation: str | None = None) -> BallD
         raise ConfigError(f"{label_path}: cannot read ({exc.strerror})") from None
     if not labels:
         raise ConfigError(f"{label_path}: no labelled images")
-    if turned:
-        centres = turn_points([label.center_px for label in labels], stored_width)
+    if turn:
+        centres = turn_points(
+            [label.center_px for label in labels], stored_width, stored_height, turn
+        )
         labels = [
             dataclasses.replace(label, center_px=(float(x), float(y)))
             for label, (x, y) in zip(labels, centres, strict=True)
         ]
-    return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], labels, True, turned)
+    return BallDataset(root, scale, ball_mm, bg.shape[1], bg.shape[0], labels, True, turn)
 
 
 def image_figures(

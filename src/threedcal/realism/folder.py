@@ -100,7 +100,7 @@ def realism_run(
         f"{data.px_per_mm} px/mm, ball {data.ball_radius_mm} mm, {len(data.labels)} "
         f"{'labelled' if data.labelled else 'unlabelled (contacts located from frame - background)'}"
         f" images of {data.root}"
-        f"{', read turned a quarter into the profile frame' if data.turned else ''}"
+        f"{f', read turned a quarter {data.turn} into the profile frame' if data.turn else ''}"
     )
     lines = [head]
     halo = None
