@@ -324,7 +324,7 @@ def test_a_fit_far_less_symmetric_than_the_sets_is_an_outlier():
 
 def test_levenberg_marquardt_reaches_a_known_minimum():
     problem = _CircleThroughPoints((3.2, -1.7), 5.0)
-    x, converged = _levenberg_marquardt(
+    x, converged, _ = _levenberg_marquardt(
         problem, np.array([0.0, 0.0, 1.0]), np.ones(3), tolerance=1e-9
     )
     assert converged
@@ -332,7 +332,7 @@ def test_levenberg_marquardt_reaches_a_known_minimum():
     assert problem.evaluations < 30
     # A start far off (radius 100x, centre outside the circle) still lands: the damping holds
     # the steps where Gauss-Newton alone would overshoot.
-    x, converged = _levenberg_marquardt(
+    x, converged, _ = _levenberg_marquardt(
         problem, np.array([40.0, 30.0, 500.0]), np.ones(3), tolerance=1e-9
     )
     assert converged
@@ -345,7 +345,7 @@ def test_levenberg_marquardt_reports_a_non_finite_problem():
             cost, gradient, normal = super().normal_equations(params)
             return float("nan"), gradient, normal
 
-    x, converged = _levenberg_marquardt(
+    x, converged, _ = _levenberg_marquardt(
         Broken((0, 0), 1.0), np.array([0.1, 0.2, 1.5]), np.ones(3), tolerance=1e-6
     )
     assert not converged

@@ -250,7 +250,7 @@ class _SymmetryResiduals:
 
 
 def _levenberg_marquardt(problem, start: np.ndarray, scale: np.ndarray, tolerance: float):
-    """Minimise Σr² from the problem's normal equations; (x, converged).
+    """Minimise Σr² from the problem's normal equations; (x, converged, Σr² at x).
 
     Steps are taken in units of `scale` (a pixel of centre, 0.05 rad of axis). The fit has
     converged once a step would move the first two unknowns (the centre) by less than
@@ -262,7 +262,7 @@ def _levenberg_marquardt(problem, start: np.ndarray, scale: np.ndarray, toleranc
     x = start.astype(np.float64)
     cost, gradient, normal = problem.normal_equations(x)
     if not np.isfinite(cost):
-        return x, False
+        return x, False, cost
     damping = 1e-4
     for _ in range(MAX_FIT_EVALUATIONS):
         scaled = normal * np.outer(scale, scale)
@@ -270,7 +270,7 @@ def _levenberg_marquardt(problem, start: np.ndarray, scale: np.ndarray, toleranc
         try:
             step = -np.linalg.solve(scaled + damping * np.diag(diagonal), gradient * scale)
         except np.linalg.LinAlgError:
-            return x, False
+            return x, False, cost
         short = float(np.linalg.norm(step[:2] * scale[:2])) < tolerance
         trial = x + step * scale
         trial_cost, trial_gradient, trial_normal = problem.normal_equations(trial)
@@ -280,8 +280,8 @@ def _levenberg_marquardt(problem, start: np.ndarray, scale: np.ndarray, toleranc
         else:
             damping *= 10
         if short:  # the minimum lies within `tolerance` of x (a shorter step cannot help)
-            return x, True
-    return x, False
+            return x, True, cost
+    return x, False, cost
 
 
 # Evaluations one symmetry fit may spend (as many as scipy's least_squares allows per unknown).
@@ -293,7 +293,7 @@ MAX_FIT_EVALUATIONS = 100
 SAMPLE_SPACING_PX = 2
 # A fit left this many times less symmetric than the set's median is dropped, not kept: on the
 # Mini's frames overexposed by 20 % (tests/dataset/test_registration.py) a contact the clipping
-# cuts in two kept a centre 7 px off at 10x the median cost; the sound fits lie within 3x.
+# cuts in two kept a centre 7 px off at about 23x the median cost; the sound fits lie within 2.5x.
 ASYMMETRY_OUTLIER = 5.0
 # Below this spread of the usable mirror axes (`_axes_information`) the centre along their common
 # line is the anchor's (the rim's): the fit's own is only where the damped steps happened to stop.
@@ -313,9 +313,8 @@ def _symmetry_fit(
     disk = _Disk.around(coarse, reach, SAMPLE_SPACING_PX)
     start = np.array([coarse.x_px, coarse.y_px])
     axes0 = _dipole_axes(window, unmixing, start, disk)
-    problem = _SymmetryResiduals(window, unmixing, disk)
-    x, converged = _levenberg_marquardt(
-        problem,
+    x, converged, cost = _levenberg_marquardt(
+        _SymmetryResiduals(window, unmixing, disk),
         np.concatenate([start, axes0]),
         np.concatenate([[1.0, 1.0], np.full(len(axes0), 0.05)]),  # a pixel; 0.05 rad of axis
         tolerance=STEP_TOLERANCE_PX,
@@ -331,7 +330,7 @@ def _symmetry_fit(
         # The usable axes are one line: symmetry fixes the centre across it, the anchor along it.
         anchor = start if anchor is None else np.asarray(anchor, dtype=float)
         cx, cy = anchor + across * float(across @ (np.array([cx, cy]) - anchor))
-    return float(cx), float(cy), x[2:], problem.normal_equations(x)[0]
+    return float(cx), float(cy), x[2:], cost
 
 
 def _axes_information(axes: np.ndarray, usable: np.ndarray) -> tuple[float, np.ndarray]:
