@@ -180,7 +180,8 @@ def study_pairs():
 
 def quick_study_inputs(wildcards):
     """Each unit's stopped quick model and stop.json, and its full calibration's P = 80 models,
-    validation set, splits and (on the bench) hidden truth."""
+    validation set, splits and (on the bench) hidden truth and store (relabelled through it).
+    """
     inputs = {}
     for quick, full in study_pairs():
         inputs[f"{quick}_model"] = target(QUICK["model"], quick)
@@ -194,6 +195,9 @@ def quick_study_inputs(wildcards):
         inputs[f"{full}_splits"] = target(SPLITS, full)
         if config["scenes"][full].get("port") == "sim":
             inputs[f"{full}_truth"] = target(BENCH_TRUTH, full)
+            inputs[f"{full}_collected"] = target(
+                COLLECT["summary"], full
+            )  # names its store
     return inputs
 
 

@@ -111,6 +111,10 @@ rule quick_study:
             name: (config["scenes"][name].get("bench") or {}).get("unit")
             for name, _ in study_pairs()
         },
+        datasets=lambda wildcards: {
+            full: stage_config(config["scenes"][full], "dataset")
+            for _, full in study_pairs()
+        },
         code=code_digest("quick_study.py"),
     script:
         "../scripts/quick_study.py"

@@ -2,8 +2,10 @@
 
 import torch
 
+from threedcal.collect.store_read import collected_store
 from threedcal.logs import stage_log
 from threedcal.study.quick_study import UnitPair, study_stage
+from threedcal.study.scene import dataset_settings
 
 with stage_log(snakemake.log[0]):
     torch.set_num_threads(snakemake.threads)
@@ -20,6 +22,10 @@ with stage_log(snakemake.log[0]):
             trainset=inputs[f"{full}_trainset"],
             splits=inputs[f"{full}_splits"],
             truth=inputs.get(f"{full}_truth"),
+            store=collected_store(inputs[f"{full}_collected"])[0]
+            if f"{full}_collected" in inputs.keys()
+            else None,
+            dataset=dataset_settings(snakemake.params.datasets[full]),
         )
         for quick, full in snakemake.params.pairs
     ]

@@ -19,12 +19,12 @@ from threedcal.collect.plan import (
 )
 from threedcal.collect.scene_plan import plan_phases
 from threedcal.collect.store_read import open_checked
-from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS
+from threedcal.dataset.camera_fit import MIN_FIRST_CONTACTS, AffineFit
 from threedcal.dataset.dome_contacts import DomedContacts
 from threedcal.dataset.importers import load_imported
 from threedcal.dataset.labels import check_max_slope, contact_radius_mm
 from threedcal.dataset.refine import refine_labels
-from threedcal.dataset.registration import register_camera
+from threedcal.dataset.registration import CameraRegistration, register_camera
 from threedcal.dataset.settings import DatasetSettings
 from threedcal.dataset.splits import in_field_of_view, min_p_column, split_points
 from threedcal.dataset.touch import (
@@ -162,13 +162,15 @@ def register_store(
     expect_digest: str | None = None,
     rows: int | None = None,
     prior: RegisteredStore | None = None,
+    given: AffineFit | None = None,
 ) -> RegisteredStore:
     """The printer → pixel affine from a store's grid rows (one contact per row, from the mean of
     its frames), and each frame's depth below the gel where the affine places it. The store is
     read whole and checked (`threedcal.collect.store_read.open_checked`); `rows`: only its first that
     many plan rows, captured so far. `prior`: this store registered earlier (a quick calibration's
     last round); its fit is reused when it located the same rows, whose frames a store never
-    changes, rather than located and fitted again (most of a round's labelling time)."""
+    changes, rather than located and fitted again (most of a round's labelling time). `given`: a
+    registration known beforehand (a simulated bench's truth), used as it is: nothing located."""
     sensor = settings.sensor
     raw = open_checked(store_path, expect_digest, rows=rows)
     height, width = raw["frames"].shape[1:3]
@@ -195,7 +197,10 @@ def register_store(
     rows = np.flatnonzero(phase == "register")
     if not len(rows):
         rows = np.flatnonzero(phase == "grid")
-    if prior is not None and np.array_equal(prior.registered_rows, rows):
+    if given is not None:
+        registration = CameraRegistration(given, [], "given", {}, None)
+        rows = np.zeros(0, int)
+    elif prior is not None and np.array_equal(prior.registered_rows, rows):
         registration = prior.registration
     else:
 
@@ -324,6 +329,42 @@ def build_collected(
     return record
 
 
+def labelled_through(
+    settings: DatasetSettings,
+    store_path: str | Path,
+    fit: AffineFit,
+    touch_offset_mm: float,
+    splits: pd.DataFrame,
+    progress: bool = False,
+) -> TrainingSet:
+    """A store's model-ready set labelled through a registration and touch height known
+    beforehand, nothing located or fitted; its points and splits are those of `splits` (the
+    store's splits.csv: point, x_mm, y_mm, split, min_p …), matched by plan coordinate, so that
+    the set pairs point for point with the one `build_collected` made. A simulated bench's truth
+    scores calibrations against the world rather than against one of them
+    (threedcal.study.quick_study). Frames that this registration puts out of view are left out."""
+    missing = [c for c in ("point", "x_mm", "y_mm", "split", "min_p") if c not in splits.columns]
+    if missing:
+        raise ConfigError(f"splits: no column {', '.join(missing)} (a dataset stage's splits.csv)")
+    store = register_store(settings, store_path, progress, given=fit)
+    labels = _label_frames(settings, store, touch_offset_mm)
+    point_of = {
+        (round(x, 4), round(y, 4)): int(p)
+        for p, x, y in splits[["point", "x_mm", "y_mm"]].itertuples(index=False)
+    }
+    xy = _plan_xy(store.raw)[labels.keep]
+    ids = np.array([point_of.get((round(x, 4), round(y, 4)), -1) for x, y in xy], dtype=int)
+    known = ids >= 0
+    if not known.any():
+        raise ConfigError(f"{store_path}: none of its labelled presses is a point of the splits")
+    labels.keep, labels.coordinate_id = labels.keep[known], ids[known]
+    contact_z_mm = round(float(store.sensor["mount"]["z_touch_mm"]) + touch_offset_mm, 4)
+    trainset = _collected_trainset(
+        settings, store, labels, contact_z_mm, table=splits.set_index("point")
+    )
+    return downscale(trainset, settings.downscale)
+
+
 def collected_so_far(
     settings: DatasetSettings,
     store_path: str | Path,
@@ -409,15 +450,18 @@ def _collected_trainset(
     labels: _Labels,
     contact_z_mm: float,
     every_press_trains: bool = False,
+    table: pd.DataFrame | None = None,
 ) -> TrainingSet:
     """The kept frames, rectified through the fitted lens (one mm is one px_per_mm everywhere, as
     the labels are), with their labels and splits (`every_press_trains`: no validation split,
-    every press in every subset)."""
+    every press in every subset; `table`: the splits given, by point)."""
     radius_mm = float(settings.probe_radius_mm)
     raw, sensor, fit = store.raw, store.sensor, store.registration.fit
     keep, coordinate_id, depth = labels.keep, labels.coordinate_id, labels.depth
     replicates = settings.replicates
-    if every_press_trains:
+    if table is not None:
+        replicates = sum(c == "min_p" or c.startswith("min_p_r") for c in table.columns)
+    elif every_press_trains:
         replicates = 1
         table = labels.coordinates.assign(split="train", min_p=1).set_index("point")
     else:
