@@ -11,6 +11,7 @@ Run them from the repository root:
 | perfect_model_objects | what each test-object protocol reports for a perfect model (the true surface's, or the pressed gel's, gradients), after `make all` | `.venv/bin/python -m diagnostics.perfect_model_objects digit_sim [--no-mount-errors] [--gel]` |
 | label_integration | exact labels integrate to the true depth; what a slope clamp (`dataset.max_slope_deg`) costs | `.venv/bin/python -m diagnostics.label_integration` |
 | pretrained_edges | the shipped weights on simulated units two sigma out in every measured spread: contact against the ball's disc, false contact, centroid, gradient MSE | `.venv/bin/python -m diagnostics.pretrained_edges [--weights DIR]` |
+| quick_presses | the quick calibration's presses alone: as many of the full calibration's own presses (its registration) trained as the quick loop trains, against its P = 80 models, after `make quick-study` | `.venv/bin/python -m diagnostics.quick_presses --results results` |
 | unit_spread | the real units of data/ measured against each other: the figures the sensor profiles' `unit_variation` is set from | `.venv/bin/python -m diagnostics.unit_spread` |
 
 Every module has `main(argv)` and a `--smoke` mode (tiny sizes, seconds, output to a temporary

@@ -6,6 +6,7 @@ import math
 import sys
 
 import numpy as np
+import pandas as pd
 import pytest
 from conftest import REPO
 
@@ -132,3 +133,40 @@ def test_pretrained_edges_smoke():
     figures = pretrained_edges.main(["--smoke", "--sensor", "digit_fots"])["digit_fots"]
     assert finite(list(figures.values()))
     assert 0 <= figures["within_bound"] <= 1 and figures["gradient_mse"] > 0
+
+
+def test_quick_presses_smoke():
+    from diagnostics import quick_presses
+
+    row = quick_presses.main(["--smoke"])
+    assert row["presses"] == 4 and finite([row["drawn_mse"], row["full_mse"], row["change"]])
+    assert row["drawn_mse"] > 0 and row["full_mse"] > 0
+
+
+def test_drawn_presses_are_the_full_sets_own_frames_and_labels():
+    from diagnostics.quick_presses import drawn_presses, first
+    from threedcal.dataset.trainset import TrainingSet
+
+    samples = pd.DataFrame(
+        {
+            "frame": np.arange(6),
+            "point": np.arange(6),
+            "center_x_px": np.arange(6) * 10.0,
+            "center_y_px": np.full(6, 5.0),
+            "depth_mm": np.full(6, 1.0),
+            "eval_radius_px": np.full(6, 3.0),
+            "split": ["train", "val", "train", "train", "val", "train"],
+            "min_p": [80, 0, 80, 80, 0, 80],
+            "min_p_r1": [80, 0, 80, 80, 0, 80],
+        }
+    )
+    frames = np.arange(6, dtype=np.uint8)[:, None, None, None] * np.ones((1, 4, 4, 3), np.uint8)
+    full = TrainingSet(frames, np.zeros((4, 4, 3), np.float32), samples, 10.0, 2.0, None)
+    drawn = drawn_presses(full, 3, seed=1)
+    assert set(drawn.point) <= {0, 2, 3, 5} and len(set(drawn.point)) == 3  # training presses only
+    for row, point in enumerate(drawn.point):  # each frame stays with its own label
+        assert drawn.frames[row, 0, 0, 0] == point and drawn.center_px[row, 0] == point * 10.0
+    assert list(drawn.samples["frame"]) == [0, 1, 2] and set(drawn.split) == {"train"}
+    assert "min_p_r1" not in drawn.samples and len(first(drawn, 2).samples) == 2
+    with pytest.raises(ValueError, match="4"):
+        drawn_presses(full, 5, seed=0)

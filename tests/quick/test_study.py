@@ -85,3 +85,36 @@ def test_the_study_target_asks_for_each_units_quick_and_full_calibration_and_is_
     )
     assert jobs["quick"] == "8" and jobs["quick_study"] == "1" and jobs["train"] == "16"
     assert "quick_arms" not in jobs  # quick.arms: false
+
+
+def test_on_the_bench_the_truth_scored_change_decides_and_the_other_is_reported(tmp_path):
+    from threedcal.study.quick_study import study_figure, study_summary
+
+    both = table({"digit_fots": [0.60, 1.50, 2.60, 1.20]})
+    both["truth_change"] = [0.05, -0.03, 0.08, 0.01]
+    both["truth_change_lo"] = both["truth_change"] - 0.2
+    both["truth_change_hi"] = both["truth_change"] + 0.2
+    both[["change_lo", "change_hi"]] = np.column_stack([both["change"] - 0.3, both["change"] + 0.3])
+    summary = study_summary(both)
+    assert summary["column"] == "truth_change" and summary["scored_against"] == "the bench's truth"
+    claim = summary["claims"]["digit_fots"]
+    assert claim["change"] == pytest.approx(0.0275) and claim["verdict"] == "undecided"
+    assert "scored against the bench's truth" in claim["line"]
+    other = summary["against_full_labels"]["digit_fots"]
+    assert other["change"] == pytest.approx(1.475) and other["verdict"] == "not met"
+    study_figure(both, summary, tmp_path / "units.png")
+    assert (tmp_path / "units.png").stat().st_size > 10_000
+
+    # one unit without a truth (a real rig): every unit is scored against the full labels alone
+    both.loc[0, "truth_change"] = math.nan
+    fallback = study_summary(both)
+    assert fallback["column"] == "change" and "against_full_labels" not in fallback
+    assert fallback["claims"]["digit_fots"]["change"] == pytest.approx(1.475)
+    study_figure(both, fallback, tmp_path / "units_real.png")
+
+
+def test_off_the_bench_there_is_no_truth_set():
+    from threedcal.study.quick_study import UnitPair, _truth_set
+
+    pair = UnitPair("q", "f", "digit_fots", None, "m.pt", "stop.json", ["f.pt"], "ts", "splits.csv")
+    assert _truth_set(pair, pd.DataFrame()) is None

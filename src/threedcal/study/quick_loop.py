@@ -43,6 +43,7 @@ from threedcal.model.checkpoint import read_checkpoint
 from threedcal.model.contact_guard import contact_figures, median_press, warn_if_oversized
 from threedcal.model.inference import DepthEstimator
 from threedcal.model.train import save_initial, train
+from threedcal.model.train_settings import TrainSettings
 from threedcal.stop_rule import Improvement, decide, paired_improvement, rule_problems
 from threedcal.study.config import quick_run, quick_scene_problems
 from threedcal.study.scene import dataset_settings
@@ -101,6 +102,16 @@ class RoundRecord:
 ROUND_COLUMNS = tuple(field.name for field in fields(RoundRecord))
 
 
+def round_train_settings(scene: Mapping) -> TrainSettings:
+    """How each round fine-tunes: the scene's `model:` with a fixed budget, one cosine cycle of
+    `quick.steps` on every press so far (nothing held out); run r with the seed's replicate r − 1."""
+    base = train_settings(scene)
+    base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
+    steps = QuickSettings.from_scene(scene).steps
+    fixed = {"rule": "doubling", "holdout": 0.0, "first_cycle": steps, "min_gain": 0.0}
+    return replace(base, stopping={**fixed, "max_steps": steps})
+
+
 class QuickLoop:
     """The rounds of one scene's quick calibration: `round_done(rows)` at each round's end."""
 
@@ -124,12 +135,7 @@ class QuickLoop:
         self.first_row = int(np.flatnonzero(plan["phase"].to_numpy() == "grid")[0])
         self.first_row -= self.per_press - 1
         self.ends = quick_rounds(scene["plan"], self.first_row)
-        base = train_settings(scene)  # run r trains with the seed's replicate r − 1
-        base = replace(base, seed=replicate_seed(base.seed, quick_run(scene) - 1))
-        steps = self.settings.steps
-        # a fixed budget: one cosine cycle of `steps`, on every press so far (nothing held out)
-        fixed = {"rule": "doubling", "holdout": 0.0, "first_cycle": steps, "min_gain": 0.0}
-        self.train_settings = replace(base, stopping={**fixed, "max_steps": steps})
+        self.train_settings = round_train_settings(scene)
         self.models: list[Path] = []  # M0 (the starting weights), M1 (after round 1), ...
         self.records: list[RoundRecord] = []
         self.stopped: str | None = None
