@@ -11,6 +11,7 @@ the full calibration's P = 80 models on its validation presses, as units.csv sco
 change over units is the presses' share; units.csv's is the presses' and the registration's.
 
     .venv/bin/python -m diagnostics.quick_presses [--results DIR] [--units digit_u11 ...] [--seed N]
+        [--steps N]
 
 About 4 minutes a unit on one core (four fine-tunings and the scoring); `--smoke`: one simulated
 unit's 12 presses, tiny trainings.
@@ -185,6 +186,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--config", default="config/quick_study.yaml")
     parser.add_argument("--units", nargs="*", help="full scenes (default: every compared one)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--steps", type=int, help="fine-tuning steps a round (default: quick.steps)"
+    )
     parser.add_argument("--smoke", action="store_true", help="one simulated unit, tiny trainings")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -202,9 +206,10 @@ def main(argv: list[str] | None = None) -> dict:
     rows = []
     with tempfile.TemporaryDirectory() as work:
         for quick, full in pairs:
-            row = unit_change(
-                args.results, scene_config(config, quick), quick, full, args.seed, Path(work)
-            )
+            scene = scene_config(config, quick)
+            if args.steps:  # what more (or fewer) steps a round would buy
+                scene = {**scene, "quick": {**(scene.get("quick") or {}), "steps": args.steps}}
+            row = unit_change(args.results, scene, quick, full, args.seed, Path(work))
             row["sensor"] = config["scenes"][full]["sensor"]
             rows.append(row)
             print(json.dumps(row), flush=True)
