@@ -66,6 +66,19 @@ def test_split_and_subset_indices():
     assert ts.indices("train", percent=5).tolist() == []
 
 
+def test_a_set_whose_samples_do_not_number_its_frames_is_refused():
+    """Training and scoring take sample i's frame as frames[i]: a subset that kept the full set's
+    frame numbers (or frames of another count) would train on other frames' labels."""
+    ts = small_set()
+    subset = ts.samples.iloc[[0, 2]].reset_index(drop=True)
+    with pytest.raises(ConfigError, match="number the rows 0..N-1"):
+        TrainingSet(ts.frames[[0, 2]], ts.blank, subset, 8.0, 2.0)
+    renumbered = subset.assign(frame=[0, 1])
+    TrainingSet(ts.frames[[0, 2]], ts.blank, renumbered, 8.0, 2.0)  # accepted
+    with pytest.raises(ConfigError, match="2 samples for 4 frames"):
+        TrainingSet(ts.frames, ts.blank, renumbered, 8.0, 2.0)
+
+
 def test_save_load_round_trip(tmp_path):
     ts = small_set()
     ts.save(tmp_path / "set")

@@ -124,6 +124,19 @@ class TrainingSet:
     unit_blanks: np.ndarray | None = None  # (U, H, W, 3) float32: frames of several units
 
     def __post_init__(self) -> None:
+        # sample i is frame i (training and scoring index frames by the sample's row): a set
+        # whose `frame` column says otherwise would pair frames with other frames' labels
+        if "frame" in self.samples.columns and not np.array_equal(
+            self.samples["frame"].to_numpy(), np.arange(len(self.samples))
+        ):
+            raise ConfigError(
+                "samples' `frame` column must number the rows 0..N-1 (sample i is frame i); "
+                "take the frames in the samples' order and renumber them"
+            )
+        if len(self.samples) != len(self.frames):
+            raise ConfigError(
+                f"{len(self.samples)} samples for {len(self.frames)} frames: one sample per frame"
+            )
         self.center_px = self.samples[["center_x_px", "center_y_px"]].to_numpy(float)
         self.depth_mm = self.samples["depth_mm"].to_numpy(float)
         self.eval_radius_px = self.samples["eval_radius_px"].to_numpy(float)
