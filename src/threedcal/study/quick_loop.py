@@ -70,7 +70,7 @@ class QuickSettings:
     def from_scene(cls, scene: Mapping) -> QuickSettings:
         quick = scene.get("quick") or {}
         settings = cls(
-            steps=int(quick.get("steps", 1200)),
+            steps=int(quick.get("steps", 2400)),
             margin=float(quick.get("margin", 0.05)),
             confidence=float(quick.get("confidence", 0.9)),
         )
