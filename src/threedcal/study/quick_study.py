@@ -102,9 +102,7 @@ class UnitPair:
     trainset: str | Path  # the full calibration's validation set
     splits: str | Path
     truth: str | Path | None = None  # the simulated bench's hidden truth (scores, never fits)
-    store: str | Path | None = (
-        None  # the full calibration's raw.zarr (relabelled through the truth)
-    )
+    store: str | Path | None = None  # the full calibration's raw.zarr (relabelled)
     dataset: DatasetSettings | None = None  # the full scene's dataset settings
 
 
@@ -169,13 +167,9 @@ def _compared(models, validation: TrainingSet, split_table: pd.DataFrame) -> tup
 def _truth_set(pair: UnitPair, split_table: pd.DataFrame) -> TrainingSet | None:
     """The full calibration's presses labelled through the bench's true registration and touch
     height (module docstring); None off the bench."""
-    if pair.truth is None or pair.store is None or pair.dataset is None:
+    truth = _bench_truth(pair.truth)
+    if truth is None or pair.store is None or pair.dataset is None:
         return None
-    if not Path(pair.truth).is_file() or "affine_px_per_mm" not in json.loads(
-        Path(pair.truth).read_text()
-    ):
-        return None
-    truth = BenchTruth.read(pair.truth)
     fit = AffineFit(
         np.asarray(truth.affine_px_per_mm, float),
         0.0,
@@ -187,16 +181,22 @@ def _truth_set(pair: UnitPair, split_table: pd.DataFrame) -> TrainingSet | None:
     )
 
 
+def _bench_truth(path) -> BenchTruth | None:
+    """The bench's hidden truth with its registration; None off the bench or in an older record."""
+    if path is None or not Path(path).is_file():
+        return None
+    if "affine_px_per_mm" not in json.loads(Path(path).read_text()):
+        return None
+    return BenchTruth.read(path)
+
+
 def _bench_errors(registration: Mapping, truth_path, pair, splits) -> tuple[float, float]:
     """The quick run's touch height and registration against the bench's hidden truth: the touch
     offset's error (mm) and the RMS distance (camera px) between where its fit and the truth image
     the full calibration's validation coordinates. NaN without a truth or a fit."""
-    if truth_path is None or not Path(truth_path).is_file():
+    truth = _bench_truth(truth_path)
+    if truth is None:
         return math.nan, math.nan
-    truth_record = json.loads(Path(truth_path).read_text())
-    if "affine_px_per_mm" not in truth_record:
-        return math.nan, math.nan
-    truth = BenchTruth.read(truth_path)
     touch = registration.get("touch_offset_mm")
     touch_error = math.nan if touch is None else float(touch) - float(truth.touch_offset_mm)
     matrix = registration.get("affine_px_per_mm")
