@@ -12,6 +12,7 @@ Run them from the repository root:
 | label_integration | exact labels integrate to the true depth; what a slope clamp (`dataset.max_slope_deg`) costs | `.venv/bin/python -m diagnostics.label_integration` |
 | pretrained_edges | the shipped weights on simulated units two sigma out in every measured spread: contact against the ball's disc, false contact, centroid, gradient MSE | `.venv/bin/python -m diagnostics.pretrained_edges [--weights DIR]` |
 | quick_presses | the quick calibration's presses alone: as many of the full calibration's own presses (its registration) trained as the quick loop trains, against its P = 80 models, after `make quick-study` | `.venv/bin/python -m diagnostics.quick_presses --results results` |
+| registration_cost | what a registration error costs: the full calibration's presses labelled through the bench's truth, then shifted; MSE(e) = MSE(0) (1 + c e²) per sensor, after `make quick-study` | `.venv/bin/python -m diagnostics.registration_cost --results results` |
 | unit_spread | the real units of data/ measured against each other: the figures the sensor profiles' `unit_variation` is set from | `.venv/bin/python -m diagnostics.unit_spread` |
 
 Every module has `main(argv)` and a `--smoke` mode (tiny sizes, seconds, output to a temporary

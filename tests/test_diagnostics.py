@@ -4,6 +4,7 @@ says, with finite and plausible figures, and no module reaches into threedcal's 
 import ast
 import math
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -170,3 +171,50 @@ def test_drawn_presses_are_the_full_sets_own_frames_and_labels():
     assert "min_p_r1" not in drawn.samples and len(first(drawn, 2).samples) == 2
     with pytest.raises(ValueError, match="4"):
         drawn_presses(full, 5, seed=0)
+
+
+def test_registration_cost_smoke():
+    from diagnostics import registration_cost
+
+    table = registration_cost.main(["--smoke"])
+    moves = list(zip(table["dx_px"], table["dy_px"], strict=True))
+    assert moves == [(0.0, 0.0), (0.25, 0.0), (0.0, 0.25)]
+    assert finite(table["mse"]) and (table["mse"] > 0).all() and table["change"].iloc[0] == 0
+
+
+def test_shifted_labels_move_by_the_shift_and_frames_stay():
+    from diagnostics.registration_cost import downscale_of, shifted
+    from threedcal.dataset.trainset import TrainingSet
+
+    samples = pd.DataFrame(
+        {
+            "frame": [0],
+            "point": [0],
+            "center_x_px": [20.0],
+            "center_y_px": [15.0],
+            "depth_mm": [0.5],
+            "eval_radius_px": [6.0],
+            "split": ["val"],
+            "min_p": [0],
+        }
+    )
+    frames = np.random.default_rng(0).integers(0, 255, (1, 30, 40, 3), dtype=np.uint8)
+    ts = TrainingSet(frames, np.zeros((30, 40, 3), np.float32), samples, 10.0, 2.0, None)
+    moved = shifted(ts, 3, -2)
+    assert moved.frames is ts.frames and list(moved.center_px[0]) == [23.0, 13.0]
+    # a label moved by whole pixels is the same label, translated
+    np.testing.assert_allclose(moved.labels(0)[:, 5:25, 8:33], ts.labels(0)[:, 7:27, 5:30])
+    assert downscale_of(ts) == 1.0
+    assert downscale_of(replace(ts, meta={"downscale": 2})) == 2.0
+
+
+def test_registration_cost_recovers_an_exact_quadratic():
+    from diagnostics.registration_cost import cost_per_px2, error_for
+
+    e = np.array([0.0, 0.25, 0.25, 0.5, 0.5])
+    rows = pd.DataFrame({"error_px": e, "change": 3.5 * e**2})
+    assert cost_per_px2(rows) == pytest.approx(3.5, rel=1e-12)
+    assert error_for(0.1, 3.5) == pytest.approx(math.sqrt(0.1 / 3.5))
+    assert error_for(0.1, 0.0) == math.inf
+    with pytest.raises(ValueError, match="no shifted rows"):
+        cost_per_px2(rows.iloc[:1])

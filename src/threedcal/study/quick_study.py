@@ -165,10 +165,19 @@ def _compared(models, validation: TrainingSet, split_table: pd.DataFrame) -> tup
 
 
 def _truth_set(pair: UnitPair, split_table: pd.DataFrame) -> TrainingSet | None:
-    """The full calibration's presses labelled through the bench's true registration and touch
-    height (module docstring); None off the bench."""
-    truth = _bench_truth(pair.truth)
-    if truth is None or pair.store is None or pair.dataset is None:
+    """The full calibration's presses labelled through the bench's truth; None off the bench."""
+    if pair.store is None or pair.dataset is None:
+        return None
+    return truth_labelled(pair.truth, pair.dataset, pair.store, split_table)
+
+
+def truth_labelled(
+    truth_path, settings: DatasetSettings, store: str | Path, split_table: pd.DataFrame
+) -> TrainingSet | None:
+    """A store's presses labelled through the bench's true registration and touch height
+    (module docstring), paired point for point with `split_table`; None off the bench."""
+    truth = _bench_truth(truth_path)
+    if truth is None:
         return None
     fit = AffineFit(
         np.asarray(truth.affine_px_per_mm, float),
@@ -176,9 +185,7 @@ def _truth_set(pair: UnitPair, split_table: pd.DataFrame) -> TrainingSet | None:
         np.zeros(0, bool),
         RadialLens.from_record(truth.lens),
     )
-    return labelled_through(
-        pair.dataset, pair.store, fit, float(truth.touch_offset_mm), split_table
-    )
+    return labelled_through(settings, store, fit, float(truth.touch_offset_mm), split_table)
 
 
 def _bench_truth(path) -> BenchTruth | None:

@@ -1,0 +1,208 @@
+"""What a registration error costs a calibration, measured under control.
+
+A finished `make quick-study` scores both calibrations against the bench's truth, and each unit's
+change follows which of the two registered better. This measures the dose: per unit, the full
+calibration's presses labelled through the bench's true registration and touch height (as the
+quick study's truth scores them), then the same labels moved by a known shift, as a registration
+off by that much would place them; a P = 80 model (the scene's own settings) trained on each and
+all scored on the true labels of the validation presses. A registration error e (camera px) costs
+
+    MSE(e) = MSE(0) (1 + c e^2)
+
+and `cost_per_px2` fits c per sensor. The registration that costs a claim of +-X % alone is
+e = sqrt(X / c) in one calibration, the other exact.
+
+    .venv/bin/python -m diagnostics.registration_cost [--results DIR] [--units digit_u11 ...]
+        [--shifts 0.25 0.5] [--replicate N]
+
+A shift moves every label's centre by the same amount (model px = camera px / dataset.downscale),
+in x and then in y: what a registration off by a translation does; scale, rotation and lens errors
+are not drawn. About 1.5 minutes a training on one core here (5 a unit at the default shifts);
+`--smoke`: one simulated unit's 12 presses, tiny trainings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from threedcal.dataset.trainset import TrainingSet
+from threedcal.dataset.unit_presses import simulate_units
+from threedcal.model.train import train
+from threedcal.model.train_settings import TrainSettings
+from threedcal.profiles import load_profile
+from threedcal.study.config import compared_with, load_config, scene_config
+from threedcal.study.quick_arms import ArmModel, validation_scores
+from threedcal.study.quick_study import truth_labelled
+from threedcal.study.scene import dataset_settings
+from threedcal.study.training import train_settings
+
+SHIFTS_PX = (0.25, 0.5)  # camera px: the quick study's registrations err by 0.09-0.72
+
+
+def shifted(trainset: TrainingSet, dx_px: float, dy_px: float) -> TrainingSet:
+    """The set with every label's centre moved by (dx, dy) model px; frames untouched."""
+    samples = trainset.samples.assign(
+        center_x_px=trainset.samples["center_x_px"] + float(dx_px),
+        center_y_px=trainset.samples["center_y_px"] + float(dy_px),
+    )
+    return replace(trainset, samples=samples)
+
+
+def downscale_of(trainset: TrainingSet) -> float:
+    """Camera px per model px (the dataset stage's downscale; 1 where the set does not say)."""
+    return float((trainset.meta or {}).get("downscale") or 1)
+
+
+def shift_rows(
+    truth: TrainingSet,
+    splits: pd.DataFrame,
+    settings: TrainSettings,
+    shifts_px: Sequence[float],
+    work: Path,
+    replicate: int = 0,
+) -> list[dict]:
+    """Per shift (camera px; 0 first, then each along x and along y): the validation MSE, on
+    `truth`'s own labels, of a P = 80 model trained on `truth` with its labels shifted."""
+    scale = downscale_of(truth)
+    moves = [(0.0, 0.0)] + [m for s in shifts_px for m in ((float(s), 0.0), (0.0, float(s)))]
+    rows = []
+    for dx, dy in moves:
+        out = work / f"shift_{dx}_{dy}"
+        train(shifted(truth, dx / scale, dy / scale), out, 80, settings, False, replicate)
+        models = [ArmModel("shifted", None, 0, math.nan, 0, (str(out / "model.pt"),))]
+        mse = float(validation_scores(models, truth, splits)["mse"].mean())
+        rows.append({"dx_px": dx, "dy_px": dy, "error_px": math.hypot(dx, dy), "mse": mse})
+    base = rows[0]["mse"]
+    return [{**row, "change": row["mse"] / base - 1} for row in rows]
+
+
+def cost_per_px2(rows: pd.DataFrame) -> float:
+    """c of MSE(e) = MSE(0) (1 + c e^2), least squares through the origin over the shifted rows
+    (change against e^2)."""
+    moved = rows[rows["error_px"] > 0]
+    e2 = moved["error_px"].to_numpy(float) ** 2
+    if e2.size == 0:
+        raise ValueError("no shifted rows to fit the cost to")
+    return float(e2 @ moved["change"].to_numpy(float) / (e2 @ e2))
+
+
+def error_for(change: float, cost: float) -> float:
+    """The registration error (px) that alone costs `change` (0.1: 10 %) at `cost` per px^2."""
+    return math.sqrt(change / cost) if cost > 0 else math.inf
+
+
+def truth_set(results: Path, scene: dict, full: str) -> tuple[TrainingSet, pd.DataFrame]:
+    """The full calibration's presses labelled through the bench's truth, and its splits."""
+    splits = pd.read_csv(results / full / "dataset" / "splits.csv")
+    truth_path = results / full / "collect" / "bench_truth.json"
+    labelled = truth_labelled(
+        truth_path, dataset_settings(scene), results / full / "raw.zarr", splits
+    )
+    if labelled is None:
+        raise SystemExit(
+            f"{truth_path}: no bench truth with a registration (not a simulated unit?)"
+        )
+    return labelled, splits
+
+
+def smoke(work: Path, shifts_px: Sequence[float]) -> list[dict]:
+    """The whole path on one simulated unit's 12 presses (6 validate), tiny trainings."""
+    presses = simulate_units(
+        load_profile("sensor", "digit_fots"),
+        [7100],
+        12,
+        (0.9, 1.1),
+        2.0,
+        factor=2,
+        val_units=0,
+        progress=False,
+    )
+    split = np.where(np.arange(12) % 2 == 0, "train", "val")
+    samples = presses.samples.drop(columns="unit").assign(
+        split=split, min_p=np.where(split == "train", 80, 0)
+    )
+    truth = TrainingSet(
+        presses.frames,
+        presses.unit_blanks[0],
+        samples,
+        presses.px_per_mm,
+        presses.sphere_radius_mm,
+        presses.max_slope_deg,
+        presses.meta,
+    )
+    splits = samples[["point"]].assign(
+        x_mm=samples["center_x_px"] / presses.px_per_mm,
+        y_mm=samples["center_y_px"] / presses.px_per_mm,
+    )
+    fixed = {"rule": "doubling", "holdout": 0.0, "first_cycle": 4, "min_gain": 0.0, "max_steps": 4}
+    settings = TrainSettings.of(
+        preset="context_half",
+        init="pretrained",
+        batch_size=2,
+        stopping=fixed,
+        seed=0,
+        torch_threads=1,
+    )
+    return shift_rows(truth, splits, settings, shifts_px, work)
+
+
+def summary(table: pd.DataFrame) -> list[str]:
+    """Per sensor: c, and the registration error that alone costs 10 %."""
+    lines = []
+    for sensor, part in table.groupby("sensor", sort=False):
+        cost = cost_per_px2(part)
+        units = part["unit"].nunique()
+        lines.append(
+            f"{sensor}: MSE(e) = MSE(0) (1 + {cost:.2f} e^2), e in camera px, over {units} "
+            f"unit(s); a registration off by {error_for(0.1, cost):.3f} px alone costs 10 %"
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> pd.DataFrame:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--results", default="results", type=Path)
+    parser.add_argument("--config", default="config/quick_study.yaml")
+    parser.add_argument("--units", nargs="*", help="full scenes (default: every compared one)")
+    parser.add_argument("--shifts", nargs="*", type=float, default=list(SHIFTS_PX))
+    parser.add_argument("--replicate", type=int, default=0)
+    parser.add_argument("--smoke", action="store_true", help="one simulated unit, tiny trainings")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        if args.smoke:
+            for row in smoke(Path(work), args.shifts[:1]):
+                rows.append({"sensor": "digit_fots", "unit": "smoke", **row})
+        else:
+            config = load_config(args.config)
+            fulls = [compared_with(scene) for scene in config["scenes"].values()]
+            fulls = [f for f in fulls if f and (not args.units or f in args.units)]
+            for full in fulls:
+                scene = scene_config(config, full)
+                truth, splits = truth_set(args.results, scene, full)
+                unit_work = Path(work) / full
+                settings = train_settings(scene)
+                for row in shift_rows(
+                    truth, splits, settings, args.shifts, unit_work, args.replicate
+                ):
+                    rows.append({"sensor": scene["sensor"], "unit": full, **row})
+                    print(json.dumps(rows[-1]), flush=True)
+    table = pd.DataFrame(rows)
+    for line in summary(table):
+        print(line)
+    return table
+
+
+if __name__ == "__main__":
+    main()
