@@ -10,7 +10,8 @@ all scored on the true labels of the validation presses. A registration error e 
     MSE(e) = MSE(0) (1 + c e^2)
 
 and `cost_per_px2` fits c per sensor. The registration that costs a claim of +-X % alone is
-e = sqrt(X / c) in one calibration, the other exact.
+e = sqrt(X / c) in one calibration, the other exact. Where the quick study's units.csv is there,
+each unit's quick and full models are also set against the unshifted model (`against_ideal`).
 
     .venv/bin/python -m diagnostics.registration_cost [--results DIR] [--units digit_u11 ...]
         [--shifts 0.25 0.5] [--replicate N]
@@ -169,6 +170,18 @@ def summary(table: pd.DataFrame) -> list[str]:
     return lines
 
 
+def against_ideal(table: pd.DataFrame, units: pd.DataFrame) -> pd.DataFrame:
+    """Per unit of the quick study's units.csv that `table` measured: its quick and full models'
+    MSE against the truth over the truth-registered (unshifted) model's, the calibration a perfect
+    registration would give."""
+    ideal = table[table["error_px"] == 0].set_index("unit")["mse"].rename("ideal_mse")
+    rows = units.join(ideal, on="full_scene", how="inner")
+    return rows.assign(
+        quick_vs_ideal=rows["truth_quick_mse"] / rows["ideal_mse"] - 1,
+        full_vs_ideal=rows["truth_full_mse"] / rows["ideal_mse"] - 1,
+    )[["full_scene", "ideal_mse", "quick_vs_ideal", "full_vs_ideal"]]
+
+
 def main(argv: list[str] | None = None) -> pd.DataFrame:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--results", default="results", type=Path)
@@ -201,6 +214,9 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     table = pd.DataFrame(rows)
     for line in summary(table):
         print(line)
+    units_csv = args.results / "quick_study" / "units.csv"
+    if not args.smoke and units_csv.is_file():
+        print(against_ideal(table, pd.read_csv(units_csv)).to_string(index=False))
     return table
 
 

@@ -218,3 +218,21 @@ def test_registration_cost_recovers_an_exact_quadratic():
     assert error_for(0.1, 0.0) == math.inf
     with pytest.raises(ValueError, match="no shifted rows"):
         cost_per_px2(rows.iloc[:1])
+
+
+def test_against_ideal_divides_by_the_unshifted_model():
+    from diagnostics.registration_cost import against_ideal
+
+    table = pd.DataFrame(
+        {"unit": ["u1", "u1", "u2"], "error_px": [0.0, 0.25, 0.0], "mse": [2.0, 3.0, 4.0]}
+    )
+    units = pd.DataFrame(
+        {
+            "full_scene": ["u1", "u2", "u3"],
+            "truth_quick_mse": [3.0, 2.0, 1.0],
+            "truth_full_mse": [2.5, 4.0, 1.0],
+        }
+    )
+    out = against_ideal(table, units)
+    assert list(out["full_scene"]) == ["u1", "u2"]  # u3 was not measured
+    assert list(out["quick_vs_ideal"]) == [0.5, -0.5] and list(out["full_vs_ideal"]) == [0.25, 0.0]
