@@ -125,8 +125,10 @@ def unit_change(results: Path, scene: dict, quick: str, full: str, seed: int, wo
     return {"unit": full, **row}
 
 
-def smoke(work: Path) -> dict:
-    """The whole path on one simulated unit's 12 presses (6 validate), tiny trainings."""
+def smoke_unit() -> tuple[TrainingSet, pd.DataFrame, TrainSettings]:
+    """The smoke modes' stand-in for a finished calibration (this one's and registration_cost's):
+    one simulated unit's 12 presses labelled exactly, half validating; their splits table; training
+    settings of a few steps."""
     presses = simulate_units(
         load_profile("sensor", "digit_fots"),
         [7100],
@@ -141,7 +143,7 @@ def smoke(work: Path) -> dict:
     samples = presses.samples.drop(columns="unit").assign(
         split=split, min_p=np.where(split == "train", 80, 0)
     )
-    validation = TrainingSet(
+    unit = TrainingSet(
         presses.frames,
         presses.unit_blanks[0],
         samples,
@@ -163,6 +165,12 @@ def smoke(work: Path) -> dict:
         seed=0,
         torch_threads=1,
     )
+    return unit, splits, settings
+
+
+def smoke(work: Path) -> dict:
+    """The whole path on one simulated unit's 12 presses (6 validate), tiny trainings."""
+    validation, splits, settings = smoke_unit()
     train(validation, work / "full", 80, settings, progress=False)
     row = presses_change(
         validation, splits, [str(work / "full" / "model.pt")], 4, 2, settings, 0, work

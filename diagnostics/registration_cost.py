@@ -32,15 +32,13 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import torch
 
+from diagnostics.quick_presses import smoke_unit
 from threedcal.dataset.trainset import TrainingSet
-from threedcal.dataset.unit_presses import simulate_units
 from threedcal.model.train import train
 from threedcal.model.train_settings import TrainSettings
-from threedcal.profiles import load_profile
 from threedcal.study.config import compared_with, load_config, scene_config
 from threedcal.study.quick_arms import ArmModel, validation_scores
 from threedcal.study.quick_study import truth_labelled
@@ -118,42 +116,7 @@ def truth_set(results: Path, scene: dict, full: str) -> tuple[TrainingSet, pd.Da
 
 def smoke(work: Path, shifts_px: Sequence[float]) -> list[dict]:
     """The whole path on one simulated unit's 12 presses (6 validate), tiny trainings."""
-    presses = simulate_units(
-        load_profile("sensor", "digit_fots"),
-        [7100],
-        12,
-        (0.9, 1.1),
-        2.0,
-        factor=2,
-        val_units=0,
-        progress=False,
-    )
-    split = np.where(np.arange(12) % 2 == 0, "train", "val")
-    samples = presses.samples.drop(columns="unit").assign(
-        split=split, min_p=np.where(split == "train", 80, 0)
-    )
-    truth = TrainingSet(
-        presses.frames,
-        presses.unit_blanks[0],
-        samples,
-        presses.px_per_mm,
-        presses.sphere_radius_mm,
-        presses.max_slope_deg,
-        presses.meta,
-    )
-    splits = samples[["point"]].assign(
-        x_mm=samples["center_x_px"] / presses.px_per_mm,
-        y_mm=samples["center_y_px"] / presses.px_per_mm,
-    )
-    fixed = {"rule": "doubling", "holdout": 0.0, "first_cycle": 4, "min_gain": 0.0, "max_steps": 4}
-    settings = TrainSettings.of(
-        preset="context_half",
-        init="pretrained",
-        batch_size=2,
-        stopping=fixed,
-        seed=0,
-        torch_threads=1,
-    )
+    truth, splits, settings = smoke_unit()
     return shift_rows(truth, splits, settings, shifts_px, work)
 
 
