@@ -136,6 +136,7 @@ def test_pretrained_edges_smoke():
     assert 0 <= figures["within_bound"] <= 1 and figures["gradient_mse"] > 0
 
 
+@pytest.mark.long  # about 10 s on 2 cores: make test keeps its margin under 5 minutes
 def test_quick_presses_smoke():
     from diagnostics import quick_presses
 
@@ -173,6 +174,7 @@ def test_drawn_presses_are_the_full_sets_own_frames_and_labels():
         drawn_presses(full, 5, seed=0)
 
 
+@pytest.mark.long  # about 3 s on 2 cores: make test keeps its margin under 5 minutes
 def test_registration_cost_smoke():
     from diagnostics import registration_cost
 
