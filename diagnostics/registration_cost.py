@@ -9,7 +9,8 @@ all scored on the true labels of the validation presses. A registration error e 
 
     MSE(e) = MSE(0) (1 + c e^2)
 
-and `cost_per_px2` fits c per sensor. The registration that costs a claim of +-X % alone is
+and `cost_per_px2` fits c per unit; `unit_costs` gives each sensor's mean over units with its
+Student's t interval (one training a shift: replicates' spread is not in it). The registration that costs a claim of +-X % alone is
 e = sqrt(X / c) in one calibration, the other exact. Where the quick study's units.csv is there,
 each unit's quick and full models are also set against the unshifted model (`against_ideal`).
 
@@ -35,7 +36,7 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from diagnostics.quick_presses import smoke_unit
+from diagnostics.quick_presses import over_units, smoke_unit
 from threedcal.dataset.trainset import TrainingSet
 from threedcal.model.train import train
 from threedcal.model.train_settings import TrainSettings
@@ -120,17 +121,36 @@ def smoke(work: Path, shifts_px: Sequence[float]) -> list[dict]:
     return shift_rows(truth, splits, settings, shifts_px, work)
 
 
-def summary(table: pd.DataFrame) -> list[str]:
-    """Per sensor: c, and the registration error that alone costs 10 %."""
-    lines = []
+def unit_costs(table: pd.DataFrame) -> pd.DataFrame:
+    """Per sensor: each unit's c, their mean and its Student's t interval over units (NaN with
+    one unit), and the registration error that alone costs 10 % at the mean."""
+    rows = []
     for sensor, part in table.groupby("sensor", sort=False):
-        cost = cost_per_px2(part)
-        units = part["unit"].nunique()
-        lines.append(
-            f"{sensor}: MSE(e) = MSE(0) (1 + {cost:.2f} e^2), e in camera px, over {units} "
-            f"unit(s); a registration off by {error_for(0.1, cost):.3f} px alone costs 10 %"
+        costs = [cost_per_px2(unit) for _, unit in part.groupby("unit", sort=False)]
+        mean, low, high = over_units(costs)
+        rows.append(
+            {
+                "sensor": sensor,
+                "units": len(costs),
+                "unit_costs": costs,
+                "cost": mean,
+                "cost_lo": low,
+                "cost_hi": high,
+                "error_for_10pct_px": error_for(0.1, mean),
+            }
         )
-    return lines
+    return pd.DataFrame(rows)
+
+
+def summary(table: pd.DataFrame) -> list[str]:
+    """Per sensor: c over units with its interval, and the error that alone costs 10 %."""
+    return [
+        f"{r.sensor}: MSE(e) = MSE(0) (1 + c e^2), e in camera px; c = {r.cost:.2f} "
+        f"[{r.cost_lo:.2f}, {r.cost_hi:.2f}] over {r.units} unit(s) (each: "
+        f"{', '.join(f'{c:.2f}' for c in r.unit_costs)}); a registration off by "
+        f"{r.error_for_10pct_px:.3f} px alone costs 10 %"
+        for r in unit_costs(table).itertuples()
+    ]
 
 
 def against_ideal(table: pd.DataFrame, units: pd.DataFrame) -> pd.DataFrame:

@@ -238,3 +238,20 @@ def test_against_ideal_divides_by_the_unshifted_model():
     out = against_ideal(table, units)
     assert list(out["full_scene"]) == ["u1", "u2"]  # u3 was not measured
     assert list(out["quick_vs_ideal"]) == [0.5, -0.5] and list(out["full_vs_ideal"]) == [0.25, 0.0]
+
+
+def test_unit_costs_average_the_units_with_a_t_interval():
+    from diagnostics.registration_cost import unit_costs
+
+    e = np.array([0.0, 0.25, 0.5])
+    rows = [
+        {"sensor": "s", "unit": u, "error_px": x, "change": c * x**2}
+        for u, c in (("a", 2.0), ("b", 4.0))
+        for x in e
+    ]
+    out = unit_costs(pd.DataFrame(rows)).iloc[0]
+    assert out["unit_costs"] == pytest.approx([2.0, 4.0]) and out["cost"] == pytest.approx(3.0)
+    half = 12.706204736 * 1.0  # t(0.975, 1) x sem([2, 4]) = 12.706 x 1
+    assert (out["cost_lo"], out["cost_hi"]) == pytest.approx((3.0 - half, 3.0 + half))
+    one = unit_costs(pd.DataFrame(rows[:3])).iloc[0]
+    assert one["units"] == 1 and math.isnan(one["cost_lo"])
